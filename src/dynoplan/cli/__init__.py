@@ -1,0 +1,1 @@
+"""The ``dynoplan`` command line."""

@@ -1,0 +1,73 @@
+"""``dynoplan``: run the paper's experiments and the library's pipeline from a shell.
+
+User mistakes (bad arguments, unreadable files, unknown names) print one line,
+``dynoplan: error: ...``, and exit with status 2; no traceback.
+"""
+
+import sys
+from pathlib import Path
+
+import typer
+
+from dynoplan.errors import DynoplanError
+
+app = typer.Typer(
+    name="dynoplan",
+    help="DynoPlan: plan over options with learned dynamics, safely.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+
+@app.callback()
+def _root() -> None:
+    """DynoPlan: plan over options with learned dynamics, safely."""
+
+
+@app.command("random-walk")
+def random_walk(
+    out: Path = typer.Option(Path("results/random-walk"), help="Output folder."),
+    episodes: int = typer.Option(1000, help="Episodes per controller and noise level."),
+    noise: float = typer.Option(0.2, help="Misprediction probability of the models."),
+    seed: int = typer.Option(0, help="Seed of every random choice."),
+    horizon: int = typer.Option(20, help="Rollout horizon n (steps)."),
+    samples: int = typer.Option(128, help="Monte-Carlo rollouts per option."),
+    max_decisions: int = typer.Option(50, help="Planning steps before an episode fails."),
+    start_state: int = typer.Option(0, help="Start state of the walk (0..19)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Reproduce the paper's Simulated MDP (Fig. 2b) with baselines and robustness."""
+    from dynoplan.experiments.random_walk import RandomWalkSettings, run_random_walk
+
+    settings = RandomWalkSettings(episodes=episodes, noise=noise, seed=seed, horizon=horizon,
+                                  samples=samples, max_decisions=max_decisions,
+                                  start_state=start_state)
+    summary = run_random_walk(settings, out, progress=not quiet)
+    typer.echo(
+        f"success {summary['success_rate']:.1%}, planning steps median "
+        f"{summary['planning_steps_median']}, p90 {summary['planning_steps_p90']}, "
+        f"{summary['episodes']} episodes in {summary['seconds']:.2f} s -> {out}/summary.json"
+    )
+
+
+def main() -> None:
+    """Console entry point: one line per user error, exit status 2."""
+    try:
+        code = app(standalone_mode=False)
+    except (typer.Abort, KeyboardInterrupt):
+        sys.stderr.write("dynoplan: aborted\n")
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.TyperException as exc:  # usage errors of the vendored click
+        fmt = getattr(exc, "format_message", None)
+        message = fmt() if callable(fmt) else str(exc)
+        if not message:  # "no arguments": the help text has been shown
+            sys.exit(int(getattr(exc, "exit_code", 2)))
+        sys.stderr.write(f"dynoplan: error: {message}\n")
+        sys.exit(int(getattr(exc, "exit_code", 2)))
+    except DynoplanError as exc:
+        sys.stderr.write(f"dynoplan: error: {exc}\n")
+        sys.exit(2)
+    sys.exit(code if isinstance(code, int) else 0)

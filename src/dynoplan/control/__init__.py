@@ -1,0 +1,14 @@
+"""The controller that chooses, runs, monitors and re-chooses options."""
+
+from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice, ScriptedSequence
+from dynoplan.control.controller import Controller, Decision, EpisodeTrace
+
+__all__ = [
+    "Controller",
+    "Decision",
+    "EpisodeTrace",
+    "FixedChoice",
+    "OptionChooser",
+    "RandomChoice",
+    "ScriptedSequence",
+]

@@ -1,0 +1,91 @@
+"""Policies over options: the planner (Eq. 1) and the baselines it is compared with.
+
+An ``OptionChooser`` returns a :class:`~dynoplan.planning.Plan` for a state. The
+baselines fill only ``admissible`` and ``chosen``; their scores are NaN.
+"""
+
+from collections.abc import Sequence
+from typing import Protocol
+
+import numpy as np
+
+from dynoplan.errors import DynoplanError
+from dynoplan.options.option import Option
+from dynoplan.planning.option_planner import Plan
+from dynoplan.types import BoolArray, FloatArray, Generator
+
+
+class OptionChooser(Protocol):
+    """``choose(state (state_dim,), rng) -> Plan``; ``option_names`` fixes the order."""
+
+    @property
+    def option_names(self) -> tuple[str, ...]: ...
+
+    def choose(self, state: FloatArray, rng: Generator) -> Plan: ...
+
+
+class _Baseline:
+    def __init__(self, options: Sequence[Option]) -> None:
+        self.options = list(options)
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        return tuple(o.name for o in self.options)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.option_names.index(name)
+        except ValueError:
+            known = ", ".join(self.option_names)
+            raise DynoplanError(f"unknown option '{name}' (known: {known})") from None
+
+    def _plan(self, state: FloatArray, admissible: BoolArray, chosen: int | None) -> Plan:
+        n, d = len(self.options), np.asarray(state).reshape(-1).shape[0]
+        return Plan(self.option_names, admissible, np.full(n, np.nan), np.full(n, np.nan),
+                    np.full((n, 0, d), np.nan), np.zeros((n, 0), dtype=np.int64), chosen)
+
+    def _admissible(self, state: FloatArray) -> BoolArray:
+        return np.array([o.can_start(state) for o in self.options])
+
+
+class FixedChoice(_Baseline):
+    """Always the same option ("each option run alone"), wherever the state is."""
+
+    def __init__(self, options: Sequence[Option], name: str) -> None:
+        super().__init__(options)
+        self.chosen = self.index(name)
+
+    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+        return self._plan(state, self._admissible(state), self.chosen)
+
+
+class RandomChoice(_Baseline):
+    """A uniformly random option among the admissible ones."""
+
+    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+        admissible = self._admissible(state)
+        idx = np.flatnonzero(admissible)
+        chosen = int(rng.choice(idx)) if idx.size else None
+        return self._plan(state, admissible, chosen)
+
+
+class ScriptedSequence(_Baseline):
+    """A fixed script: the named options in order, ignoring regions; repeats the last.
+
+    The step in the script advances each time ``choose`` is called; ``reset`` restarts.
+    """
+
+    def __init__(self, options: Sequence[Option], sequence: Sequence[str]) -> None:
+        super().__init__(options)
+        if not sequence:
+            raise DynoplanError("a scripted sequence needs at least one option")
+        self.sequence = [self.index(name) for name in sequence]
+        self._step = 0
+
+    def reset(self) -> None:
+        self._step = 0
+
+    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+        chosen = self.sequence[min(self._step, len(self.sequence) - 1)]
+        self._step += 1
+        return self._plan(state, self._admissible(state), chosen)

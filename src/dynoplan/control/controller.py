@@ -1,0 +1,220 @@
+"""The controller: plan, run the chosen option, monitor it, plan again.
+
+One episode:
+
+1. map the observation to the planner state (``state_fn``);
+2. ask the chooser for a plan (Eq. 1 for :class:`~dynoplan.planning.OptionPlanner`);
+3. if no option is admissible, hold still with ``hold_action`` (counted), or end the
+   episode when there is no safe hold action;
+4. run the chosen option step by step until its termination fires, it leaves its
+   initiation set, the state becomes non-finite, ``replan_every`` steps pass, or
+   ``max_option_steps`` is reached;
+5. repeat until the environment terminates or truncates, or ``max_decisions`` is hit.
+
+After an interruption by ``replan_every`` the running option is kept unless another
+option's score beats it by more than ``margin`` (keeps the choice from flapping).
+"""
+
+import itertools
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan.control.choosers import OptionChooser
+from dynoplan.errors import DynoplanError
+from dynoplan.options.option import Option
+from dynoplan.planning.option_planner import Plan
+from dynoplan.types import FloatArray, Generator
+
+
+def default_state(observation: Any) -> FloatArray:
+    """The observation itself as a flat float64 vector (works for Box and Discrete)."""
+    return np.asarray(observation, dtype=np.float64).reshape(-1)
+
+
+def default_success(terminated: bool, info: dict[str, Any]) -> bool:
+    """``info["is_success"]`` (or ``info["success"]``) if given, else ``terminated``."""
+    for key in ("is_success", "success"):
+        if key in info:
+            return bool(info[key])
+    return bool(terminated)
+
+
+@dataclass
+class Decision:
+    """One planning step and what running its choice did.
+
+    ``stop_reason`` is one of ``terminated`` (beta fired or the policy finished),
+    ``left_region``, ``invalid_state``, ``replan``, ``step_cap``, ``episode_end``,
+    ``hold`` (no admissible option).
+    """
+
+    index: int
+    env_step: int
+    state: FloatArray
+    plan: Plan
+    option: str | None
+    steps: int
+    stop_reason: str
+    state_after: FloatArray
+    latency_s: float
+    outside_region: bool = False
+
+
+@dataclass
+class EpisodeTrace:
+    """Everything that happened in one episode (for metrics, figures and debugging)."""
+
+    decisions: list[Decision] = field(default_factory=list)
+    success: bool = False
+    env_steps: int = 0
+    total_reward: float = 0.0
+    no_admissible: int = 0
+    infos: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def planning_steps(self) -> int:
+        return sum(1 for d in self.decisions if d.option is not None)
+
+    @property
+    def switches(self) -> int:
+        chosen = [d.option for d in self.decisions if d.option is not None]
+        return sum(1 for a, b in itertools.pairwise(chosen) if a != b)
+
+    @property
+    def out_of_region_starts(self) -> int:
+        return sum(1 for d in self.decisions if d.outside_region)
+
+    @property
+    def latencies_s(self) -> list[float]:
+        return [d.latency_s for d in self.decisions]
+
+
+class Controller:
+    """Runs options chosen by an ``OptionChooser`` in a Gymnasium environment.
+
+    Args:
+        options: the options, in the chooser's order (names must match).
+        chooser: the planner or a baseline.
+        state_fn: observation -> planner state ``(state_dim,)``.
+        max_decisions: planning steps per episode before giving up.
+        max_option_steps: environment steps one option may run before the controller
+            plans again.
+        replan_every: plan again after this many steps even if the option runs on
+            (``None``: only when it stops).
+        margin: score advantage another option needs to replace a running one.
+        hold_action: a safe action to take when no option is admissible (``None``: end
+            the episode instead).
+        success_fn: ``(terminated, info) -> bool``.
+        record_infos: keep every step's ``info`` in the trace.
+    """
+
+    def __init__(
+        self,
+        options: Sequence[Option],
+        chooser: OptionChooser,
+        state_fn: Callable[[Any], FloatArray] = default_state,
+        max_decisions: int = 50,
+        max_option_steps: int = 1000,
+        replan_every: int | None = None,
+        margin: float = 0.0,
+        hold_action: Any = None,
+        success_fn: Callable[[bool, dict[str, Any]], bool] = default_success,
+        record_infos: bool = False,
+    ) -> None:
+        self.options = list(options)
+        if tuple(o.name for o in self.options) != tuple(chooser.option_names):
+            raise DynoplanError("the controller's options and the chooser's must be the same")
+        if max_decisions < 1 or max_option_steps < 1:
+            raise DynoplanError("max_decisions and max_option_steps must be >= 1")
+        self.chooser = chooser
+        self.state_fn = state_fn
+        self.max_decisions = max_decisions
+        self.max_option_steps = max_option_steps
+        self.replan_every = replan_every
+        self.margin = margin
+        self.hold_action = hold_action
+        self.success_fn = success_fn
+        self.record_infos = record_infos
+
+    def run(self, env: gym.Env[Any, Any], rng: Generator, seed: int | None = None,
+            reset_options: dict[str, Any] | None = None) -> EpisodeTrace:
+        """Run one episode; ``seed`` seeds ``env.reset``, ``rng`` every other choice."""
+        reset = getattr(self.chooser, "reset", None)
+        if callable(reset):
+            reset()
+        obs, info = env.reset(seed=seed, options=reset_options)
+        trace = EpisodeTrace()
+        state = self.state_fn(obs)
+        terminated = truncated = False
+        running: int | None = None  # an option interrupted by ``replan_every``
+        for k in range(self.max_decisions):
+            t0 = time.perf_counter()
+            plan = self.chooser.choose(state, rng)
+            latency = time.perf_counter() - t0
+            chosen = self._keep_running(plan, running)
+            if chosen is None:
+                trace.no_admissible += 1
+                if self.hold_action is None:
+                    trace.decisions.append(Decision(k, trace.env_steps, state, plan, None, 0,
+                                                    "hold", state, latency))
+                    break
+                obs, reward, terminated, truncated, info = env.step(self.hold_action)
+                self._count(trace, reward, info)
+                trace.decisions.append(Decision(k, trace.env_steps, state, plan, None, 1,
+                                                "hold", self.state_fn(obs), latency))
+                state = self.state_fn(obs)
+                if terminated or truncated:
+                    break
+                continue
+            option = self.options[chosen]
+            outside = not option.can_start(state)
+            if chosen != running:
+                option.start(obs, rng)
+            start_step, start_state = trace.env_steps, state
+            reason, steps = "step_cap", 0
+            for steps in range(1, self.max_option_steps + 1):
+                obs, reward, terminated, truncated, info = env.step(option.act(obs))
+                self._count(trace, reward, info)
+                state = self.state_fn(obs)
+                if terminated or truncated:
+                    reason = "episode_end"
+                    break
+                if not np.isfinite(state).all():
+                    reason = "invalid_state"
+                    break
+                if not option.can_start(state):
+                    reason = "left_region"
+                    break
+                if option.should_stop(state, rng):
+                    reason = "terminated"
+                    break
+                if self.replan_every is not None and steps >= self.replan_every:
+                    reason = "replan"
+                    break
+            running = chosen if reason == "replan" else None
+            trace.decisions.append(Decision(k, start_step, start_state, plan, option.name,
+                                            steps, reason, state, latency, outside))
+            if terminated or truncated:
+                break
+        trace.success = self.success_fn(terminated, info)
+        return trace
+
+    def _keep_running(self, plan: Plan, running: int | None) -> int | None:
+        """The margin rule: keep an interrupted option unless beaten by ``margin``."""
+        if running is None or plan.chosen is None or not plan.admissible[running]:
+            return plan.chosen
+        best, current = plan.scores[plan.chosen], plan.scores[running]
+        if np.isfinite(current) and best - current <= self.margin:
+            return running
+        return plan.chosen
+
+    def _count(self, trace: EpisodeTrace, reward: SupportsFloat, info: dict[str, Any]) -> None:
+        trace.env_steps += 1
+        trace.total_reward += float(reward)
+        if self.record_infos:
+            trace.infos.append(dict(info))

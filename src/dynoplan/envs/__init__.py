@@ -1,0 +1,28 @@
+"""Gymnasium environments of the project, registered on import.
+
+- ``dynoplan/RandomWalk19-v0``: the 19-state random walk (paper, Simulated MDP).
+- ``dynoplan/GearAssembly-v0``: the two-arm gear assembly in MuJoCo (paper, PR2 task).
+"""
+
+import gymnasium as gym
+
+RANDOM_WALK_ID = "dynoplan/RandomWalk19-v0"
+GEAR_ASSEMBLY_ID = "dynoplan/GearAssembly-v0"
+
+
+def register_envs() -> None:
+    """Register the project's environments (idempotent)."""
+    if RANDOM_WALK_ID not in gym.registry:
+        gym.register(
+            id=RANDOM_WALK_ID,
+            entry_point="dynoplan.envs.random_walk.env:RandomWalkEnv",
+            max_episode_steps=1000,
+        )
+    if GEAR_ASSEMBLY_ID not in gym.registry:
+        gym.register(
+            id=GEAR_ASSEMBLY_ID,
+            entry_point="dynoplan.envs.gear.env:GearAssemblyEnv",
+        )
+
+
+register_envs()

@@ -1,0 +1,139 @@
+"""The paper's Simulated MDP experiment: DynoPlan on the 19-state random walk.
+
+Writes into one folder:
+
+- ``summary.json``: DynoPlan's success rate and planning-step distribution at the
+  chosen noise, the same for each option run alone and for a random option choice, and
+  one robustness row per misprediction probability;
+- ``figure_mdp_solution.png``: the paper's Figure 2(b) for the first episode;
+- ``robustness.png`` and ``robustness.csv``: success and planning steps against noise.
+"""
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from dynoplan import __version__
+from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
+from dynoplan.control.controller import Controller
+from dynoplan.envs import RANDOM_WALK_ID
+from dynoplan.envs.random_walk.models import NoisyWalkGoal
+from dynoplan.envs.random_walk.options import make_random_walk_options
+from dynoplan.errors import DynoplanError
+from dynoplan.experiments.episodes import episode_seeds, planning_steps_summary, run_episodes
+from dynoplan.io import ensure_writable_dir, write_csv, write_json
+from dynoplan.planning.option_planner import OptionPlanner
+from dynoplan.reports.random_walk_figures import plot_mdp_solution, plot_robustness
+
+ROBUSTNESS_NOISES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+
+
+@dataclass(frozen=True)
+class RandomWalkSettings:
+    """Everything that defines a random-walk run (recorded in ``summary.json``)."""
+
+    episodes: int = 1000
+    noise: float = 0.2
+    seed: int = 0
+    horizon: int = 20
+    samples: int = 128
+    max_decisions: int = 50
+    start_state: int = 0
+    goal_state: int = 20
+    robustness_noises: tuple[float, ...] = field(default=ROBUSTNESS_NOISES)
+
+    def validate(self) -> None:
+        if self.episodes < 1:
+            raise DynoplanError(f"--episodes must be >= 1, got {self.episodes}")
+        for name, p in [("--noise", self.noise), *[("robustness noise", q)
+                                                   for q in self.robustness_noises]]:
+            if not 0.0 <= p <= 1.0:
+                raise DynoplanError(f"{name} must be a probability in [0, 1], got {p}")
+        if self.horizon < 1 or self.samples < 1 or self.max_decisions < 1:
+            raise DynoplanError("--horizon, --samples and --max-decisions must be >= 1")
+        if not 0 <= self.start_state < self.goal_state:
+            raise DynoplanError(
+                f"--start-state must be in [0, {self.goal_state - 1}], got {self.start_state}")
+
+
+def make_chooser(kind: str, noise: float, settings: RandomWalkSettings) -> tuple[
+        Controller, OptionChooser]:
+    """``dynoplan`` (the planner), ``random``, or ``option:<name>`` (that option alone)."""
+    options = make_random_walk_options(noise, settings.goal_state)
+    chooser: OptionChooser
+    if kind == "dynoplan":
+        chooser = OptionPlanner(options, NoisyWalkGoal(noise, settings.goal_state),
+                                horizon=settings.horizon, samples=settings.samples)
+    elif kind == "random":
+        chooser = RandomChoice(options)
+    elif kind.startswith("option:"):
+        chooser = FixedChoice(options, kind.removeprefix("option:"))
+    else:
+        raise DynoplanError(f"unknown controller '{kind}'")
+    return Controller(options, chooser, max_decisions=settings.max_decisions), chooser
+
+
+def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = True) -> dict[
+        str, Any]:
+    """Run the experiment, write every output into ``out`` and return the summary."""
+    settings.validate()
+    out = ensure_writable_dir(out)
+    env = gym.make(RANDOM_WALK_ID, goal_state=settings.goal_state,
+                   start_state=settings.start_state)
+    seeds = episode_seeds(settings.seed, settings.episodes)
+
+    def evaluate(kind: str, noise: float) -> tuple[dict[str, Any], list[Any]]:
+        controller, _ = make_chooser(kind, noise, settings)
+        t0 = time.perf_counter()
+        traces = run_episodes(env, controller, seeds, f"{kind} (noise {noise:g})", progress)
+        summary = planning_steps_summary(traces)
+        summary["seconds"] = time.perf_counter() - t0
+        return summary, traces
+
+    main, traces = evaluate("dynoplan", settings.noise)
+    baselines = {}
+    for spec_name in make_chooser("random", settings.noise, settings)[1].option_names:
+        baselines[f"option:{spec_name}"] = evaluate(f"option:{spec_name}", settings.noise)[0]
+    baselines["random"] = evaluate("random", settings.noise)[0]
+    robustness = []
+    for noise in settings.robustness_noises:
+        row = main if noise == settings.noise else evaluate("dynoplan", noise)[0]
+        robustness.append({"noise": noise, **{k: v for k, v in row.items()}})
+
+    plot_mdp_solution(traces[0], out / "figure_mdp_solution.png", settings.goal_state,
+                      title=f"DynoPlan on the random walk (noise {settings.noise:g}, "
+                            f"episode 0 of seed {settings.seed})")
+    plot_robustness(robustness, out / "robustness.png")
+    write_csv(out / "robustness.csv", robustness)
+    summary = {
+        "experiment": "random_walk",
+        "dynoplan_version": __version__,
+        "settings": {**asdict(settings), "robustness_noises": list(settings.robustness_noises)},
+        **main,
+        "noise": settings.noise,
+        "baselines": baselines,
+        "robustness": robustness,
+        "figure_episode": _trace_rows(traces[0]),
+    }
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def _trace_rows(trace: Any) -> list[dict[str, Any]]:
+    """Per planning step: state, every option's mean predicted end state, choice, outcome."""
+    rows = []
+    for d in trace.decisions:
+        rows.append({
+            "planning_step": d.index,
+            "state": float(d.state[0]),
+            "predicted_end_state_mean": {
+                name: float(d.plan.end_states[o, :, 0].mean())
+                for o, name in enumerate(d.plan.option_names)},
+            "scores": dict(zip(d.plan.option_names, map(float, d.plan.scores), strict=True)),
+            "chosen": d.option,
+            "state_after": float(d.state_after[0]),
+        })
+    return rows

@@ -1,0 +1,64 @@
+"""Forward dynamics of an option's closed loop: ``s_{t+1} ~ D_w(s_t)``.
+
+A dynamics model predicts the next planner state when the environment runs under the
+option's policy (the action is implied by the option, so it is not an input). It is
+stochastic: each call draws one sample per row, using the generator it is given and no
+other source of randomness.
+"""
+
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from dynoplan.stacking import stack
+from dynoplan.types import FloatArray, Generator
+
+
+@runtime_checkable
+class DynamicsModel(Protocol):
+    """One option's stochastic forward model.
+
+    Contract:
+        ``sample(states, rng)`` takes ``states`` of shape ``(batch, state_dim)`` (float64)
+        and returns next states of the same shape, one independent draw per row, drawn
+        from ``rng`` only. Rows may be non-finite if the model diverges; the planner
+        detects and stops such samples.
+    """
+
+    @property
+    def state_dim(self) -> int: ...
+
+    def sample(self, states: FloatArray, rng: Generator) -> FloatArray: ...
+
+
+class StackedDynamics(Protocol):
+    """Dynamics of several options evaluated in one call.
+
+    ``sample(states, rng)`` maps ``(options, samples, state_dim)`` to the same shape;
+    slice ``o`` follows option ``o``'s model.
+    """
+
+    def sample(self, states: FloatArray, rng: Generator) -> FloatArray: ...
+
+
+class LoopStackedDynamics:
+    """Fallback stack: one batched call per option (batched over samples)."""
+
+    def __init__(self, models: Sequence[DynamicsModel]) -> None:
+        self.models = list(models)
+
+    def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
+        out = np.empty_like(states)
+        for o, model in enumerate(self.models):
+            out[o] = model.sample(states[o], rng)
+        return out
+
+
+def stack_dynamics(models: Sequence[DynamicsModel]) -> StackedDynamics:
+    """One object that advances ``(options, samples, state_dim)`` by a step.
+
+    Uses the models' own ``stack`` classmethod when they share a class that has one
+    (for example neural ensembles batched as one tensor program), else a loop over options.
+    """
+    return stack(models, LoopStackedDynamics)

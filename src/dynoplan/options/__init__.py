@@ -1,0 +1,26 @@
+"""Options ``o_w = (pi_w, I_w, beta_w, D_w)`` and their parts."""
+
+from dynoplan.options.initiation import Everywhere, Initiation, InitiationFromCallable, InRegion
+from dynoplan.options.option import FunctionPolicy, Option, OptionPolicy
+from dynoplan.options.termination import (
+    ConstantTermination,
+    StackedTermination,
+    Termination,
+    TerminationFromCallable,
+    stack_terminations,
+)
+
+__all__ = [
+    "ConstantTermination",
+    "Everywhere",
+    "FunctionPolicy",
+    "InRegion",
+    "Initiation",
+    "InitiationFromCallable",
+    "Option",
+    "OptionPolicy",
+    "StackedTermination",
+    "Termination",
+    "TerminationFromCallable",
+    "stack_terminations",
+]

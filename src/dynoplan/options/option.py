@@ -1,0 +1,86 @@
+"""The option ``o_w = (pi_w, I_w, beta_w, D_w)`` and the lifecycle a controller drives.
+
+Lifecycle (like a behaviour tree's ``initialise / update / terminate``):
+
+1. ``can_start(state)`` -- the controller only starts an option inside ``I_w``.
+2. ``start(observation, rng)`` -- once, when the option is chosen (a motion-planned
+   option plans here; a neural one may reset a recurrent state).
+3. ``act(observation) -> action`` -- once per environment step; must not block for long.
+4. ``should_stop(state, rng) -> bool`` -- after each step: draws ``beta_w(state)``, and
+   also stops when the policy says its own work is finished.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.options.initiation import Everywhere, Initiation
+from dynoplan.options.termination import Termination
+from dynoplan.types import Generator
+
+
+class OptionPolicy:
+    """Base class of an option's policy ``pi_w``: override ``act`` (and maybe ``reset``)."""
+
+    def reset(self, observation: Any, rng: Generator) -> None:
+        """Called by ``Option.start``; plan or clear internal state here."""
+
+    def act(self, observation: Any) -> Any:
+        raise NotImplementedError
+
+    def finished(self) -> bool:
+        """True when the policy has nothing left to do (for example a plan ran out)."""
+        return False
+
+
+class FunctionPolicy(OptionPolicy):
+    """A policy from a plain callable ``fn(observation, rng) -> action``."""
+
+    def __init__(self, fn: Callable[[Any, Generator], Any]) -> None:
+        self.fn = fn
+        self._rng: Generator = np.random.default_rng(0)
+
+    def reset(self, observation: Any, rng: Generator) -> None:
+        self._rng = rng
+
+    def act(self, observation: Any) -> Any:
+        return self.fn(observation, self._rng)
+
+
+@dataclass
+class Option:
+    """An option with a forward dynamics model (the paper's extension of options).
+
+    Attributes:
+        name: unique, used in traces, reports and on the command line.
+        policy: ``pi_w``, acts on raw environment observations.
+        dynamics: ``D_w``, predicts the next planner state under ``pi_w``.
+        termination: ``beta_w`` on planner states.
+        initiation: ``I_w`` on planner states (default: everywhere).
+    """
+
+    name: str
+    policy: OptionPolicy
+    dynamics: DynamicsModel
+    termination: Termination
+    initiation: Initiation = field(default_factory=Everywhere)
+
+    def can_start(self, state: np.ndarray) -> bool:
+        """Whether ``state`` (shape ``(state_dim,)``) lies in ``I_w``."""
+        return bool(self.initiation.contains(np.asarray(state, dtype=np.float64)[None])[0])
+
+    def start(self, observation: Any, rng: Generator) -> None:
+        self.policy.reset(observation, rng)
+
+    def act(self, observation: Any) -> Any:
+        return self.policy.act(observation)
+
+    def should_stop(self, state: np.ndarray, rng: Generator) -> bool:
+        """Draw termination after a step: ``beta_w(state)``, or the policy is finished."""
+        if self.policy.finished():
+            return True
+        beta = float(self.termination.probability(np.asarray(state, dtype=np.float64)[None])[0])
+        return bool(rng.random() < beta)

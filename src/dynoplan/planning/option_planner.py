@@ -1,0 +1,179 @@
+"""The policy over options as n-step model-predictive control (the paper's Eq. 1).
+
+    pi_Omega(s_t) = argmax_w E[ 1_{I_w}(s_t) * G(D_w^n(s_t)) ]
+
+For every option admissible at ``s_t`` the planner draws ``samples`` rollouts of the
+option's dynamics model, each running until the option's termination ``beta_w`` fires
+(drawn per step, as in the real run), the rollout leaves the option's initiation set, or
+``horizon`` steps pass. The goal heuristic scores each end state; an option's score is
+the mean over its rollouts minus ``risk`` times their standard deviation (``risk=0`` is
+the paper's expectation).
+
+All admissible options x samples advance together, one stacked array computation per
+horizon step; the only Python loop is over the horizon.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynoplan.errors import DynoplanError
+from dynoplan.models.dynamics import StackedDynamics, stack_dynamics
+from dynoplan.models.goal import GoalHeuristic
+from dynoplan.options.initiation import Everywhere
+from dynoplan.options.option import Option
+from dynoplan.options.termination import StackedTermination, stack_terminations
+from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
+
+
+@dataclass(frozen=True)
+class Rollouts:
+    """Imagined futures of a set of options from one state.
+
+    Attributes:
+        end_states: ``(options, samples, state_dim)``, state where each rollout stopped.
+        steps: ``(options, samples)``, steps taken before stopping.
+        valid: ``(options, samples)``, False where the model produced a non-finite state
+            (the rollout is stopped at its last finite state and scored 0).
+    """
+
+    end_states: FloatArray
+    steps: IntArray
+    valid: BoolArray
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One decision of the planner, with everything a figure or trace needs.
+
+    Arrays are over all options (in the order given to the planner); entries of
+    options that were not admissible are NaN (scores, spreads, end states) or 0 (steps).
+
+    Attributes:
+        option_names: ``(options,)``.
+        admissible: ``(options,)``, ``1_{I_w}(s_t)``.
+        scores: ``(options,)``, ``E[G] - risk * std[G]`` over rollouts.
+        spreads: ``(options,)``, ``std[G]`` over rollouts.
+        end_states: ``(options, samples, state_dim)``.
+        steps: ``(options, samples)``.
+        chosen: index of the argmax, or ``None`` when no option is admissible.
+    """
+
+    option_names: tuple[str, ...]
+    admissible: BoolArray
+    scores: FloatArray
+    spreads: FloatArray
+    end_states: FloatArray
+    steps: IntArray
+    chosen: int | None
+
+    @property
+    def chosen_name(self) -> str | None:
+        return None if self.chosen is None else self.option_names[self.chosen]
+
+
+class OptionPlanner:
+    """Chooses the option whose imagined future the goal heuristic likes best (Eq. 1).
+
+    Args:
+        options: the candidate options; their dynamics and terminations must accept
+            states of the same dimension.
+        goal: the goal heuristic ``G``.
+        horizon: ``n``, the most steps a rollout may take.
+        samples: ``S``, Monte-Carlo rollouts per option.
+        risk: ``k`` in ``mean - k * std``; 0 reproduces the paper.
+        respect_regions: stop a rollout when it leaves the option's initiation set (the
+            controller would stop the real option there too).
+    """
+
+    def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
+                 samples: int = 64, risk: float = 0.0, respect_regions: bool = True) -> None:
+        if not options:
+            raise DynoplanError("the planner needs at least one option")
+        names = [o.name for o in options]
+        if len(set(names)) != len(names):
+            raise DynoplanError(f"option names must be unique, got {names}")
+        if horizon < 1 or samples < 1:
+            raise DynoplanError(f"horizon and samples must be >= 1, got {horizon}, {samples}")
+        self.options = list(options)
+        self.goal = goal
+        self.horizon = int(horizon)
+        self.samples = int(samples)
+        self.risk = float(risk)
+        self.respect_regions = respect_regions
+        self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        return tuple(o.name for o in self.options)
+
+    def admissible(self, state: FloatArray) -> BoolArray:
+        """``1_{I_w}(s)`` for every option, shape ``(options,)``."""
+        s = np.asarray(state, dtype=np.float64)[None]
+        return np.array([bool(o.initiation.contains(s)[0]) for o in self.options])
+
+    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+        """Alias of :meth:`plan`, so the planner is an ``OptionChooser``."""
+        return self.plan(state, rng)
+
+    def plan(self, state: FloatArray, rng: Generator) -> Plan:
+        """Score every admissible option from ``state`` (shape ``(state_dim,)``)."""
+        s = np.asarray(state, dtype=np.float64).reshape(-1)
+        n_opt, d = len(self.options), s.shape[0]
+        admissible = self.admissible(s)
+        scores = np.full(n_opt, np.nan)
+        spreads = np.full(n_opt, np.nan)
+        end_states = np.full((n_opt, self.samples, d), np.nan)
+        steps = np.zeros((n_opt, self.samples), dtype=np.int64)
+        idx = tuple(int(i) for i in np.flatnonzero(admissible))
+        chosen: int | None = None
+        if idx:
+            roll = self.rollout(idx, s, rng)
+            g = self.goal.sample(roll.end_states.reshape(-1, d), rng).reshape(len(idx), -1)
+            g = np.where(roll.valid, g, 0.0)
+            mean, std = g.mean(axis=1), g.std(axis=1)
+            scores[list(idx)] = mean - self.risk * std
+            spreads[list(idx)] = std
+            end_states[list(idx)] = roll.end_states
+            steps[list(idx)] = roll.steps
+            chosen = idx[int(np.argmax(scores[list(idx)]))]
+        return Plan(self.option_names, admissible, scores, spreads, end_states, steps, chosen)
+
+    def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator) -> Rollouts:
+        """Roll the given options forward from ``state``: one batched step per horizon step.
+
+        Returns arrays over ``(len(option_indices), samples, ...)``.
+        """
+        idx = tuple(option_indices)
+        dynamics, termination = self._stack(idx)
+        x = np.broadcast_to(state, (len(idx), self.samples, state.shape[-1])).copy()
+        alive = np.ones(x.shape[:2], dtype=bool)
+        valid = np.ones_like(alive)
+        steps = np.zeros(x.shape[:2], dtype=np.int64)
+        regions = [(j, self.options[i].initiation) for j, i in enumerate(idx)
+                   if self.respect_regions and not isinstance(self.options[i].initiation,
+                                                               Everywhere)]
+        stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
+        for t in range(self.horizon):
+            if not alive.any():
+                break
+            nxt = dynamics.sample(x, rng)
+            moved = alive
+            if not np.isfinite(nxt).all():  # rare: stop diverged rollouts where they are
+                finite = np.isfinite(nxt).all(axis=-1)
+                valid &= finite | ~alive
+                moved = alive & finite
+            np.copyto(x, nxt, where=moved[..., None])
+            steps += moved
+            alive = moved & (stop_draws[t] >= termination.probability(x))
+            for j, initiation in regions:
+                alive[j] &= initiation.contains(x[j])
+        return Rollouts(x, steps, valid)
+
+    def _stack(self, idx: tuple[int, ...]) -> tuple[StackedDynamics, StackedTermination]:
+        if idx not in self._stacks:
+            chosen = [self.options[i] for i in idx]
+            self._stacks[idx] = (stack_dynamics([o.dynamics for o in chosen]),
+                                 stack_terminations([o.termination for o in chosen]))
+        return self._stacks[idx]

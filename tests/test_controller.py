@@ -1,0 +1,120 @@
+"""Controller: runs chosen options, stops them at region exits, holds still, margin rule."""
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from dynoplan.control import Controller, FixedChoice
+from dynoplan.options import ConstantTermination, FunctionPolicy, InitiationFromCallable, Option
+from dynoplan.planning import Plan
+
+
+class Line(gym.Env):
+    """x on a line; the action is added to x; success at x >= 10."""
+
+    def __init__(self):
+        self.observation_space = spaces.Box(-100, 100, (1,), np.float64)
+        self.action_space = spaces.Box(-5, 5, (1,), np.float64)
+        self.x = 0.0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = 0.0
+        return np.array([self.x]), {}
+
+    def step(self, action):
+        self.x += float(np.asarray(action).reshape(-1)[0])
+        done = self.x >= 10
+        return np.array([self.x]), float(done), done, False, {"is_success": done}
+
+
+class _Identity:
+    state_dim = 1
+
+    def sample(self, states, rng):
+        return states
+
+
+def _option(name, step, beta=0.0, initiation=None):
+    kwargs = {} if initiation is None else {"initiation": initiation}
+    return Option(name, FunctionPolicy(lambda o, r, s=step: np.array([s])), _Identity(),
+                  ConstantTermination(beta), **kwargs)
+
+
+class ScriptedScores:
+    """A chooser returning given scores per call (to exercise the margin rule)."""
+
+    def __init__(self, names, scores_per_call):
+        self._names = tuple(names)
+        self.calls = list(scores_per_call)
+
+    @property
+    def option_names(self):
+        return self._names
+
+    def choose(self, state, rng):
+        scores = np.array(self.calls.pop(0), dtype=float)
+        n = len(scores)
+        return Plan(self._names, np.ones(n, bool), scores, np.zeros(n), np.zeros((n, 0, 1)),
+                    np.zeros((n, 0), np.int64), int(np.argmax(scores)))
+
+
+def test_runs_until_success_and_records_the_trace():
+    options = [_option("up", 1.0, beta=0.25)]
+    trace = Controller(options, FixedChoice(options, "up"), max_decisions=100).run(
+        Line(), np.random.default_rng(0), seed=0)
+    assert trace.success
+    assert trace.env_steps == 10
+    assert trace.decisions[-1].stop_reason == "episode_end"
+    assert trace.planning_steps == len(trace.decisions)
+
+
+def test_an_option_leaving_its_region_is_stopped_and_counted_when_started_outside():
+    below_3 = InitiationFromCallable(lambda s: s[:, 0] < 3)
+    options = [_option("bounded", 1.0, initiation=below_3)]
+    controller = Controller(options, FixedChoice(options, "bounded"), max_decisions=2)
+    trace = controller.run(Line(), np.random.default_rng(0), seed=0)
+    assert trace.decisions[0].stop_reason == "left_region"
+    assert trace.decisions[0].state_after[0] == 3.0
+    assert trace.decisions[1].outside_region  # the fixed baseline ignores regions
+    assert trace.out_of_region_starts == 1
+
+
+def test_without_an_admissible_option_the_robot_holds_still():
+    nowhere = InitiationFromCallable(lambda s: np.zeros(len(s), bool))
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.planning import OptionPlanner
+
+    options = [_option("never", 1.0, initiation=nowhere)]
+    planner = OptionPlanner(options, NoisyWalkGoal(0.0))
+    trace = Controller(options, planner, max_decisions=4, hold_action=np.array([0.0])).run(
+        Line(), np.random.default_rng(0), seed=0)
+    assert trace.no_admissible == 4
+    assert trace.env_steps == 4
+    assert all(d.stop_reason == "hold" for d in trace.decisions)
+    assert not trace.success
+    ended = Controller(options, planner, max_decisions=4).run(Line(), np.random.default_rng(0))
+    assert ended.no_admissible == 1 and ended.env_steps == 0
+
+
+def test_margin_keeps_a_running_option_unless_clearly_beaten():
+    options = [_option("a", 0.5), _option("b", 0.5)]
+
+    def run(margin, calls):
+        chooser = ScriptedScores(["a", "b"], calls)
+        controller = Controller(options, chooser, max_decisions=len(calls), replan_every=1,
+                                margin=margin)
+        return [d.option for d in controller.run(Line(), np.random.default_rng(0)).decisions]
+
+    calls = [[0.5, 0.1], [0.50, 0.55], [0.5, 0.7]]
+    assert run(0.1, [list(c) for c in calls]) == ["a", "a", "b"]
+    assert run(0.0, [list(c) for c in calls]) == ["a", "b", "b"]
+
+
+def test_switch_count():
+    options = [_option("a", 0.5), _option("b", 0.5)]
+    chooser = ScriptedScores(["a", "b"], [[1, 0], [0, 1], [0, 1], [1, 0]])
+    trace = Controller(options, chooser, max_decisions=4, replan_every=1).run(
+        Line(), np.random.default_rng(0))
+    assert trace.switches == 2
+

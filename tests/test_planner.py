@@ -1,0 +1,121 @@
+"""OptionPlanner (Eq. 1): argmax, admissibility, termination, batching, NaN handling."""
+
+import numpy as np
+import pytest
+from scipy.stats import ks_2samp
+
+from dynoplan.envs.random_walk import NoisyWalkDynamics, NoisyWalkGoal, make_random_walk_options
+from dynoplan.models.dynamics import LoopStackedDynamics, stack_dynamics
+from dynoplan.options import (
+    ConstantTermination,
+    FunctionPolicy,
+    InitiationFromCallable,
+    Option,
+)
+from dynoplan.planning import OptionPlanner
+
+
+class Drift:
+    """Deterministic s -> s + speed (a known answer), optionally NaN after a point."""
+
+    def __init__(self, speed: float, nan_above: float = np.inf) -> None:
+        self.speed = speed
+        self.nan_above = nan_above
+
+    @property
+    def state_dim(self) -> int:
+        return 1
+
+    def sample(self, states, rng):
+        nxt = states + self.speed
+        return np.where(nxt > self.nan_above, np.nan, nxt)
+
+
+class Linear:
+    """G(s) = s / 100, exact."""
+
+    def sample(self, states, rng):
+        return np.clip(states[:, 0] / 100.0, 0, 1)
+
+    def mean_std(self, states):
+        return self.sample(states, None), np.zeros(len(states))
+
+
+def _option(name, dynamics, beta=0.0, initiation=None):
+    kwargs = {} if initiation is None else {"initiation": initiation}
+    return Option(name, FunctionPolicy(lambda o, r: 0), dynamics, ConstantTermination(beta),
+                  **kwargs)
+
+
+def test_argmax_picks_the_option_whose_future_scores_best():
+    options = [_option("slow", Drift(1.0)), _option("fast", Drift(3.0)),
+               _option("back", Drift(-1.0))]
+    plan = OptionPlanner(options, Linear(), horizon=5, samples=8).plan(
+        np.array([10.0]), np.random.default_rng(0))
+    assert plan.chosen_name == "fast"
+    np.testing.assert_allclose(plan.scores, [0.15, 0.25, 0.05])
+    np.testing.assert_allclose(plan.end_states[1, :, 0], 25.0)
+    assert (plan.steps == 5).all()
+
+
+def test_termination_stops_rollouts_and_inadmissible_options_are_skipped():
+    never = InitiationFromCallable(lambda s: np.zeros(len(s), bool))
+    options = [_option("one-step", Drift(1.0), beta=1.0),
+               _option("blocked", Drift(50.0), initiation=never)]
+    plan = OptionPlanner(options, Linear(), horizon=10, samples=4).plan(
+        np.array([0.0]), np.random.default_rng(0))
+    assert (plan.steps[0] == 1).all()
+    assert list(plan.admissible) == [True, False]
+    assert plan.chosen_name == "one-step"
+    assert np.isnan(plan.scores[1])
+
+
+def test_no_admissible_option_gives_no_choice():
+    never = InitiationFromCallable(lambda s: np.zeros(len(s), bool))
+    plan = OptionPlanner([_option("x", Drift(1.0), initiation=never)], Linear()).plan(
+        np.array([0.0]), np.random.default_rng(0))
+    assert plan.chosen is None and plan.chosen_name is None
+
+
+def test_a_rollout_that_leaves_the_region_stops_there():
+    below_5 = InitiationFromCallable(lambda s: s[:, 0] < 5)
+    options = [_option("bounded", Drift(1.0), initiation=below_5)]
+    plan = OptionPlanner(options, Linear(), horizon=20, samples=3).plan(
+        np.array([0.0]), np.random.default_rng(0))
+    np.testing.assert_allclose(plan.end_states[0, :, 0], 5.0)
+
+
+def test_a_model_that_diverges_to_nan_is_not_chosen():
+    options = [_option("explodes", Drift(10.0, nan_above=15.0)), _option("steady", Drift(1.0))]
+    plan = OptionPlanner(options, Linear(), horizon=5, samples=4).plan(
+        np.array([0.0]), np.random.default_rng(0))
+    assert np.isfinite(plan.end_states).all()
+    assert plan.chosen_name == "steady"
+
+
+def test_stacked_rollouts_equal_the_per_option_loop_in_distribution():
+    models = [NoisyWalkDynamics(p, 0.2) for p in (1.0, 0.5, 0.0)]
+    stacked = stack_dynamics(models)
+    assert not isinstance(stacked, LoopStackedDynamics)
+    loop = LoopStackedDynamics(models)
+    x = np.full((3, 4000, 1), 7.0)
+    a = stacked.sample(x, np.random.default_rng(0))
+    b = loop.sample(x, np.random.default_rng(1))
+    for o in range(3):
+        assert ks_2samp(a[o, :, 0], b[o, :, 0]).pvalue > 1e-3
+
+
+def test_the_planner_is_deterministic_given_the_generator():
+    options = make_random_walk_options(0.2)
+    planner = OptionPlanner(options, NoisyWalkGoal(0.2), samples=32)
+    p1 = planner.plan(np.array([3.0]), np.random.default_rng(7))
+    p2 = planner.plan(np.array([3.0]), np.random.default_rng(7))
+    np.testing.assert_array_equal(p1.scores, p2.scores)
+    np.testing.assert_array_equal(p1.end_states, p2.end_states)
+
+
+def test_duplicate_option_names_are_rejected():
+    from dynoplan.errors import DynoplanError
+
+    with pytest.raises(DynoplanError, match="unique"):
+        OptionPlanner([_option("a", Drift(1)), _option("a", Drift(2))], Linear())

@@ -1,0 +1,93 @@
+"""Safety regions (Eq. 5): the formula, calibration, any dimension, storage."""
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from dynoplan.errors import DynoplanError
+from dynoplan.models.regions import SafetyRegions
+
+
+def _two_clusters(rng, d=2, n=300):
+    a = rng.normal(0.0, 0.5, size=(n, d))
+    b = rng.normal(4.0, 0.5, size=(n, d))
+    return np.vstack([a, b]), np.r_[np.zeros(n, int), np.ones(n, int)]
+
+
+def test_eq5_matches_a_hand_computation_in_2d():
+    rng = np.random.default_rng(0)
+    x, y = _two_clusters(rng)
+    regions = SafetyRegions.fit(x, y, ["a", "b"], n_components=4, seed=0)
+    query = rng.normal(2.0, 2.0, size=(50, 2))
+    for k, name in enumerate(["a", "b"]):
+        expected = np.zeros(len(query))
+        for i in np.flatnonzero(regions.members[k]):
+            prec_chol = regions.precisions_cholesky[i]
+            cov = np.linalg.inv(prec_chol @ prec_chol.T)
+            pdf = multivariate_normal(regions.means[i], cov).pdf(query)
+            expected = np.maximum(expected, pdf)
+        np.testing.assert_allclose(regions.likelihood(query, name), expected, rtol=1e-8)
+
+
+def test_each_option_owns_the_components_of_its_states():
+    rng = np.random.default_rng(1)
+    x, y = _two_clusters(rng)
+    regions = SafetyRegions.fit(x, y, ["a", "b"], n_components=2, seed=0)
+    assert regions.members.sum() == 2
+    assert not (regions.members[0] & regions.members[1]).any()
+
+
+def test_regions_hold_their_demonstrations_and_exclude_far_states():
+    rng = np.random.default_rng(2)
+    x, y = _two_clusters(rng, d=5, n=400)
+    regions = SafetyRegions.fit(x, y, ["a", "b"], seed=0)  # M chosen by BIC
+    held_out, held_y = _two_clusters(np.random.default_rng(3), d=5, n=400)
+    inside_a = regions.contains(held_out[held_y == 0], "a").mean()
+    inside_b = regions.contains(held_out[held_y == 1], "b").mean()
+    assert inside_a >= 0.95 and inside_b >= 0.95
+    far = np.full((10, 5), 30.0)
+    assert not regions.contains_all(far).any()
+    # the state in a's cluster is not in b's region
+    assert not regions.contains(np.zeros((1, 5)), "b")[0]
+
+
+def test_save_and_load_round_trip_bit_exactly(tmp_path):
+    rng = np.random.default_rng(4)
+    x, y = _two_clusters(rng)
+    regions = SafetyRegions.fit(x, y, ["a", "b"], n_components=3, seed=0)
+    path = regions.save(tmp_path / "regions.safetensors")
+    loaded = SafetyRegions.load(path)
+    assert loaded.option_names == ["a", "b"]
+    for field in ("means", "precisions_cholesky", "members", "log_thresholds"):
+        np.testing.assert_array_equal(getattr(loaded, field), getattr(regions, field))
+
+
+def test_corrupt_and_missing_files_are_rejected_with_one_line(tmp_path):
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"\x00\x01garbage")
+    with pytest.raises(DynoplanError, match="not a readable model file"):
+        SafetyRegions.load(bad)
+    with pytest.raises(DynoplanError, match="not found"):
+        SafetyRegions.load(tmp_path / "missing.safetensors")
+    rng = np.random.default_rng(5)
+    x, y = _two_clusters(rng)
+    path = SafetyRegions.fit(x, y, ["a", "b"], n_components=2).save(tmp_path / "r.safetensors")
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(DynoplanError):
+        SafetyRegions.load(path)
+
+
+def test_bad_fitting_input_is_a_clear_error():
+    x = np.zeros((10, 2))
+    with pytest.raises(DynoplanError, match="no demonstration states"):
+        SafetyRegions.fit(x, np.zeros(10, int), ["a", "b"])
+    x[0, 0] = np.nan
+    with pytest.raises(DynoplanError, match="NaN"):
+        SafetyRegions.fit(x, np.r_[np.zeros(5, int), np.ones(5, int)], ["a", "b"])
+    regions = SafetyRegions.fit(np.random.default_rng(0).normal(size=(20, 2)),
+                                np.r_[np.zeros(10, int), np.ones(10, int)], ["a", "b"],
+                                n_components=1)
+    with pytest.raises(DynoplanError, match="unknown option 'c'"):
+        regions.contains(np.zeros((1, 2)), "c")
+    with pytest.raises(DynoplanError, match=r"shape \(batch, 2\)"):
+        regions.contains(np.zeros((1, 3)), "a")
