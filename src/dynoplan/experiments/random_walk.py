@@ -6,7 +6,8 @@ Writes into one folder:
   chosen noise, the same for each option run alone and for a random option choice, and
   one robustness row per misprediction probability;
 - ``figure_mdp_solution.png``: the paper's Figure 2(b) for the first episode;
-- ``robustness.png`` and ``robustness.csv``: success and planning steps against noise.
+- ``robustness.png`` and ``robustness.csv``: success and planning steps against noise;
+- ``results.md``: both tables in markdown, for the docs.
 """
 
 import time
@@ -24,9 +25,10 @@ from dynoplan.envs.random_walk.models import NoisyWalkGoal
 from dynoplan.envs.random_walk.options import make_random_walk_options
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.episodes import episode_seeds, planning_steps_summary, run_episodes
-from dynoplan.io import ensure_writable_dir, write_csv, write_json
+from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.planning.option_planner import OptionPlanner
 from dynoplan.reports.random_walk_figures import plot_mdp_solution, plot_robustness
+from dynoplan.reports.tables import markdown_table
 
 ROBUSTNESS_NOISES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
@@ -108,6 +110,7 @@ def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = Tr
                             f"episode 0 of seed {settings.seed})")
     plot_robustness(robustness, out / "robustness.png")
     write_csv(out / "robustness.csv", robustness)
+    write_text(out / "results.md", _results_markdown(settings, main, baselines, robustness))
     summary = {
         "experiment": "random_walk",
         "dynoplan_version": __version__,
@@ -137,3 +140,27 @@ def _trace_rows(trace: Any) -> list[dict[str, Any]]:
             "state_after": float(d.state_after[0]),
         })
     return rows
+
+
+_COLUMNS = ["controller", "success_rate", "planning_steps_median", "planning_steps_p90",
+            "planning_steps_mean_of_successes", "seconds"]
+_HEADERS = ["controller", "success rate", "planning steps median", "p90", "mean (successes)",
+            "seconds"]
+
+
+def _results_markdown(settings: RandomWalkSettings, main: dict[str, Any],
+                      baselines: dict[str, dict[str, Any]],
+                      robustness: list[dict[str, Any]]) -> str:
+    command = (f"dynoplan random-walk --episodes {settings.episodes} --noise {settings.noise:g} "
+               f"--seed {settings.seed} --horizon {settings.horizon} "
+               f"--samples {settings.samples}")
+    rows = [{"controller": "DynoPlan", **main}]
+    rows += [{"controller": name, **row} for name, row in baselines.items()]
+    noise_rows = [{"controller": f"DynoPlan, noise {r['noise']:g}", **r} for r in robustness]
+    return (f"Produced by `{command}` ({settings.episodes} episodes per row; at most "
+            f"{settings.max_decisions} planning steps; \"–\" where the quantile falls on "
+            f"failed episodes).\n\n"
+            f"### Noise {settings.noise:g}: DynoPlan against each option alone and random choice"
+            f"\n\n{markdown_table(rows, _COLUMNS, _HEADERS)}\n"
+            f"### Robustness to model misprediction\n\n"
+            f"{markdown_table(noise_rows, _COLUMNS, _HEADERS)}")
