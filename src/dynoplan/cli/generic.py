@@ -1,0 +1,95 @@
+"""``dynoplan pipeline``: DynoPlan on any Gymnasium environment from the command line.
+
+Mounted by ``cli/main.py`` as ``app.add_typer(generic_app, name="pipeline")``::
+
+    dynoplan pipeline --env MountainCarContinuous-v0 \\
+        --options examples.mountain_car.options:make_options --out results/mountain-car
+"""
+
+import shlex
+import sys
+from pathlib import Path
+
+import typer
+
+from dynoplan.errors import DynoplanError
+
+generic_app = typer.Typer(
+    help="DynoPlan on any Gymnasium environment with a Box observation space.",
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+
+@generic_app.callback(invoke_without_command=True)
+def pipeline(
+    env: str = typer.Option(..., "--env", help="Gymnasium environment id."),
+    options: str = typer.Option(
+        ..., "--options", help="MODULE:FUNCTION returning the options (a list of option_spec)."),
+    demonstrator: str | None = typer.Option(
+        None, "--demonstrator",
+        help="MODULE:FUNCTION returning the scripted demonstrator "
+             "(default: make_demonstrator in the --options module)."),
+    demo_dataset: Path | None = typer.Option(
+        None, "--demo-dataset", help="Use recorded demonstrations (a dataset folder) instead."),
+    demos: int = typer.Option(5, "--demos", help="Demonstrations to record."),
+    explore: int = typer.Option(20, "--explore",
+                                help="Episodes of random options for the dynamics models."),
+    episodes: int = typer.Option(100, "--episodes", help="Evaluation episodes per controller."),
+    seed: int = typer.Option(0, "--seed", help="Seed of every random choice."),
+    out: Path = typer.Option(Path("results/pipeline"), "--out", help="Output folder."),
+    stride: int = typer.Option(1, "--stride", help="Environment steps per model step."),
+    horizon: int = typer.Option(20, "--horizon", help="Planning horizon n, in model steps."),
+    samples: int = typer.Option(32, "--samples", help="Monte-Carlo rollouts per option."),
+    replan_every: int = typer.Option(
+        10, "--replan-every", help="Plan again after this many steps (0: only when the "
+                                   "option stops)."),
+    regions: bool = typer.Option(True, "--regions/--no-regions",
+                                 help="Fit the safety regions (Eq. 5) and enforce them."),
+    dynamics_epochs: int = typer.Option(30, "--dynamics-epochs", help="Epochs per ensemble."),
+    goal_epochs: int = typer.Option(150, "--goal-epochs", help="Epochs of the goal network."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Collect, fit dynamics/goal/regions, run DynoPlan and compare with each option alone
+    and random choice; writes OUT/summary.json, OUT/results.md, datasets and models."""
+    from dynoplan.data.dataset import read_dataset
+    from dynoplan.pipeline import (
+        ControllerSettings,
+        FitSettings,
+        PipelineSettings,
+        call_factory,
+        load_object,
+        run_pipeline,
+    )
+
+    if replan_every < 0:
+        raise DynoplanError(f"--replan-every must be >= 0, got {replan_every}")
+    made = call_factory(options, "options")
+    if not isinstance(made, list | tuple) or not made:
+        raise DynoplanError(
+            f"'{options}' must return a non-empty list of options, got {type(made).__name__}")
+    demo_data = read_dataset(demo_dataset) if demo_dataset is not None else None
+    demo_maker = None
+    if demo_data is None:
+        reference = demonstrator or f"{options.partition(':')[0]}:make_demonstrator"
+        if demonstrator is None:
+            try:
+                load_object(reference)
+            except DynoplanError:
+                raise DynoplanError(
+                    f"'{options.partition(':')[0]}' defines no make_demonstrator(); give "
+                    "--demonstrator MODULE:FUNCTION or --demo-dataset PATH") from None
+        demo_maker = call_factory(reference, "demonstrator")
+    settings = PipelineSettings(
+        demos=demos, exploration_episodes=explore, episodes=episodes, seed=seed,
+        fit=FitSettings(stride=stride, regions=regions, dynamics_epochs=dynamics_epochs,
+                        goal_epochs=goal_epochs),
+        control=ControllerSettings(horizon=horizon, samples=samples,
+                                   replan_every=replan_every or None))
+    command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
+                          settings=settings, out=out, progress=not quiet,
+                          status=None if quiet else lambda m: typer.echo(f"-- {m}", err=True),
+                          command=command)
+    typer.echo(result.table)
+    typer.echo(f"{result.summary['seconds']:.1f} s -> {out}/summary.json")

@@ -1,0 +1,220 @@
+"""Run the scripted gear-assembly expert: demonstrations, a summary, a picture and a video.
+
+- :func:`record_expert_episodes`: per-episode arrays (observations, actions, option
+  labels, progress, ...) ready to be written as a dataset;
+- :func:`run_expert`: many seeded episodes, ``summary.json`` (success, contacts, speed);
+- :func:`render_scene`: ``scene.png`` and ``episode.mp4`` of one seeded episode.
+"""
+
+import platform
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+import numpy.typing as npt
+
+from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
+from dynoplan.envs.gear.expert import OPTION_NAMES, GearExpert
+from dynoplan.envs.gear.human import HUMAN_MODES
+from dynoplan.errors import DynoplanError
+from dynoplan.io import ensure_writable_dir, write_json, write_with
+from dynoplan.progress import track
+
+Episode = dict[str, Any]
+"""One episode: ``observations`` (T+1, 50), ``actions`` (T, 13), ``rewards`` (T,),
+``terminations`` (T,), ``truncations`` (T,), ``infos`` (dict of (T,) arrays: ``option``,
+``progress``, ``stage``, ``min_human_distance``, ``success``, ``human_contacts``,
+``pads_on_gear``, ``insertion_depth``), ``seed`` and ``human_mode``."""
+
+_INFO_KEYS = ("stage", "min_human_distance", "is_success", "human_contacts", "pads_on_gear",
+              "insertion_depth")
+
+
+def episode_seeds(seed: int, episodes: int) -> list[int]:
+    """Independent ``env.reset`` seeds for ``episodes`` episodes, derived from ``seed``."""
+    children = np.random.SeedSequence(seed).spawn(episodes)
+    return [int(c.generate_state(1)[0]) for c in children]
+
+
+def _check(episodes: int, human_mode: str | None) -> None:
+    if episodes < 1:
+        raise DynoplanError(f"--episodes must be >= 1, got {episodes}")
+    if human_mode is not None and human_mode not in HUMAN_MODES:
+        raise DynoplanError(f"--human must be one of {', '.join(HUMAN_MODES)}, got {human_mode!r}")
+
+
+def run_expert_episode(env: GearAssemblyEnv, expert: GearExpert, seed: int,
+                       human_mode: str | None = None,
+                       frames: list[npt.NDArray[np.uint8]] | None = None) -> Episode:
+    """One episode of ``expert`` in ``env`` from ``env.reset(seed=seed)``.
+
+    ``progress`` is normalised time: ``progress[t] = (t + 1) / T``, the progress of
+    ``observations[t + 1]`` (``observations[0]`` has progress 0). With ``frames``, a
+    rendered frame is appended after the reset and after every step.
+    Adds ``step_seconds`` (wall time spent in ``env.step``) to the episode.
+    """
+    options = {"human_mode": human_mode} if human_mode is not None else None
+    obs, info = env.reset(seed=seed, options=options)
+    expert.reset()
+    observations = [obs]
+    actions: list[npt.NDArray[np.float64]] = []
+    rewards: list[float] = []
+    terms: list[bool] = []
+    truncs: list[bool] = []
+    options_taken: list[int] = []
+    infos: dict[str, list[Any]] = {k: [] for k in _INFO_KEYS}
+    if frames is not None:
+        frames.append(_frame(env))
+    step_seconds = 0.0
+    done = False
+    while not done:
+        decision = expert.act(info)
+        t0 = time.perf_counter()
+        obs, reward, terminated, truncated, info = env.step(decision.action)
+        step_seconds += time.perf_counter() - t0
+        observations.append(obs)
+        actions.append(decision.action)
+        rewards.append(reward)
+        terms.append(terminated)
+        truncs.append(truncated)
+        options_taken.append(decision.option)
+        for k in _INFO_KEYS:
+            infos[k].append(info[k])
+        if frames is not None:
+            frames.append(_frame(env))
+        done = terminated or truncated
+    steps = len(actions)
+    return {
+        "observations": np.asarray(observations, dtype=np.float64),
+        "actions": np.asarray(actions, dtype=np.float64),
+        "rewards": np.asarray(rewards, dtype=np.float64),
+        "terminations": np.asarray(terms, dtype=bool),
+        "truncations": np.asarray(truncs, dtype=bool),
+        "infos": {
+            "option": np.asarray(options_taken, dtype=np.int64),
+            "progress": np.arange(1, steps + 1, dtype=np.float64) / steps,
+            "stage": np.asarray(infos["stage"], dtype=np.int64),
+            "min_human_distance": np.asarray(infos["min_human_distance"], dtype=np.float64),
+            "success": np.asarray(infos["is_success"], dtype=bool),
+            "human_contacts": np.asarray(infos["human_contacts"], dtype=np.int64),
+            "pads_on_gear": np.asarray(infos["pads_on_gear"], dtype=np.int64),
+            "insertion_depth": np.asarray(infos["insertion_depth"], dtype=np.float64),
+        },
+        "seed": seed,
+        "human_mode": env.schedule.mode,
+        "step_seconds": step_seconds,
+    }
+
+
+def _frame(env: GearAssemblyEnv) -> npt.NDArray[np.uint8]:
+    frame = env.render()
+    if frame is None:
+        raise RuntimeError("the env was not made with render_mode='rgb_array'")
+    return frame
+
+
+def record_expert_episodes(n: int, seed: int, progress: bool = False,
+                           human_mode: str | None = None) -> list[Episode]:
+    """``n`` expert episodes with seeds derived from ``seed`` (see :data:`Episode`)."""
+    _check(n, human_mode)
+    env = GearAssemblyEnv()
+    expert = GearExpert(env)
+    seeds = episode_seeds(seed, n)
+    try:
+        return [run_expert_episode(env, expert, s, human_mode)
+                for s in track(seeds, "gear expert", total=n, enabled=progress)]
+    finally:
+        env.close()
+
+
+def summarise(episodes: list[Episode], seed: int, wall_seconds: float) -> dict[str, Any]:
+    """Success, safety and speed over ``episodes`` (the ``summary.json`` content)."""
+    n = len(episodes)
+    success = [bool(ep["infos"]["success"][-1]) for ep in episodes]
+    steps = np.array([len(ep["actions"]) for ep in episodes])
+    sim_seconds = float(steps.sum() * CONTROL_DT)
+    step_seconds = float(sum(ep["step_seconds"] for ep in episodes))
+    contacts = [int(ep["infos"]["human_contacts"].sum()) for ep in episodes]
+    min_dist = [float(ep["infos"]["min_human_distance"].min()) for ep in episodes]
+    option_counts: Counter[str] = Counter()
+    for ep in episodes:
+        for k, c in zip(*np.unique(ep["infos"]["option"], return_counts=True), strict=True):
+            option_counts[OPTION_NAMES[int(k)]] += int(c)
+    by_mode: dict[str, dict[str, float]] = {}
+    for mode in HUMAN_MODES:
+        idx = [i for i, ep in enumerate(episodes) if ep["human_mode"] == mode]
+        if idx:
+            by_mode[mode] = {"episodes": len(idx),
+                             "success_rate": float(np.mean([success[i] for i in idx]))}
+    success_steps = steps[np.array(success)] if any(success) else np.array([])
+    return {
+        "episodes": n,
+        "seed": seed,
+        "success_rate": float(np.mean(success)),
+        "successes": int(np.sum(success)),
+        "failed_seeds": [ep["seed"] for ep, ok in zip(episodes, success, strict=True) if not ok],
+        "contacts": int(np.sum(contacts)),
+        "contacts_unit": "physics steps (2 ms) with a robot-human contact, summed",
+        "episodes_with_contact": int(np.sum(np.array(contacts) > 0)),
+        "min_human_distance": float(np.min(min_dist)),
+        "min_human_distance_median": float(np.median(min_dist)),
+        "time_to_success_mean": (float(success_steps.mean() * CONTROL_DT)
+                                 if len(success_steps) else None),
+        "time_to_success_max": (float(success_steps.max() * CONTROL_DT)
+                                if len(success_steps) else None),
+        "by_human_mode": by_mode,
+        "option_steps": dict(option_counts),
+        "env_steps": int(steps.sum()),
+        "simulated_seconds": sim_seconds,
+        "env_step_seconds": step_seconds,
+        "realtime_factor": sim_seconds / step_seconds if step_seconds > 0 else None,
+        "realtime_factor_with_expert": sim_seconds / wall_seconds if wall_seconds > 0 else None,
+        "wall_seconds": wall_seconds,
+        "machine": {"python": platform.python_version(), "processor": platform.processor(),
+                    "system": platform.system()},
+    }
+
+
+def run_expert(episodes: int, seed: int, out: Path, progress: bool = True,
+               human_mode: str | None = None) -> dict[str, Any]:
+    """Run the expert for ``episodes`` seeded episodes; write ``out/summary.json``."""
+    _check(episodes, human_mode)
+    folder = ensure_writable_dir(out)
+    t0 = time.perf_counter()
+    eps = record_expert_episodes(episodes, seed, progress=progress, human_mode=human_mode)
+    summary = summarise(eps, seed, time.perf_counter() - t0)
+    write_json(folder / "summary.json", summary)
+    return summary
+
+
+def render_scene(out: Path, seed: int = 0, video: bool = True, human_mode: str | None = None,
+                 width: int = 640, height: int = 480) -> dict[str, Path]:
+    """Write ``out/scene.png`` (the scene after reset) and, with ``video``,
+    ``out/episode.mp4`` (the expert's episode at 20 frames per second)."""
+    import imageio.v2 as imageio
+
+    _check(1, human_mode)
+    folder = ensure_writable_dir(out)
+    env = GearAssemblyEnv(render_mode="rgb_array", width=width, height=height)
+    written: dict[str, Path] = {}
+    try:
+        frames: list[npt.NDArray[np.uint8]] = []
+        if video:
+            run_expert_episode(env, GearExpert(env), seed, human_mode, frames=frames)
+        else:
+            env.reset(seed=seed, options={"human_mode": human_mode} if human_mode else None)
+            frames.append(_frame(env))
+        first = frames[0]
+        write_with(folder / "scene.png", lambda p: imageio.imwrite(p, first))
+        written["scene"] = folder / "scene.png"
+        if video:
+            write_with(folder / "episode.mp4",
+                       lambda p: imageio.mimwrite(p, cast(list[Any], frames),
+                                                  fps=env.metadata["render_fps"],
+                                                  codec="libx264", quality=7))
+            written["video"] = folder / "episode.mp4"
+    finally:
+        env.close()
+    return written

@@ -1,0 +1,527 @@
+"""Probabilistic MLP ensemble dynamics ``s_{t+1} ~ D_w(s_t)`` (PETS, Chua et al. 2018).
+
+Each of ``members`` MLPs maps the normalised state to a Gaussian (mean and log-variance)
+over the normalised state *change* ``s_{t+1} - s_t``. The log-variance is soft-bounded
+between learned ``min_logvar`` and ``max_logvar`` as in PETS and mbrl-lib's
+``GaussianMLP``. Input and output normalisation live in the model and in its file.
+
+Sampling (``D_w`` for the planner) propagates like mbrl-lib's ``random_model`` / PETS's
+TS1: at every call the rows are split across the members by a fresh random permutation,
+in groups of equal size (``ceil(batch / members)`` slots each; when ``members`` does not
+divide ``batch`` a random rotation decides which members get the extra rows). Each row
+therefore uses a member that is uniform over the ensemble, and each member runs on one
+dense block of rows, so the whole ensemble is one batched matrix product per layer with
+no wasted rows. (Unlike drawing the member of every row independently, the number of
+rows per member is fixed; the per-row distribution is the same.) The next state is
+``s + mu_k(s) + sigma_k(s) * eps`` with ``eps ~ N(0, I)`` drawn from the caller's
+``numpy.random.Generator``; the torch global random state is never used.
+
+Several options' ensembles of the same architecture are evaluated together by
+:meth:`MLPEnsembleDynamics.stack`: their weights are stacked to
+``(options * members, in, out)`` and every layer is one ``torch.baddbmm`` over
+``(options * members, rows_per_member, in)``. Inside, everything is float32 with the
+normalisation folded into the first and last layers; states come in and go out as
+float64.
+"""
+
+import os
+from collections.abc import Sequence
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from dynoplan.errors import DynoplanError
+from dynoplan.models.dynamics import LoopStackedDynamics, StackedDynamics
+from dynoplan.models.storage import load_arrays, require, save_arrays
+from dynoplan.models.training import TrainingReport, train_gaussian_ensemble
+from dynoplan.types import FloatArray, Generator
+
+MODEL_KIND = "mlp_ensemble_dynamics"
+DEFAULT_HIDDEN = (200, 200)
+# 4 members divide the planner's default 64 samples into full blocks of 16 rows, which
+# the batched matrix products run at a higher fraction of peak than blocks of 13
+DEFAULT_MEMBERS = 4
+_MAX_LAYOUTS = 8  # work-buffer sets kept per stack (one per batch size seen, newest kept)
+
+
+class GaussianEnsembleMLP(nn.Module):
+    """``members`` independent MLPs with SiLU, evaluated as one batched program.
+
+    ``forward(x)`` maps ``(members, batch, in_size)`` to ``(mean, logvar)``, each
+    ``(members, batch, out_size)``; member ``k`` only sees ``x[k]``. The log-variance is
+    soft-bounded: ``max - softplus(max - raw)`` then ``min + softplus(. - min)``.
+
+    Weights are ``(members, in, out)`` and biases ``(members, 1, out)``, initialised
+    from a truncated normal with std ``1 / (2 sqrt(in))`` (as mbrl-lib) drawn from
+    ``generator``.
+    """
+
+    def __init__(self, in_size: int, out_size: int, hidden_sizes: Sequence[int], members: int,
+                 generator: torch.Generator | None = None) -> None:
+        super().__init__()
+        self.in_size = int(in_size)
+        self.out_size = int(out_size)
+        self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
+        self.members = int(members)
+        sizes = [self.in_size, *self.hidden_sizes, 2 * self.out_size]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for fan_in, fan_out in pairwise(sizes):
+            w = torch.empty(self.members, fan_in, fan_out)
+            std = 1.0 / (2.0 * np.sqrt(fan_in))
+            nn.init.trunc_normal_(w, std=std, a=-2 * std, b=2 * std, generator=generator)
+            self.weights.append(nn.Parameter(w))
+            self.biases.append(nn.Parameter(torch.zeros(self.members, 1, fan_out)))
+        self.min_logvar = nn.Parameter(torch.full((1, self.out_size), -10.0))
+        self.max_logvar = nn.Parameter(torch.full((1, self.out_size), 0.5))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        h = x
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            h = torch.baddbmm(b, h, w)
+            if i < last:
+                h = F.silu(h)
+        mean, raw = h.split(self.out_size, dim=-1)
+        return mean, bound_logvar(raw, self.min_logvar, self.max_logvar)
+
+    def logvar_bound_penalty(self) -> torch.Tensor:
+        """PETS's ``0.01 * (sum(max_logvar) - sum(min_logvar))``."""
+        return 0.01 * (self.max_logvar.sum() - self.min_logvar.sum())
+
+
+def bound_logvar(raw: torch.Tensor, min_logvar: torch.Tensor,
+                 max_logvar: torch.Tensor) -> torch.Tensor:
+    """PETS's soft bounds: ``max - softplus(max - raw)``, then ``min + softplus(. - min)``."""
+    lv = max_logvar - F.softplus(max_logvar - raw)
+    return min_logvar + F.softplus(lv - min_logvar)
+
+
+class MLPEnsembleDynamics:
+    """An option's forward model ``D_w``: a probabilistic MLP ensemble (PETS).
+
+    Implements :class:`~dynoplan.models.dynamics.DynamicsModel`.
+
+    Args:
+        state_dim: ``d``.
+        hidden_sizes: widths of the hidden layers (default two of 200).
+        members: ensemble size ``E`` (default 4; PETS used 5).
+        option: name of the option this model belongs to (stored in the file).
+        seed: seeds the weight initialisation (a local ``torch.Generator``).
+
+    Attributes:
+        network: the :class:`GaussianEnsembleMLP` on normalised inputs and targets.
+        input_mean, input_std: ``(d,)`` float64, state normalisation.
+        delta_mean, delta_std: ``(d,)`` float64, normalisation of ``s_{t+1} - s_t``.
+
+    Sampling uses a float32 snapshot of the weights, made on first use and renewed by
+    :meth:`fit`; call :meth:`refresh` after changing ``network`` or the normalisers by
+    hand. Objects from :meth:`stack` keep the snapshot they were built with. Sampling
+    reuses work buffers, so one model (or stack) must not be sampled from two threads at
+    once.
+    """
+
+    def __init__(self, state_dim: int, hidden_sizes: Sequence[int] = DEFAULT_HIDDEN,
+                 members: int = DEFAULT_MEMBERS, option: str = "", seed: int = 0) -> None:
+        if state_dim < 1 or members < 1 or not hidden_sizes or min(hidden_sizes) < 1:
+            raise DynoplanError(
+                f"an MLP ensemble needs state_dim >= 1, members >= 1 and at least one hidden "
+                f"layer of width >= 1; got {state_dim}, {members}, {tuple(hidden_sizes)}")
+        d = int(state_dim)
+        self.option = str(option)
+        self.network = GaussianEnsembleMLP(d, d, hidden_sizes, members,
+                                           torch.Generator().manual_seed(int(seed)))
+        self.input_mean = np.zeros(d)
+        self.input_std = np.ones(d)
+        self.delta_mean = np.zeros(d)
+        self.delta_std = np.ones(d)
+        self._single: StackedMLPEnsemble | None = None
+
+    # --- description ------------------------------------------------------------------
+    @property
+    def state_dim(self) -> int:
+        return self.network.in_size
+
+    @property
+    def hidden_sizes(self) -> tuple[int, ...]:
+        return self.network.hidden_sizes
+
+    @property
+    def members(self) -> int:
+        return self.network.members
+
+    @property
+    def architecture(self) -> tuple[int, tuple[int, ...], int]:
+        """``(state_dim, hidden_sizes, members)``: models that stack together share it."""
+        return self.state_dim, self.hidden_sizes, self.members
+
+    def flops_per_row(self) -> int:
+        """Floating-point operations of one member's forward pass on one row.
+
+        ``2 * in * out`` per layer (multiply-adds of the matrix products), the count used
+        by the benchmark; biases, activations and sampling are not counted.
+        """
+        sizes = [self.state_dim, *self.hidden_sizes, 2 * self.state_dim]
+        return int(sum(2 * a * b for a, b in pairwise(sizes)))
+
+    # --- DynamicsModel ----------------------------------------------------------------
+    def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
+        """One draw of the next state per row: ``(batch, d)`` float64 -> ``(batch, d)``.
+
+        Rows are split across members by a random permutation (see the module
+        docstring); the member choice and the Gaussian noise come from ``rng`` only.
+        """
+        x = np.asarray(states, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != self.state_dim:
+            raise ValueError(f"states must be (batch, {self.state_dim}), got {x.shape}")
+        if self._single is None:
+            self._single = StackedMLPEnsemble([self])
+        return self._single.sample(x[None], rng)[0]
+
+    def predict(self, states: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Every member's Gaussian over the next state, in state units.
+
+        Args:
+            states: ``(batch, d)``.
+        Returns:
+            ``(means, variances)``, each ``(members, batch, d)`` float64; the predictive
+            distribution is their equal-weight mixture.
+        """
+        x = np.asarray(states, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != self.state_dim:
+            raise ValueError(f"states must be (batch, {self.state_dim}), got {x.shape}")
+        xn = torch.from_numpy(((x - self.input_mean) / self.input_std).astype(np.float32))
+        with torch.inference_mode():
+            mean, logvar = self.network(xn.expand(self.members, *xn.shape))
+        mean64 = mean.numpy().astype(np.float64)
+        var64 = np.exp(logvar.numpy().astype(np.float64))
+        return x + mean64 * self.delta_std + self.delta_mean, var64 * self.delta_std ** 2
+
+    @classmethod
+    def stack(cls, items: Sequence["MLPEnsembleDynamics"]) -> StackedDynamics:
+        """Several options' ensembles as one ``(options, samples, d)`` sampler.
+
+        Ensembles of one architecture become a :class:`StackedMLPEnsemble` (one batched
+        tensor program); mixed architectures fall back to a loop over options.
+        """
+        if len({m.architecture for m in items}) == 1:
+            return StackedMLPEnsemble(items)
+        return LoopStackedDynamics(items)
+
+    def refresh(self) -> None:
+        """Rebuild the float32 sampling snapshot after a change of weights or normalisers."""
+        self._single = None
+
+    # --- training ---------------------------------------------------------------------
+    def fit(self, states: FloatArray, next_states: FloatArray, *, epochs: int = 50,
+            batch_size: int = 256, lr: float = 1e-3, weight_decay: float = 5e-5,
+            seed: int = 0, holdout_fraction: float = 0.1,
+            keep_best: bool = True) -> TrainingReport:
+        """Fit the ensemble on transitions ``(s_t, s_{t+1})`` by Gaussian NLL.
+
+        A random ``holdout_fraction`` of the rows (chosen with ``seed``) is held out; the
+        normalisers are computed from the remaining rows; each member trains on its own
+        bootstrap of them (Adam with ``weight_decay``). With ``keep_best`` the weights of
+        the epoch with the lowest held-out loss are kept.
+
+        Args:
+            states: ``(N, d)``; ``next_states``: ``(N, d)``.
+        Raises:
+            DynoplanError: shapes do not match the model, non-finite values, too few rows,
+                or a holdout fraction outside ``[0, 1)``.
+        """
+        s, nxt = self._check_pairs(states, next_states)
+        if not 0.0 <= holdout_fraction < 1.0:
+            raise DynoplanError(f"holdout_fraction must be in [0, 1), got {holdout_fraction}")
+        if epochs < 1 or batch_size < 1 or lr <= 0.0:
+            raise DynoplanError(f"epochs, batch_size and lr must be positive, got {epochs}, "
+                                f"{batch_size}, {lr}")
+        n = s.shape[0]
+        n_holdout = round(n * holdout_fraction)
+        if holdout_fraction > 0.0:
+            n_holdout = min(max(n_holdout, 1), n - 2)
+        perm = np.random.default_rng(seed).permutation(n)
+        train, hold = perm[n_holdout:], perm[:n_holdout]
+        delta = nxt - s
+        self.input_mean, self.input_std = _mean_std(s[train])
+        self.delta_mean, self.delta_std = _mean_std(delta[train])
+        xn = torch.from_numpy(((s - self.input_mean) / self.input_std).astype(np.float32))
+        yn = torch.from_numpy(((delta - self.delta_mean) / self.delta_std).astype(np.float32))
+        tr, ho = torch.from_numpy(train), torch.from_numpy(hold)
+        report = train_gaussian_ensemble(
+            self.network, xn[tr], yn[tr], xn[ho], yn[ho], members=self.members,
+            epochs=epochs, batch_size=batch_size, lr=lr, weight_decay=weight_decay, seed=seed,
+            keep_best=keep_best, penalty=self.network.logvar_bound_penalty)
+        self.refresh()
+        return report
+
+    def _check_pairs(self, states: FloatArray,
+                     next_states: FloatArray) -> tuple[FloatArray, FloatArray]:
+        s = np.asarray(states, dtype=np.float64)
+        nxt = np.asarray(next_states, dtype=np.float64)
+        d = self.state_dim
+        if s.ndim != 2 or s.shape[1] != d or s.shape != nxt.shape:
+            raise DynoplanError(f"states and next_states must both be (N, {d}), got "
+                                f"{s.shape} and {nxt.shape}")
+        if s.shape[0] < 3:
+            raise DynoplanError(f"need at least 3 transitions to fit, got {s.shape[0]}")
+        if not (np.isfinite(s).all() and np.isfinite(nxt).all()):
+            raise DynoplanError("states and next_states must be finite")
+        return s, nxt
+
+    # --- storage ----------------------------------------------------------------------
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the model to ``path`` (safetensors + JSON metadata, atomically)."""
+        arrays: dict[str, np.ndarray] = {}
+        for i, (w, b) in enumerate(zip(self.network.weights, self.network.biases,
+                                       strict=True)):
+            arrays[f"weight_{i}"] = w.detach().numpy()
+            arrays[f"bias_{i}"] = b.detach().numpy()
+        arrays["min_logvar"] = self.network.min_logvar.detach().numpy()
+        arrays["max_logvar"] = self.network.max_logvar.detach().numpy()
+        arrays["input_mean"] = self.input_mean
+        arrays["input_std"] = self.input_std
+        arrays["delta_mean"] = self.delta_mean
+        arrays["delta_std"] = self.delta_std
+        meta = {"state_dim": self.state_dim, "hidden_sizes": list(self.hidden_sizes),
+                "members": self.members, "option": self.option, "activation": "silu",
+                "output": "gaussian_delta"}
+        return save_arrays(path, MODEL_KIND, arrays, meta)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> "MLPEnsembleDynamics":
+        """Read a model written by :meth:`save`.
+
+        Raises:
+            DynoplanError: unreadable or corrupt file, another kind of model, missing or
+                mis-shaped arrays, or metadata that does not describe this model.
+        """
+        arrays, meta = load_arrays(path, MODEL_KIND)
+        d = _meta_int(meta, "state_dim", path)
+        members = _meta_int(meta, "members", path)
+        hidden = meta.get("hidden_sizes")
+        if (not isinstance(hidden, list) or not hidden
+                or not all(isinstance(h, int) and h >= 1 for h in hidden)):
+            raise DynoplanError(f"{path}: metadata field 'hidden_sizes' must be a non-empty "
+                                f"list of positive integers, got {hidden!r}")
+        if meta.get("activation", "silu") != "silu":
+            raise DynoplanError(f"{path}: activation {meta.get('activation')!r} is not "
+                                "supported (expected 'silu')")
+        option = meta.get("option", "")
+        model = cls(d, hidden, members, option=str(option))
+        net = model.network
+        sizes = [d, *hidden, 2 * d]
+        with torch.no_grad():
+            for i, (fan_in, fan_out) in enumerate(pairwise(sizes)):
+                w = _float32(require(arrays, f"weight_{i}", (members, fan_in, fan_out), path),
+                             f"weight_{i}", path)
+                b = _float32(require(arrays, f"bias_{i}", (members, 1, fan_out), path),
+                             f"bias_{i}", path)
+                net.weights[i].copy_(torch.from_numpy(w))
+                net.biases[i].copy_(torch.from_numpy(b))
+            for name in ("min_logvar", "max_logvar"):
+                a = _float32(require(arrays, name, (1, d), path), name, path)
+                getattr(net, name).copy_(torch.from_numpy(a))
+        extra = set(arrays) - {f"weight_{i}" for i in range(len(sizes) - 1)} - {
+            f"bias_{i}" for i in range(len(sizes) - 1)} - {
+            "min_logvar", "max_logvar", "input_mean", "input_std", "delta_mean", "delta_std"}
+        if extra:
+            raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
+                                f"describes {len(hidden)} hidden layers)")
+        for name in ("input_mean", "input_std", "delta_mean", "delta_std"):
+            a = require(arrays, name, (d,), path)
+            if a.dtype != np.float64 or not np.isfinite(a).all():
+                raise DynoplanError(f"{path}: array '{name}' must be finite float64")
+            setattr(model, name, a.copy())
+        if (model.input_std <= 0).any() or (model.delta_std <= 0).any():
+            raise DynoplanError(f"{path}: normalisation standard deviations must be positive")
+        return model
+
+
+class StackedMLPEnsemble:
+    """Several options' ensembles of one architecture as one float32 tensor program.
+
+    ``sample(states, rng)`` maps ``(options, samples, d)`` float64 to the same shape;
+    slice ``o`` follows option ``o``'s model, with the same distribution as calling
+    ``models[o].sample(states[o], rng)``. Per call: a random permutation of every
+    option's rows, the rows gathered into ``(options * members, ceil(samples / members),
+    d)`` blocks (one block per member), one ``baddbmm`` per layer with the weights stacked
+    to ``(options * members, in, out)``, Gaussian noise, and the rows put back in order.
+    The object keeps the weights it was built with.
+
+    Attributes:
+        rows_computed: member-forward rows evaluated so far (including padding slots
+            when ``members`` does not divide ``samples``); for FLOP counts.
+    """
+
+    def __init__(self, models: Sequence[MLPEnsembleDynamics]) -> None:
+        if not models or len({m.architecture for m in models}) != 1:
+            raise ValueError("stacked ensembles must be non-empty and share one architecture")
+        self.options = len(models)
+        self.members = models[0].members
+        self.state_dim = models[0].state_dim
+        self.groups = self.options * self.members
+        self.rows_computed = 0
+        e = self.members
+        self._weights, self._biases = _folded_layers(models)
+
+        def per_group(rows: list[np.ndarray]) -> np.ndarray:
+            return np.repeat(np.stack(rows), e, axis=0)[:, None, :]  # (groups, 1, d)
+
+        with torch.no_grad():
+            lo = per_group([m.network.min_logvar.numpy()[0].astype(np.float64) for m in models])
+            hi = per_group([m.network.max_logvar.numpy()[0].astype(np.float64) for m in models])
+        log_sd = per_group([np.log(m.delta_std) for m in models])
+        # logvar = lo + softplus((hi - lo) - softplus(hi - raw)), and in state units
+        # sigma = exp(0.5 * logvar + log(delta_std)) = exp(0.5 * softplus(.) + offset)
+        self._max_logvar = torch.from_numpy(hi.astype(np.float32))
+        self._logvar_span = torch.from_numpy((hi - lo).astype(np.float32))
+        self._log_std_offset = torch.from_numpy((0.5 * lo + log_sd).astype(np.float32))
+        self._layouts: dict[int, _Layout] = {}
+
+    def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
+        """``(options, samples, d)`` float64 -> next states, same shape, float64."""
+        o, s, d = states.shape
+        if o != self.options or d != self.state_dim:
+            raise ValueError(f"states must be ({self.options}, samples, {self.state_dim}), "
+                             f"got {states.shape}")
+        lay = self._layouts.get(s)
+        if lay is None:
+            if len(self._layouts) >= _MAX_LAYOUTS:
+                del self._layouts[next(iter(self._layouts))]
+            widths = [w.shape[2] for w in self._weights]
+            lay = self._layouts[s] = _Layout(o, self.members, s, d, widths)
+        gather, scatter = lay.draw(rng)
+        noise = rng.standard_normal((self.groups, lay.slots, d), dtype=np.float32)
+        np.take(states.reshape(o * s, d), gather, axis=0, out=lay.x64)
+        lay.x32_np[...] = lay.x64_blocks
+        with torch.inference_mode():
+            x = lay.x32
+            h = x
+            for i in range(len(self._weights) - 1):
+                h = torch.baddbmm(self._biases[i], h, self._weights[i], out=lay.hidden[i])
+                F.silu(h, inplace=True)
+            out = torch.baddbmm(self._biases[-1], h, self._weights[-1], out=lay.hidden[-1])
+            t = F.softplus(torch.sub(self._max_logvar, out[..., d:], out=lay.tmp))
+            t = F.softplus(torch.sub(self._logvar_span, t, out=lay.tmp))
+            std = torch.add(self._log_std_offset, t, alpha=0.5, out=lay.tmp).exp_()
+            nxt = torch.addcmul(x, std, torch.from_numpy(noise), out=lay.next)
+            nxt.add_(out[..., :d])
+        result = np.empty((lay.result_rows, d))
+        result[scatter] = lay.next_np
+        self.rows_computed += self.groups * lay.slots
+        return result[:o * s].reshape(o, s, d)
+
+
+class _Layout:
+    """Work buffers and the random row-to-member assignment for one ``samples`` size.
+
+    Rows are taken in a random order (a permutation per option); position ``p`` of that
+    order goes to member ``(p + c) % members`` (slot ``p // members``), where the
+    rotation ``c`` is uniform (it only matters when ``members`` does not divide
+    ``samples``): every row's member is uniform over the ensemble and every member gets
+    ``ceil(samples / members)`` or one fewer rows. ``widths`` are the layers' output
+    widths.
+    """
+
+    def __init__(self, options: int, members: int, samples: int, d: int,
+                 widths: Sequence[int]) -> None:
+        self.options, self.members, self.samples = options, members, samples
+        e = members
+        m = self.slots = -(-samples // members)
+        self.padded = e * m != samples
+        n_slots = options * e * m
+        # a padded slot computes on a copy of a real row and writes to an extra result row
+        self.result_rows = options * samples + int(self.padded)
+        self._row_base = (np.arange(options) * samples)[:, None]
+        if self.padded:
+            rot = np.arange(e)[:, None, None]
+            # [c, e * m + j] -> position read by member e's slot j, or ``samples`` (padding)
+            pos = (np.arange(e)[None, :, None] - rot) % e + e * np.arange(m)[None, None, :]
+            self._pos_of_slot = np.where(pos < samples, pos, samples).reshape(e, e * m)
+            self._ext_base = (np.arange(options) * (samples + 1))[:, None]
+            self._gather_ext = np.empty((options, samples + 1), dtype=np.intp)
+            self._scatter_ext = np.empty((options, samples + 1), dtype=np.intp)
+            self._gather_ext[:, samples] = self._row_base[:, 0]  # padding reads row 0
+            self._scatter_ext[:, samples] = options * samples  # ... and writes the extra row
+        self.x64 = np.empty((n_slots, d))
+        self.x64_blocks = self.x64.reshape(options * e, m, d)
+        self.x32_np = np.empty((options * e, m, d), dtype=np.float32)
+        self.x32 = torch.from_numpy(self.x32_np)
+        self.hidden = [torch.empty(options * e, m, w) for w in widths]
+        self.tmp = torch.empty(options * e, m, d)
+        self.next = torch.empty(options * e, m, d)
+        self.next_np = self.next.numpy().reshape(n_slots, d)
+
+    def draw(self, rng: Generator) -> tuple[np.ndarray, np.ndarray]:
+        """A fresh assignment: for every block slot, ``(options * members * slots,)``, the
+        state row it reads and the result row it writes."""
+        o, e, s = self.options, self.members, self.samples
+        if not self.padded:
+            rows = np.argsort(rng.random((o, s)), axis=1)
+            rows += self._row_base
+            flat = rows.reshape(-1)  # member k of option o takes positions k*m .. k*m+m-1
+            return flat, flat
+        u = rng.random((o, s + 1))
+        rows = np.argsort(u[:, :s], axis=1)
+        rows += self._row_base
+        self._gather_ext[:, :s] = rows
+        self._scatter_ext[:, :s] = rows
+        c = (u[:, s] * e).astype(np.intp)  # rotation of every option
+        idx = self._pos_of_slot[c] + self._ext_base
+        return (np.take(self._gather_ext, idx).reshape(-1),
+                np.take(self._scatter_ext, idx).reshape(-1))
+
+
+def _folded_layers(models: Sequence[MLPEnsembleDynamics]) -> tuple[list[torch.Tensor],
+                                                                    list[torch.Tensor]]:
+    """Stack the members of all models to ``(options * members, in, out)`` float32.
+
+    The input normalisation is folded into the first layer and the mean part of the
+    output denormalisation into the last (computed in float64, then rounded once).
+    """
+    n_layers = len(models[0].network.weights)
+    weights: list[list[np.ndarray]] = [[] for _ in range(n_layers)]
+    biases: list[list[np.ndarray]] = [[] for _ in range(n_layers)]
+    with torch.no_grad():
+        for model in models:
+            d = model.state_dim
+            ws = [w.numpy().astype(np.float64) for w in model.network.weights]
+            bs = [b.numpy().astype(np.float64) for b in model.network.biases]
+            # layer 0 on (x - mu) / sd  ==  x @ (W / sd[:, None]) + (b - (mu / sd) @ W)
+            inv = 1.0 / model.input_std
+            bs[0] = bs[0] - np.einsum("i,eio->eo", model.input_mean * inv, ws[0])[:, None, :]
+            ws[0] = ws[0] * inv[None, :, None]
+            # mean outputs: delta = mean_n * delta_std + delta_mean
+            ws[-1][:, :, :d] *= model.delta_std
+            bs[-1][:, :, :d] = bs[-1][:, :, :d] * model.delta_std + model.delta_mean
+            for i in range(n_layers):
+                weights[i].append(ws[i])
+                biases[i].append(bs[i])
+    return ([torch.from_numpy(np.concatenate(w).astype(np.float32)) for w in weights],
+            [torch.from_numpy(np.concatenate(b).astype(np.float32)) for b in biases])
+
+
+def _mean_std(a: FloatArray) -> tuple[FloatArray, FloatArray]:
+    mean = a.mean(axis=0)
+    std = a.std(axis=0)
+    return mean, np.where(std > 1e-8, std, 1.0)
+
+
+def _meta_int(meta: dict[str, Any], name: str, path: str | os.PathLike[str]) -> int:
+    value = meta.get(name)
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise DynoplanError(f"{path}: metadata field '{name}' must be a positive integer, "
+                            f"got {value!r}")
+    return value
+
+
+def _float32(a: np.ndarray, name: str, path: str | os.PathLike[str]) -> np.ndarray:
+    if a.dtype != np.float32:
+        raise DynoplanError(f"{path}: array '{name}' is {a.dtype}, expected float32")
+    return a

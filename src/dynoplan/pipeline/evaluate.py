@@ -1,0 +1,162 @@
+"""Evaluating controllers built from options: DynoPlan, each option alone, random choice.
+
+Every controller runs the same seeded episodes (:func:`~dynoplan.experiments.episodes.
+episode_seeds`), so the rows of a results table differ only by the controller.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
+from dynoplan.control.controller import Controller, EpisodeTrace
+from dynoplan.errors import DynoplanError
+from dynoplan.experiments.episodes import episode_seeds, quantile_or_none, run_episodes
+from dynoplan.models.goal import GoalHeuristic
+from dynoplan.options.option import Option
+from dynoplan.planning.option_planner import OptionPlanner
+from dynoplan.reports.tables import markdown_table
+
+DYNOPLAN = "dynoplan"
+RANDOM = "random"
+OPTION_PREFIX = "option:"
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    """How DynoPlan plans and how every controller runs an episode.
+
+    Attributes:
+        horizon: ``n`` of Eq. 1, in model steps (``stride`` environment steps each).
+        samples: Monte-Carlo rollouts per option.
+        risk: ``k`` in ``E[G] - k * std[G]`` (0: the paper's expectation).
+        replan_every: plan again after this many environment steps (``None``: only
+            when the option stops).
+        margin: score advantage needed to replace a running option at a replan.
+        max_decisions: planning steps before an episode is given up.
+        max_option_steps: environment steps one option may run between decisions.
+        hold_action: action when no option is admissible (``None``: end the episode).
+    """
+
+    horizon: int = 20
+    samples: int = 32
+    risk: float = 0.0
+    replan_every: int | None = 10
+    margin: float = 0.0
+    max_decisions: int = 1000
+    max_option_steps: int = 1000
+    hold_action: Any = None
+
+    def validate(self) -> None:
+        if self.horizon < 1 or self.samples < 1:
+            raise DynoplanError(
+                f"horizon and samples must be >= 1, got {self.horizon} and {self.samples}")
+        if self.replan_every is not None and self.replan_every < 1:
+            raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
+        if self.max_decisions < 1 or self.max_option_steps < 1:
+            raise DynoplanError("max_decisions and max_option_steps must be >= 1")
+
+
+def controller_names(options: Sequence[Option]) -> list[str]:
+    """``dynoplan``, then ``option:<name>`` for every option, then ``random``."""
+    return [DYNOPLAN, *(OPTION_PREFIX + o.name for o in options), RANDOM]
+
+
+def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
+                    settings: ControllerSettings,
+                    planner_options: Sequence[Option] | None = None) -> Controller:
+    """A controller by name: ``dynoplan``, ``random`` or ``option:<name>``.
+
+    Args:
+        options: the options the controller runs.
+        goal: the goal heuristic (used by ``dynoplan`` only).
+        planner_options: the options as the planner sees them (same names; they may
+            carry multi-step dynamics and per-model-step terminations); default
+            ``options``.
+    """
+    settings.validate()
+    chooser: OptionChooser
+    if kind == DYNOPLAN:
+        chooser = OptionPlanner(planner_options or options, goal, horizon=settings.horizon,
+                                samples=settings.samples, risk=settings.risk)
+    elif kind == RANDOM:
+        chooser = RandomChoice(options)
+    elif kind.startswith(OPTION_PREFIX):
+        chooser = FixedChoice(options, kind.removeprefix(OPTION_PREFIX))
+    else:
+        raise DynoplanError(
+            f"unknown controller '{kind}' (known: {', '.join(controller_names(options))})")
+    alone = kind != DYNOPLAN
+    return Controller(options, chooser, max_decisions=settings.max_decisions,
+                      max_option_steps=settings.max_option_steps,
+                      replan_every=None if alone else settings.replan_every,
+                      margin=settings.margin, hold_action=settings.hold_action)
+
+
+def summarize(traces: Sequence[EpisodeTrace]) -> dict[str, Any]:
+    """Success rate, time to success, return and decision statistics of some episodes.
+
+    ``steps_to_success_*`` are over successful episodes only (``None`` if there are
+    none); latencies are per decision, in milliseconds; ``option_share`` is the fraction
+    of all environment steps each option ran (options that never ran are left out).
+    """
+    if not traces:
+        raise DynoplanError("no episodes to summarise")
+    successes = [t.env_steps for t in traces if t.success]
+    latencies = [1e3 * x for t in traces for x in t.latencies_s]
+    ran: dict[str, int] = {}
+    for t in traces:
+        for d in t.decisions:
+            if d.option is not None:
+                ran[d.option] = ran.get(d.option, 0) + d.steps
+    total = max(sum(ran.values()), 1)
+    return {
+        "episodes": len(traces),
+        "success_rate": float(np.mean([t.success for t in traces])),
+        "steps_to_success_mean": float(np.mean(successes)) if successes else None,
+        "steps_to_success_median": float(np.median(successes)) if successes else None,
+        "return_mean": float(np.mean([t.total_reward for t in traces])),
+        "env_steps_mean": float(np.mean([t.env_steps for t in traces])),
+        "decisions_mean": float(np.mean([t.planning_steps for t in traces])),
+        "switches_mean": float(np.mean([t.switches for t in traces])),
+        "out_of_region_starts": int(sum(t.out_of_region_starts for t in traces)),
+        "no_admissible": int(sum(t.no_admissible for t in traces)),
+        "latency_ms_p50": quantile_or_none(latencies, 0.5),
+        "latency_ms_p95": quantile_or_none(latencies, 0.95),
+        "option_share": {name: steps / total for name, steps in sorted(ran.items())},
+    }
+
+
+def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
+                         goal: GoalHeuristic, settings: ControllerSettings, episodes: int,
+                         seed: int, planner_options: Sequence[Option] | None = None,
+                         controllers: Sequence[str] | None = None,
+                         progress: bool = False) -> dict[str, dict[str, Any]]:
+    """Run each controller on the same ``episodes`` seeded episodes; one summary each.
+
+    ``controllers`` defaults to :func:`controller_names` (DynoPlan, every option alone,
+    random choice).
+    """
+    if episodes < 1:
+        raise DynoplanError(f"episodes must be >= 1, got {episodes}")
+    seeds = episode_seeds(seed, episodes)
+    rows: dict[str, dict[str, Any]] = {}
+    for kind in controllers or controller_names(options):
+        controller = make_controller(kind, options, goal, settings, planner_options)
+        rows[kind] = summarize(run_episodes(env, controller, seeds, kind, progress))
+    return rows
+
+
+_COLUMNS = ["controller", "success_rate", "steps_to_success_mean", "return_mean",
+            "decisions_mean", "out_of_region_starts", "latency_ms_p50"]
+_HEADERS = ["controller", "success rate", "steps to success (mean)", "return (mean)",
+            "decisions (mean)", "out-of-region starts", "decision latency p50 (ms)"]
+
+
+def results_table(rows: dict[str, dict[str, Any]]) -> str:
+    """The evaluation as a markdown table, one row per controller."""
+    return markdown_table([{"controller": name, **row} for name, row in rows.items()],
+                          _COLUMNS, _HEADERS)

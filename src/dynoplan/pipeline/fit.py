@@ -1,0 +1,416 @@
+"""Learning what the planner needs from labelled episodes.
+
+- per option, a dynamics model ``D_w`` on its transitions (:func:`option_transitions`,
+  :func:`fit_dynamics`); by default a probabilistic MLP ensemble
+  (:class:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics`), any other learner can
+  be passed as a :data:`DynamicsFitter`;
+- the goal heuristic ``G`` on the demonstrations' progress (:func:`fit_goal`);
+- the safety regions of Eq. 5 on the demonstrations' option labels (:func:`fit_regions`).
+
+**Model stride.** With ``stride = k > 1`` a dynamics model predicts ``k`` environment
+steps at once (``s_{t+k}`` from ``s_t`` while the option runs), so a planning horizon of
+``n`` model steps looks ``n * k`` environment steps ahead with ``k`` times fewer model
+calls and less compounding error. The planner then draws termination once per model
+step with ``1 - (1 - beta(s))^k`` (:class:`StridedTermination`), the probability that
+the option stops somewhere in those ``k`` steps when ``beta`` hardly changes over them.
+"""
+
+import json
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from dynoplan.adapters.spec import OptionSpec
+from dynoplan.data.episodes import OPTION_KEY, Episode
+from dynoplan.errors import DynoplanError
+from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
+from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
+from dynoplan.models.regions import SafetyRegions
+from dynoplan.models.training import one_step_error
+from dynoplan.options.initiation import Everywhere, Initiation, InRegion
+from dynoplan.options.option import Option
+from dynoplan.options.termination import ConstantTermination, Termination
+from dynoplan.pipeline.collect import ObservationFn, flat_state
+from dynoplan.types import FloatArray
+
+MODELS_FILE = "models.json"
+MODELS_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """How the models are learned (recorded in the summary and in ``models.json``).
+
+    Attributes:
+        stride: environment steps per dynamics-model step (see the module docstring).
+        dynamics_hidden: hidden layer widths of each option's MLP ensemble.
+        dynamics_members: ensemble size.
+        dynamics_epochs: training epochs of each ensemble.
+        goal_hidden: hidden width of the goal network.
+        goal_members: goal ensemble size.
+        goal_epochs: training epochs of the goal network.
+        regions: fit the safety regions (Eq. 5) and use them as initiation sets of the
+            options that appear in the demonstrations (the others keep theirs).
+        region_coverage: fraction of an option's demonstration states inside its region.
+        region_slack: nats subtracted from every region threshold (widens them).
+        region_components: mixture size (``None``: chosen by BIC in
+            ``1..region_max_components``; with few demonstration states BIC can pick
+            many tiny components, so fix it or lower the maximum).
+        region_max_components: the largest mixture BIC may choose.
+    """
+
+    stride: int = 1
+    dynamics_hidden: tuple[int, ...] = (64, 64)
+    dynamics_members: int = 5
+    dynamics_epochs: int = 30
+    goal_hidden: int = 64
+    goal_members: int = 1
+    goal_epochs: int = 150
+    regions: bool = True
+    region_coverage: float = 0.99
+    region_slack: float = 0.0
+    region_components: int | None = None
+    region_max_components: int = 12
+
+    def validate(self) -> None:
+        if self.stride < 1:
+            raise DynoplanError(f"stride must be >= 1, got {self.stride}")
+        if self.dynamics_members < 1 or self.dynamics_epochs < 1 or not self.dynamics_hidden:
+            raise DynoplanError("dynamics_members, dynamics_epochs and dynamics_hidden must "
+                                "be positive")
+        if self.goal_hidden < 1 or self.goal_members < 1 or self.goal_epochs < 1:
+            raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
+        if not 0.0 < self.region_coverage <= 1.0:
+            raise DynoplanError(f"region_coverage must be in (0, 1], got {self.region_coverage}")
+
+
+class DynamicsFitter(Protocol):
+    """Learns one option's ``D_w``: ``fit(option, states (N, d), next_states (N, d), seed)``."""
+
+    def __call__(self, option: str, states: FloatArray, next_states: FloatArray,
+                 seed: int) -> DynamicsModel: ...
+
+
+def ensemble_fitter(settings: FitSettings) -> DynamicsFitter:
+    """The default :data:`DynamicsFitter`: an MLP ensemble per option (PETS-style)."""
+
+    def fit(option: str, states: FloatArray, next_states: FloatArray,
+            seed: int) -> DynamicsModel:
+        model = MLPEnsembleDynamics(states.shape[1], settings.dynamics_hidden,
+                                    settings.dynamics_members, option=option, seed=seed)
+        model.fit(states, next_states, epochs=settings.dynamics_epochs, seed=seed)
+        return model
+
+    return fit
+
+
+def episode_states(episode: Episode, state_fn: ObservationFn = flat_state) -> FloatArray:
+    """``state_fn`` of every observation of ``episode``: ``(T+1, state_dim)`` float64."""
+    return np.stack([np.asarray(state_fn(o), dtype=np.float64).reshape(-1)
+                     for o in episode.observations])
+
+
+def option_transitions(episodes: Sequence[Episode], option_names: Sequence[str],
+                       state_fn: ObservationFn = flat_state,
+                       stride: int = 1) -> dict[str, tuple[FloatArray, FloatArray]]:
+    """Per option, the pairs ``(s_t, s_{t+stride})`` during which only it acted.
+
+    Returns:
+        ``{name: (states (N, d), next_states (N, d))}``, ``N`` possibly 0.
+
+    Raises:
+        DynoplanError: an episode has no option labels, or labels outside the names.
+    """
+    found: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {
+        n: ([], []) for n in option_names}
+    for index, episode in enumerate(episodes):
+        labels = _labels(episode, index, len(option_names))
+        if len(labels) < stride:
+            continue
+        rows = episode_states(episode, state_fn)
+        windows = np.lib.stride_tricks.sliding_window_view(labels, stride)  # (T-k+1, k)
+        same = (windows == windows[:, :1]).all(axis=1)
+        for k, name in enumerate(option_names):
+            t = np.flatnonzero(same & (windows[:, 0] == k))
+            found[name][0].append(rows[t])
+            found[name][1].append(rows[t + stride])
+    d = None
+    out: dict[str, tuple[FloatArray, FloatArray]] = {}
+    for name, (s, n) in found.items():
+        if s:
+            out[name] = (np.concatenate(s), np.concatenate(n))
+            d = out[name][0].shape[1]
+    for name in option_names:
+        if name not in out:
+            out[name] = (np.zeros((0, d or 0)), np.zeros((0, d or 0)))
+    return out
+
+
+def _labels(episode: Episode, index: int, n_options: int) -> np.ndarray:
+    labels = episode.infos.get(OPTION_KEY)
+    if labels is None:
+        known = ", ".join(sorted(episode.infos)) or "none"
+        raise DynoplanError(
+            f"episode {index} has no option labels (infos['{OPTION_KEY}']; its infos: "
+            f"{known}): every step of a demonstration must name the option that acted")
+    if labels.size and (labels.min() < 0 or labels.max() >= n_options):
+        raise DynoplanError(
+            f"episode {index}: option labels must lie in 0..{n_options - 1}, found "
+            f"{int(labels.min())}..{int(labels.max())}")
+    return labels
+
+
+def fit_dynamics(transitions: dict[str, tuple[FloatArray, FloatArray]], seed: int,
+                 fitter: DynamicsFitter, min_transitions: int = 10,
+                 ) -> tuple[dict[str, DynamicsModel], dict[str, dict[str, Any]]]:
+    """Fit one dynamics model per option and report its one-step error.
+
+    Returns:
+        The models by name, and per option ``{"transitions", "rmse", "no_change_rmse"}``
+        (one-step error on its own training pairs, against predicting no change; for
+        models without ``predict`` the errors are ``None``).
+
+    Raises:
+        DynoplanError: an option has fewer than ``min_transitions`` transitions.
+    """
+    models: dict[str, DynamicsModel] = {}
+    report: dict[str, dict[str, Any]] = {}
+    for k, (name, (s, nxt)) in enumerate(transitions.items()):
+        if len(s) < min_transitions:
+            raise DynoplanError(
+                f"option '{name}': only {len(s)} transitions to learn its dynamics from "
+                f"(need >= {min_transitions}); collect more episodes or lower the stride")
+        model = fitter(name, s, nxt, seed + k)
+        models[name] = model
+        row: dict[str, Any] = {"transitions": len(s), "rmse": None, "no_change_rmse": None}
+        if callable(getattr(model, "predict", None)):
+            err = one_step_error(model, s, nxt)  # type: ignore[arg-type]
+            row["rmse"], row["no_change_rmse"] = err.model_rmse_total, err.baseline_rmse_total
+        report[name] = row
+    return models, report
+
+
+def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
+             state_fn: ObservationFn = flat_state) -> tuple[GoalNetwork, dict[str, Any]]:
+    """Fit the goal network on the demonstrations (progress ``t / T`` of each state).
+
+    Returns the network and ``{"states", "spearman", "mae", "coverage_90"}`` measured on
+    the training demonstrations.
+    """
+    states, progress, _ = goal_training_set(demos, lambda obs: _batch_states(obs, state_fn))
+    goal, _ = GoalNetwork.fit(states, progress, hidden=settings.goal_hidden,
+                              members=settings.goal_members, epochs=settings.goal_epochs,
+                              seed=seed)
+    return goal, {"states": len(states), **evaluate_goal(goal, states, progress)}
+
+
+def _batch_states(observations: np.ndarray, state_fn: ObservationFn) -> FloatArray:
+    return np.stack([np.asarray(state_fn(o), dtype=np.float64).reshape(-1)
+                     for o in observations])
+
+
+def fit_regions(demos: Sequence[Episode], option_names: Sequence[str], settings: FitSettings,
+                seed: int, state_fn: ObservationFn = flat_state) -> SafetyRegions:
+    """Eq. 5 on the demonstrations, for the options that appear in them.
+
+    The regions' ``option_names`` are the demonstrated options, in the given order.
+
+    Raises:
+        DynoplanError: a demonstration without option labels.
+    """
+    states, labels = [], []
+    for index, episode in enumerate(demos):
+        labels.append(_labels(episode, index, len(option_names)))
+        states.append(episode_states(episode, state_fn)[:-1])
+    y = np.concatenate(labels)
+    shown = [k for k in range(len(option_names)) if np.any(y == k)]
+    remap = np.full(len(option_names), -1)
+    remap[shown] = np.arange(len(shown))
+    return SafetyRegions.fit(np.concatenate(states), remap[y], [option_names[k] for k in shown],
+                             n_components=settings.region_components,
+                             max_components=settings.region_max_components,
+                             coverage=settings.region_coverage, slack=settings.region_slack,
+                             seed=seed)
+
+
+class StridedTermination:
+    """``1 - (1 - beta(s))^k``: the chance that an option stops within ``k`` steps."""
+
+    def __init__(self, base: Termination, stride: int) -> None:
+        self.base = base
+        self.stride = int(stride)
+
+    def probability(self, states: FloatArray) -> FloatArray:
+        beta = np.asarray(self.base.probability(states), dtype=np.float64)
+        return 1.0 - (1.0 - beta) ** self.stride
+
+
+def strided(termination: Termination, stride: int) -> Termination:
+    """The per-model-step termination for ``stride`` environment steps per model step."""
+    if stride == 1:
+        return termination
+    if isinstance(termination, ConstantTermination):  # stays stackable
+        return ConstantTermination(1.0 - (1.0 - termination.beta) ** stride)
+    return StridedTermination(termination, stride)
+
+
+@dataclass
+class FittedModels:
+    """Everything learned: per-option dynamics, the goal heuristic, the regions.
+
+    Attributes:
+        option_names: all options, in order.
+        dynamics: ``{name: D_w}``.
+        goal: the goal heuristic ``G``.
+        regions: the fitted Eq. 5 regions (``None`` when not fitted); their
+            ``option_names`` are the demonstrated options.
+        stride: environment steps per model step.
+        report: what fitting measured (transitions, errors, goal fit).
+    """
+
+    option_names: list[str]
+    dynamics: dict[str, DynamicsModel]
+    goal: GoalNetwork
+    regions: SafetyRegions | None = None
+    stride: int = 1
+    report: dict[str, Any] = field(default_factory=dict)
+    use_regions: bool = True
+
+    def initiation(self, spec: OptionSpec) -> Initiation:
+        """The option's region when it has one (and regions are used), else its own set."""
+        if (self.use_regions and self.regions is not None
+                and spec.name in self.regions.option_names):
+            if not isinstance(spec.initiation, Everywhere):
+                return _Both(spec.initiation, InRegion(self.regions, spec.name))
+            return InRegion(self.regions, spec.name)
+        return spec.initiation
+
+    def build(self, specs: Sequence[OptionSpec]) -> tuple[list[Option], list[Option]]:
+        """The options the controller runs and the same options as the planner sees them.
+
+        Both lists carry the learned dynamics and the initiation sets; the planner's
+        terminations are per model step (:func:`strided`).
+        """
+        run, plan = [], []
+        for spec in specs:
+            if spec.name not in self.dynamics:
+                raise DynoplanError(f"no dynamics model for option '{spec.name}'")
+            initiation = self.initiation(spec)
+            model = self.dynamics[spec.name]
+            run.append(Option(spec.name, spec.policy, model, spec.termination, initiation))
+            plan.append(Option(spec.name, spec.policy, model,
+                               strided(spec.termination, self.stride), initiation))
+        return run, plan
+
+    def save(self, folder: str | os.PathLike[str]) -> Path:
+        """Write every model file and ``models.json`` (the index) into ``folder``.
+
+        Dynamics models without a ``save`` method are listed with ``"file": null``.
+        """
+        out = ensure_writable_dir(folder)
+        dynamics: dict[str, str | None] = {}
+        for name, model in self.dynamics.items():
+            save = getattr(model, "save", None)
+            if callable(save):
+                file = f"dynamics_{name}.safetensors"
+                save(out / file)
+                dynamics[name] = file
+            else:
+                dynamics[name] = None
+        self.goal.save(out / "goal.safetensors")
+        if self.regions is not None:
+            self.regions.save(out / "regions.safetensors")
+        write_json(out / MODELS_FILE, {
+            "format_version": MODELS_FORMAT_VERSION,
+            "option_names": self.option_names,
+            "stride": self.stride,
+            "use_regions": self.use_regions,
+            "dynamics": dynamics,
+            "goal": "goal.safetensors",
+            "regions": "regions.safetensors" if self.regions is not None else None,
+            "report": self.report,
+        })
+        return out
+
+    @classmethod
+    def load(cls, folder: str | os.PathLike[str]) -> "FittedModels":
+        """Read a folder written by :meth:`save` (MLP-ensemble dynamics only).
+
+        Raises:
+            DynoplanError: a missing or malformed ``models.json`` or model file.
+        """
+        root = Path(folder)
+        index = root / MODELS_FILE
+        try:
+            doc = json.loads(index.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise DynoplanError(f"{index}: file not found (not a models folder)") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise DynoplanError(f"{index}: not readable JSON ({exc})") from None
+        version = doc.get("format_version") if isinstance(doc, dict) else None
+        if version != MODELS_FORMAT_VERSION:
+            raise DynoplanError(
+                f"{index}: format_version {version!r} is not {MODELS_FORMAT_VERSION}")
+        names, files = doc.get("option_names"), doc.get("dynamics")
+        if not isinstance(names, list) or not isinstance(files, dict):
+            raise DynoplanError(f"{index}: fields 'option_names' and 'dynamics' are required")
+        dynamics: dict[str, DynamicsModel] = {}
+        for name in names:
+            file = files.get(name)
+            if not isinstance(file, str):
+                raise DynoplanError(f"{index}: option '{name}' has no dynamics model file")
+            dynamics[name] = MLPEnsembleDynamics.load(root / file)
+        regions_file = doc.get("regions")
+        regions = SafetyRegions.load(root / regions_file) if isinstance(regions_file,
+                                                                        str) else None
+        stride = doc.get("stride", 1)
+        if not isinstance(stride, int) or stride < 1:
+            raise DynoplanError(f"{index}: field 'stride' must be a positive integer")
+        return cls([str(n) for n in names], dynamics, GoalNetwork.load(root / str(doc["goal"])),
+                   regions, stride, dict(doc.get("report", {})),
+                   bool(doc.get("use_regions", True)))
+
+
+class _Both:
+    """The intersection of two initiation sets."""
+
+    def __init__(self, a: Initiation, b: Initiation) -> None:
+        self.a, self.b = a, b
+
+    def contains(self, states: FloatArray) -> np.ndarray:
+        return np.asarray(self.a.contains(states)) & np.asarray(self.b.contains(states))
+
+
+def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
+               demos: Sequence[Episode], settings: FitSettings, seed: int,
+               state_fn: ObservationFn = flat_state,
+               fitter: DynamicsFitter | None = None,
+               progress: Callable[[str], None] | None = None) -> FittedModels:
+    """Fit dynamics (on transitions and demonstrations), goal and regions (on demonstrations).
+
+    Args:
+        progress: called with a short message before each stage (for a status line).
+    """
+    settings.validate()
+    names = [s.name for s in specs]
+    say = progress or (lambda _msg: None)
+    say("dynamics")
+    pairs = option_transitions([*transitions, *demos], names, state_fn, settings.stride)
+    dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
+    say("goal heuristic")
+    goal, goal_report = fit_goal(demos, settings, seed, state_fn)
+    regions = None
+    if settings.regions:
+        say("safety regions")
+        regions = fit_regions(demos, names, settings, seed, state_fn)
+    report = {"settings": asdict(settings), "dynamics": dyn_report, "goal": goal_report,
+              "regions": None if regions is None else {
+                  "components": regions.n_components, "options": regions.option_names}}
+    return FittedModels(names, dynamics, goal, regions, settings.stride, report,
+                        settings.regions)

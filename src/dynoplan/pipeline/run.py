@@ -1,0 +1,348 @@
+"""The whole generic pipeline in one call: collect, fit, control, evaluate.
+
+::
+
+    result = run_pipeline("MountainCarContinuous-v0", make_options(),
+                          demonstrator=make_demonstrator(), settings=PipelineSettings())
+    print(result.table)
+
+Seeds: one ``seed`` is split (``numpy.random.SeedSequence.spawn``) into independent
+streams for the demonstrations, the exploration episodes, model fitting and the
+evaluation episodes, so changing the number of one never changes the others.
+"""
+
+import importlib
+import importlib.util
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan import __version__
+from dynoplan.adapters.spec import OptionSpec, as_spec
+from dynoplan.data.dataset import Dataset, write_dataset
+from dynoplan.data.episodes import OPTION_KEY, Episode
+from dynoplan.data.metadata import DatasetMetadata
+from dynoplan.errors import DynoplanError
+from dynoplan.io import ensure_writable_dir, write_json, write_text
+from dynoplan.options.option import Option
+from dynoplan.pipeline.collect import (
+    ObservationFn,
+    collect_transitions,
+    flat_state,
+    make_env,
+    probe_options,
+    record_demonstrations,
+)
+from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_controllers, results_table
+from dynoplan.pipeline.fit import DynamicsFitter, FitSettings, FittedModels, fit_models
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Everything that defines a pipeline run (recorded in ``summary.json``).
+
+    Attributes:
+        demos: successful demonstrations to record (when none are given).
+        exploration_episodes: episodes of randomly chosen options for the dynamics.
+        exploration_option_steps: most steps an option runs while exploring.
+        episodes: evaluation episodes per controller.
+        seed: the one seed every random choice derives from.
+        fit: how the models are learned.
+        control: how DynoPlan plans and every controller runs.
+        controllers: which controllers to evaluate (default: DynoPlan, each option
+            alone, random choice).
+    """
+
+    demos: int = 5
+    exploration_episodes: int = 20
+    exploration_option_steps: int = 100
+    episodes: int = 100
+    seed: int = 0
+    fit: FitSettings = field(default_factory=FitSettings)
+    control: ControllerSettings = field(default_factory=ControllerSettings)
+    controllers: tuple[str, ...] | None = None
+
+    def validate(self) -> None:
+        for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes"):
+            if getattr(self, name) < 1:
+                raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
+        self.fit.validate()
+        self.control.validate()
+
+
+@dataclass
+class PipelineResult:
+    """What :func:`run_pipeline` produced.
+
+    Attributes:
+        options: the options as the controller runs them (learned dynamics, regions).
+        planner_options: the same options as the planner sees them.
+        models: the learned models.
+        demos: the demonstrations (option and progress labels).
+        transitions: the exploration episodes (option labels).
+        evaluation: one summary per controller (``success_rate``, ...).
+        summary: the content of ``summary.json``.
+    """
+
+    options: list[Option]
+    planner_options: list[Option]
+    models: FittedModels
+    demos: list[Episode]
+    transitions: list[Episode]
+    evaluation: dict[str, dict[str, Any]]
+    summary: dict[str, Any]
+
+    @property
+    def table(self) -> str:
+        """The evaluation as a markdown table."""
+        return results_table(self.evaluation)
+
+
+def _seeds(seed: int) -> dict[str, int]:
+    children = np.random.SeedSequence(seed).spawn(4)
+    names = ("demos", "exploration", "fit", "evaluation")
+    return {n: int(c.generate_state(1)[0] % 2**31) for n, c in zip(names, children, strict=True)}
+
+
+def _env_id(env: gym.Env[Any, Any]) -> str | None:
+    return env.spec.id if env.spec is not None else None
+
+
+def demos_from_dataset(dataset: Dataset | Sequence[Episode],
+                       option_names: Sequence[str]) -> list[Episode]:
+    """Demonstrations to fit from; labels are mapped from the dataset's option names.
+
+    Raises:
+        DynoplanError: an episode without option labels, a dataset option name that is
+            not one of ``option_names``.
+    """
+    episodes = list(dataset)
+    if not episodes:
+        raise DynoplanError("no demonstrations given")
+    names = list(option_names)
+    mapping: np.ndarray | None = None
+    if isinstance(dataset, Dataset) and dataset.metadata.option_names:
+        unknown = [n for n in dataset.metadata.option_names if n not in names]
+        if unknown:
+            raise DynoplanError(
+                f"the demonstrations' option names {unknown} are not among the options "
+                f"({', '.join(names)})")
+        mapping = np.array([names.index(n) for n in dataset.metadata.option_names])
+    out = []
+    for index, episode in enumerate(episodes):
+        labels = episode.infos.get(OPTION_KEY)
+        if labels is None:
+            raise DynoplanError(
+                f"demonstration {index} has no option labels (infos['{OPTION_KEY}']): the "
+                "regions and dynamics need the option that chose every action")
+        if mapping is not None:
+            if labels.size and labels.max() >= len(mapping):
+                raise DynoplanError(f"demonstration {index}: option label {int(labels.max())} "
+                                    f"has no name")
+            infos = dict(episode.infos)
+            infos[OPTION_KEY] = mapping[labels]
+            episode = Episode(episode.observations, episode.actions, episode.rewards,
+                              episode.terminations, episode.truncations, infos, episode.seed)
+        elif labels.size and labels.max() >= len(names):
+            raise DynoplanError(
+                f"demonstration {index}: option label {int(labels.max())} but only "
+                f"{len(names)} options")
+        out.append(episode)
+    return out
+
+
+def run_pipeline(
+    env: str | gym.Env[Any, Any],
+    options: Sequence[OptionSpec | Option],
+    demonstrator: Any = None,
+    demos: Dataset | Sequence[Episode] | None = None,
+    settings: PipelineSettings | None = None,
+    out: str | Path | None = None,
+    state_fn: ObservationFn = flat_state,
+    fitter: DynamicsFitter | None = None,
+    progress: bool = False,
+    status: Callable[[str], None] | None = None,
+    command: str | None = None,
+) -> PipelineResult:
+    """Collect, fit, control and evaluate on any Gymnasium environment with a Box space.
+
+    Args:
+        env: a Gymnasium id or an environment.
+        options: the user's options (:func:`~dynoplan.adapters.option_spec`); the
+            dynamics models of all of them are learned (those of given ``Option`` s are
+            replaced).
+        demonstrator: a :class:`~dynoplan.pipeline.Demonstrator` (or
+            ``fn(observation) -> option name``) that records ``settings.demos``
+            demonstrations; not needed when ``demos`` are given.
+        demos: recorded demonstrations (a dataset or episodes) with option labels.
+        settings: see :class:`PipelineSettings`.
+        out: a folder for ``summary.json``, ``results.md``, the datasets (``demos/``,
+            ``transitions/``) and the models (``models/``); ``None`` writes nothing.
+        state_fn: observation -> planner state ``(d,)``; default: the flat observation.
+        fitter: learns each option's dynamics; default: an MLP ensemble.
+        progress: show progress bars on stderr.
+        status: called with the name of each stage as it starts.
+        command: the command line that started the run, recorded in the outputs.
+
+    Raises:
+        DynoplanError: a non-Box observation space, options that disagree with the
+            environment or each other, demonstrations without option labels, no
+            demonstrator and no demonstrations, a failing demonstrator.
+    """
+    settings = settings or PipelineSettings()
+    settings.validate()
+    say = status or (lambda _msg: None)
+    started = time.perf_counter()
+    environment = make_env(env) if isinstance(env, str) else env
+    specs = [as_spec(o) for o in options]
+    seeds = _seeds(settings.seed)
+    state_dim = probe_options(environment, options, state_fn, seeds["demos"])
+    folder = ensure_writable_dir(out) if out is not None else None
+    names = [s.name for s in specs]
+
+    if demos is not None:
+        demo_episodes = demos_from_dataset(demos, names)
+    elif demonstrator is not None:
+        say("demonstrations")
+        demo_episodes = record_demonstrations(environment, specs, demonstrator, settings.demos,
+                                              seeds["demos"], progress=progress)
+    else:
+        raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
+    say("option transitions")
+    transitions = collect_transitions(environment, specs, settings.exploration_episodes,
+                                      seeds["exploration"], state_fn,
+                                      settings.exploration_option_steps, progress=progress)
+    models = fit_models(specs, transitions, demo_episodes, settings.fit, seeds["fit"],
+                        state_fn, fitter, say)
+    run_options, planner_options = models.build(specs)
+    say("evaluation")
+    evaluation = evaluate_controllers(environment, run_options, models.goal, settings.control,
+                                      settings.episodes, seeds["evaluation"], planner_options,
+                                      settings.controllers, progress)
+    summary = {
+        "dynoplan_version": __version__,
+        "env_id": _env_id(environment),
+        "state_dim": state_dim,
+        "options": names,
+        "settings": _jsonable(asdict(settings)),
+        "seeds": seeds,
+        "demonstrations": {"episodes": len(demo_episodes),
+                           "steps": sum(len(e) for e in demo_episodes)},
+        "transitions": {"episodes": len(transitions), "steps": sum(len(e) for e in transitions)},
+        "models": models.report,
+        "controllers": evaluation,
+        "seconds": time.perf_counter() - started,
+        "command": command,
+    }
+    if folder is not None:
+        _write_outputs(folder, environment, names, demo_episodes, transitions, models, summary,
+                       settings)
+    return PipelineResult(run_options, planner_options, models, demo_episodes, transitions,
+                          evaluation, summary)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
+                   demos: list[Episode], transitions: list[Episode], models: FittedModels,
+                   summary: dict[str, Any], settings: PipelineSettings) -> None:
+    env_id = _env_id(env)
+    try:
+        spec_json = env.spec.to_json() if env.spec is not None else None
+    except (TypeError, ValueError):  # kwargs that JSON cannot hold
+        spec_json = None
+    slug = "".join(c if c.isalnum() or c in "-_" else "-" for c in (env_id or "env"))
+    for sub, episodes in (("demos", demos), ("transitions", transitions)):
+        meta = DatasetMetadata(f"dynoplan/{slug}/{sub}-v0", env_id=env_id, env_spec=spec_json,
+                               option_names=names, seed=settings.seed,
+                               observation_space=_box_or_none(env.observation_space),
+                               action_space=_space_or_none(env.action_space))
+        write_dataset(folder / sub, episodes, meta)
+    models.save(folder / "models")
+    write_json(folder / "summary.json", summary)
+    command = summary.get("command")
+    head = f"Produced by `{command}`" if command else "Produced by run_pipeline"
+    n = settings.episodes
+    write_text(folder / "results.md",
+               f"{head} ({n} seeded episodes per controller, seed {settings.seed}).\n\n"
+               f"{results_table(summary['controllers'])}")
+
+
+def _box_or_none(space: gym.Space[Any]) -> gym.spaces.Box | None:
+    return space if isinstance(space, gym.spaces.Box) else None
+
+
+def _space_or_none(space: gym.Space[Any]) -> gym.spaces.Box | gym.spaces.Discrete | None:
+    return space if isinstance(space, gym.spaces.Box | gym.spaces.Discrete) else None
+
+
+def load_object(reference: str) -> Any:
+    """The object named by ``"package.module:name"`` or ``"path/to/file.py:name"``.
+
+    The current folder is searched first, so ``examples.mountain_car.options:make_options``
+    works from the repository root.
+
+    Raises:
+        DynoplanError: a malformed reference, a module that cannot be imported, or a
+            missing name.
+    """
+    module_name, sep, attr = reference.partition(":")
+    if not sep or not module_name or not attr:
+        raise DynoplanError(
+            f"'{reference}': expected MODULE:NAME, e.g. examples.mountain_car.options:make_options")
+    try:
+        if module_name.endswith(".py"):
+            path = Path(module_name)
+            if not path.is_file():
+                raise DynoplanError(f"'{reference}': file {path} not found")
+            spec = importlib.util.spec_from_file_location(path.stem, path)
+            if spec is None or spec.loader is None:
+                raise DynoplanError(f"'{reference}': cannot load {path}")
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        else:
+            if "" not in sys.path and str(Path.cwd()) not in sys.path:
+                sys.path.insert(0, str(Path.cwd()))
+            module = importlib.import_module(module_name)
+    except DynoplanError:
+        raise
+    except ImportError as exc:
+        raise DynoplanError(f"'{reference}': cannot import module '{module_name}' ({exc})") \
+            from None
+    except Exception as exc:  # the user's module raised while importing
+        raise DynoplanError(
+            f"'{reference}': importing failed: {type(exc).__name__}: {exc}") from None
+    try:
+        return getattr(module, attr)
+    except AttributeError:
+        raise DynoplanError(f"'{reference}': module '{module_name}' has no '{attr}'") from None
+
+
+def call_factory(reference: str, what: str) -> Any:
+    """Call the factory named by ``reference`` (see :func:`load_object`) with no arguments."""
+    factory = load_object(reference)
+    if not callable(factory):
+        raise DynoplanError(f"'{reference}': {what} factory is not callable")
+    try:
+        return factory()
+    except DynoplanError:
+        raise
+    except Exception as exc:
+        raise DynoplanError(
+            f"'{reference}': making the {what} failed: {type(exc).__name__}: {exc}") from None

@@ -1,0 +1,324 @@
+"""The generic pipeline: collect, fit, control, evaluate on a user's environment; bad input."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+from dynoplan import DynoplanError
+from dynoplan.adapters import make_option, option_spec
+from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
+from dynoplan.pipeline import (
+    ControllerSettings,
+    FitSettings,
+    FittedModels,
+    PipelineSettings,
+    RandomOptions,
+    StridedTermination,
+    box_state_dim,
+    demos_from_dataset,
+    load_object,
+    option_transitions,
+    probe_options,
+    record_demonstrations,
+    run_pipeline,
+)
+from dynoplan.pipeline.fit import strided
+
+
+class Line(gym.Env):
+    """x on a line, starts in [-1, 1]; the action (clipped to [-1, 1]) is added; goal x >= 5."""
+
+    def __init__(self):
+        self.observation_space = spaces.Box(-100, 100, (1,), np.float64)
+        self.action_space = spaces.Box(-1, 1, (1,), np.float32)
+        self.x = 0.0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = float(self.np_random.uniform(-1, 1))
+        return np.array([self.x]), {}
+
+    def step(self, action):
+        self.x += float(np.clip(np.asarray(action).reshape(-1)[0], -1, 1))
+        done = self.x >= 5
+        return np.array([self.x]), float(done), done, False, {"is_success": done}
+
+
+def line_env():
+    return gym.wrappers.TimeLimit(Line(), 40)
+
+
+def line_options():
+    return [option_spec("right", lambda obs: np.array([1.0], np.float32), termination=0.1),
+            option_spec("left", lambda obs: np.array([-1.0], np.float32), termination=0.1)]
+
+
+SMALL = PipelineSettings(
+    demos=4, exploration_episodes=8, exploration_option_steps=20, episodes=4, seed=3,
+    fit=FitSettings(dynamics_hidden=(32, 32), dynamics_members=2, dynamics_epochs=20,
+                    goal_hidden=16, goal_epochs=60, region_components=1, region_slack=2.0),
+    control=ControllerSettings(horizon=5, samples=8, replan_every=5, max_decisions=60))
+
+
+def _comparable(evaluation):
+    return {k: {m: v for m, v in row.items() if not m.startswith("latency")}
+            for k, row in evaluation.items()}
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    out = tmp_path_factory.mktemp("line")
+    return out, run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                             settings=SMALL, out=out)
+
+
+def test_pipeline_learns_to_go_right_and_beats_going_left(result):
+    _, res = result
+    assert set(res.evaluation) == {"dynoplan", "option:right", "option:left", "random"}
+    assert res.evaluation["dynoplan"]["success_rate"] == 1.0
+    assert res.evaluation["option:right"]["success_rate"] == 1.0
+    assert res.evaluation["option:left"]["success_rate"] == 0.0
+    assert res.models.regions is not None and res.models.regions.option_names == ["right"]
+    assert res.summary["demonstrations"]["episodes"] == 4
+    assert "| dynoplan | 1 |" in res.table
+
+
+def test_pipeline_writes_datasets_models_and_summary(result):
+    out, res = result
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["controllers"]["dynoplan"]["success_rate"] == 1.0
+    assert summary["options"] == ["right", "left"] and summary["state_dim"] == 1
+    assert (out / "results.md").read_text().count("| option:") == 2
+    demos = read_dataset(out / "demos")
+    assert demos.metadata.option_names == ["right", "left"] and len(demos) == 4
+    assert all(np.all(e.options == 0) for e in demos)  # the demonstrator only went right
+    assert np.isclose(demos[0].infos["progress"][-1], 1.0)
+    assert len(read_dataset(out / "transitions")) == 8
+    loaded = FittedModels.load(out / "models")
+    states = np.array([[0.0], [2.0]])
+    for name in ("right", "left"):
+        a = res.models.dynamics[name].sample(states, np.random.default_rng(1))
+        b = loaded.dynamics[name].sample(states, np.random.default_rng(1))
+        assert np.array_equal(a, b)
+    assert np.array_equal(loaded.goal.mean_std(states)[0], res.models.goal.mean_std(states)[0])
+    assert loaded.regions is not None and loaded.regions.option_names == ["right"]
+
+
+def test_pipeline_is_deterministic_given_the_seed(result):
+    _, res = result
+    again = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                         settings=SMALL)
+    assert _comparable(again.evaluation) == _comparable(res.evaluation)
+
+
+def test_recorded_demonstrations_can_be_reused_from_a_dataset(result, tmp_path):
+    out, _ = result
+    dataset = read_dataset(out / "demos")
+    # the same demonstrations, with the options given in another order
+    swapped = [line_options()[1], line_options()[0]]
+    demos = demos_from_dataset(dataset, [o.name for o in swapped])
+    assert all(np.all(e.options == 1) for e in demos)
+
+
+def test_option_transitions_respect_the_stride():
+    ep = Episode(observations=np.arange(7.0)[:, None], actions=np.zeros((6, 1)),
+                 rewards=np.zeros(6), terminations=np.zeros(6, bool),
+                 truncations=np.zeros(6, bool), infos={"option": np.array([0, 0, 0, 1, 1, 0])})
+    pairs = option_transitions([ep], ["a", "b"], stride=2)
+    assert pairs["a"][0].ravel().tolist() == [0.0, 1.0]
+    assert pairs["a"][1].ravel().tolist() == [2.0, 3.0]
+    assert pairs["b"][0].ravel().tolist() == [3.0]
+    beta = strided(termination=line_options()[0].termination, stride=3)
+    assert np.isclose(beta.probability(np.zeros((1, 1)))[0], 1 - 0.9 ** 3)
+    custom = StridedTermination(type("T", (), {"probability": lambda self, s: s[:, 0]})(), 2)
+    assert np.allclose(custom.probability(np.array([[0.5]])), [0.75])
+
+
+def test_random_options_explore_and_record_labels():
+    specs = line_options()
+    rec = record_demonstrations(line_env(), specs, RandomOptions(specs, max_option_steps=5),
+                                episodes=1, seed=0, max_attempts=50)
+    labels = rec[0].options
+    assert set(np.unique(labels)) <= {0, 1} and rec[0].infos["progress"][-1] == 1.0
+
+
+# --- bad input ---------------------------------------------------------------------------
+
+
+class Still:
+    def __init__(self, d):
+        self.state_dim = d
+
+    def sample(self, states, rng):
+        return np.asarray(states, dtype=np.float64)
+
+
+def test_a_non_box_observation_space_is_a_clear_error():
+    with pytest.raises(DynoplanError, match=r"Discrete\(16\).*needs a Box"):
+        box_state_dim(gym.make("FrozenLake-v1"))
+    with pytest.raises(DynoplanError, match="needs a Box"):
+        run_pipeline("FrozenLake-v1", line_options(), demonstrator=lambda obs: "right")
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    (option_spec("tall", lambda obs: np.array([1.0], np.float32),
+                 termination=lambda s: s[:, 2] > 0),
+     r"option 'tall': termination failed on states of shape \(2, 1\): IndexError"),
+    (option_spec("flat", lambda obs: np.array([1.0], np.float32),
+                 initiation=lambda s: np.ones(len(s) * 3, bool)),
+     r"option 'flat': initiation returned shape \(6,\).*disagrees"),
+    (make_option("three", lambda obs: np.array([1.0], np.float32), Still(3)),
+     "option 'three': dynamics model has state_dim 3, the environment's states have 1"),
+    (option_spec("wide", lambda obs: np.array([1.0, 0.0], np.float32)),
+     r"option 'wide': policy returned an action of shape \(2,\)"),
+])
+def test_options_that_disagree_with_the_environment_are_clear_errors(option, message):
+    with pytest.raises(DynoplanError, match=message):
+        probe_options(line_env(), [line_options()[0], option])
+
+
+def test_repeated_option_names_are_an_error():
+    with pytest.raises(DynoplanError, match="repeated: right"):
+        probe_options(line_env(), [line_options()[0], line_options()[0]])
+
+
+def test_a_demonstration_without_option_labels_is_a_clear_error(tmp_path):
+    unlabelled = Episode(observations=np.zeros((3, 1)), actions=np.zeros((2, 1)),
+                         rewards=np.zeros(2), terminations=np.zeros(2, bool),
+                         truncations=np.zeros(2, bool))
+    with pytest.raises(DynoplanError, match="demonstration 0 has no option labels"):
+        run_pipeline(line_env(), line_options(), demos=[unlabelled], settings=SMALL)
+    with pytest.raises(DynoplanError, match="episode 0 has no option labels"):
+        option_transitions([unlabelled], ["right", "left"])
+    write_dataset(tmp_path / "d", [unlabelled], DatasetMetadata("test/unlabelled-v0"))
+    with pytest.raises(DynoplanError, match="has no option labels"):
+        demos_from_dataset(read_dataset(tmp_path / "d"), ["right", "left"])
+
+
+def test_demonstrations_naming_unknown_options_are_an_error(tmp_path):
+    labelled = Episode(observations=np.zeros((3, 1)), actions=np.zeros((2, 1)),
+                       rewards=np.zeros(2), terminations=np.zeros(2, bool),
+                       truncations=np.zeros(2, bool), infos={"option": np.array([0, 0])})
+    write_dataset(tmp_path / "d", [labelled], DatasetMetadata("test/other-v0",
+                                                               option_names=["jump"]))
+    with pytest.raises(DynoplanError, match=r"\['jump'\] are not among the options"):
+        demos_from_dataset(read_dataset(tmp_path / "d"), ["right", "left"])
+
+
+def test_demonstrators_that_misbehave_are_clear_errors():
+    specs = line_options()
+    with pytest.raises(DynoplanError, match="chose 'up', which is not an option"):
+        record_demonstrations(line_env(), specs, lambda obs: "up", episodes=1, seed=0)
+    with pytest.raises(DynoplanError, match="only 0 of 2 demonstrations reached the goal"):
+        record_demonstrations(line_env(), specs, lambda obs: "left", episodes=1, seed=0,
+                              max_attempts=2)
+    with pytest.raises(DynoplanError, match="give a demonstrator"):
+        run_pipeline(line_env(), specs, settings=SMALL)
+
+
+def test_load_object_names_what_is_wrong(tmp_path):
+    for ref, message in (("no_colon", "expected MODULE:NAME"),
+                         ("not_a_module_xyz:f", "cannot import module"),
+                         ("json:nothing_here", "has no 'nothing_here'"),
+                         (f"{tmp_path}/missing.py:f", "not found")):
+        with pytest.raises(DynoplanError, match=message):
+            load_object(ref)
+    module = tmp_path / "opts.py"
+    module.write_text("VALUE = 42\n")
+    assert load_object(f"{module}:VALUE") == 42
+
+
+# --- command line ------------------------------------------------------------------------
+
+MOUNT = ("from dynoplan.cli.main import app, main\n"
+         "from dynoplan.cli.generic import generic_app\n"
+         "if not any(g.name == 'pipeline' for g in app.registered_groups):\n"
+         "    app.add_typer(generic_app, name='pipeline')\n"
+         "main()\n")
+
+OPTIONS_MODULE = textwrap.dedent('''
+    import gymnasium as gym
+    import numpy as np
+    from gymnasium import spaces
+    from dynoplan.adapters import option_spec
+
+    class Line(gym.Env):
+        def __init__(self):
+            self.observation_space = spaces.Box(-100, 100, (1,), np.float64)
+            self.action_space = spaces.Box(-1, 1, (1,), np.float32)
+
+        def reset(self, *, seed=None, options=None):
+            super().reset(seed=seed)
+            self.x = float(self.np_random.uniform(-1, 1))
+            return np.array([self.x]), {}
+
+        def step(self, action):
+            self.x += float(np.clip(action[0], -1, 1))
+            done = self.x >= 5
+            return np.array([self.x]), float(done), done, False, {}
+
+    if "TestLine-v0" not in gym.registry:
+        gym.register("TestLine-v0", entry_point=Line, max_episode_steps=40)
+
+    def make_options():
+        return [option_spec("right", lambda o: np.array([1.0], np.float32), termination=0.1),
+                option_spec("left", lambda o: np.array([-1.0], np.float32), termination=0.1)]
+
+    def make_demonstrator():
+        return lambda observation: "right"
+''')
+
+
+def _cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-c", MOUNT, *args], capture_output=True, text=True,
+                          timeout=300, cwd=cwd)
+
+
+def test_cli_runs_the_pipeline_on_a_user_environment(tmp_path):
+    (tmp_path / "line_options.py").write_text(OPTIONS_MODULE)
+    done = _cli("pipeline", "--env", "TestLine-v0", "--options", "line_options:make_options",
+                "--demos", "2", "--explore", "4", "--episodes", "3", "--horizon", "5",
+                "--samples", "8", "--dynamics-epochs", "5", "--goal-epochs", "30",
+                "--out", "out", "--quiet", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert set(summary["controllers"]) == {"dynoplan", "option:right", "option:left", "random"}
+    assert summary["controllers"]["option:left"]["success_rate"] == 0.0
+    assert summary["command"].startswith("dynoplan pipeline --env TestLine-v0")
+    assert "| dynoplan |" in done.stdout
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--env", "FrozenLake-v1", "--options", "line_options:make_options"], "needs a Box"),
+    (["--env", "TestLine-v0", "--options", "line_options:nope"], "has no 'nope'"),
+    (["--env", "TestLine-v0", "--options", "line_options:make_options", "--demo-dataset",
+      "missing"], "dataset folder not found"),
+    (["--env", "TestLine-v0", "--options", "line_options:make_options", "--replan-every",
+      "-1"], "--replan-every must be >= 0"),
+    (["--env", "TestLine-v0", "--options", "bare_options:make_options"],
+     "'bare_options' defines no make_demonstrator(); give --demonstrator"),
+])
+def test_cli_user_errors_are_one_line_with_exit_status_2(tmp_path, monkeypatch, capsys, args,
+                                                        message):
+    from dynoplan.cli.generic import generic_app
+    from dynoplan.cli.main import app, main
+
+    if not any(g.name == "pipeline" for g in app.registered_groups):
+        app.add_typer(generic_app, name="pipeline")
+    (tmp_path / "line_options.py").write_text(OPTIONS_MODULE)
+    (tmp_path / "bare_options.py").write_text("from line_options import make_options\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(sys, "argv", ["dynoplan", "pipeline", *args, "--out", "out", "--quiet"])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert err.startswith("dynoplan: error: ")
