@@ -9,6 +9,8 @@ from pathlib import Path
 
 import typer
 
+from dynoplan.cli.gear import gear_app
+from dynoplan.cli.generic import generic_app
 from dynoplan.errors import DynoplanError
 
 app = typer.Typer(
@@ -49,6 +51,10 @@ def random_walk(
         f"{summary['planning_steps_median']}, p90 {summary['planning_steps_p90']}, "
         f"{summary['episodes']} episodes in {summary['seconds']:.2f} s -> {out}/summary.json"
     )
+
+
+app.add_typer(gear_app, name="gear")
+app.add_typer(generic_app, name="pipeline")
 
 
 def main() -> None:
