@@ -6,7 +6,7 @@ from pathlib import Path
 import typer
 
 gear_app = typer.Typer(
-    help="The simulated PR2 gear assembly: scripted expert and renders.",
+    help="The simulated PR2 gear assembly: scripted expert, demonstrations, renders.",
     no_args_is_help=True,
 )
 
@@ -29,6 +29,23 @@ def expert(
         f"{summary['min_human_distance']:.3f} m, env.step {summary['realtime_factor']:.1f}x "
         f"real time -> {out}/summary.json"
     )
+
+
+@gear_app.command("demos")
+def demos(
+    n: int = typer.Option(10, "--n", help="Demonstrations to record (the paper: 10)."),
+    seed: int = typer.Option(0, help="Seed from which every episode's seed is derived."),
+    out: Path = typer.Option(Path("results/gear-demos"), help="Dataset folder to write."),
+    human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Record expert demonstrations with option labels and progress as a dataset."""
+    from dynoplan.experiments.gear_demos import record_demos
+
+    summary = record_demos(n, seed, out, progress=not quiet, human_mode=human)
+    modes = ", ".join(f"{k} {v}" for k, v in summary["human_modes"].items())
+    typer.echo(f"{summary['episodes']} demonstrations, {summary['steps']} steps, success "
+               f"{summary['success_rate']:.0%}, human: {modes} -> {out}")
 
 
 @gear_app.command("render")

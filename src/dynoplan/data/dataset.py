@@ -126,6 +126,9 @@ def write_dataset(
 
     parent = ensure_writable_dir(target.parent)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(tmp, 0o777 & ~mask)  # mkdtemp makes 0700; a dataset folder gets the usual mode
     try:
         data = tmp / DATA_DIR
         data.mkdir()
