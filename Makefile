@@ -22,6 +22,8 @@ install: $(STAMP)
 
 demo: install
 	$(BIN)/dynoplan random-walk --out results/random-walk
+	$(BIN)/dynoplan gear demos --n 10 --seed 0 --out results/gear-demos
+	$(BIN)/dynoplan gear render --seed 0 --out results/gear-render
 
 lint: install
 	$(BIN)/ruff check .
