@@ -129,8 +129,35 @@ def gemm_seconds(n: int, repeats: int) -> list[float]:
         return _time(lambda: torch.mm(a, b, out=c), repeats)
 
 
+def profile_breakdown(planner: OptionPlanner, state: FloatArray, rng: Generator,
+                      decisions: int = 50) -> dict[str, float]:
+    """Where a decision's time goes (ms per decision), from ``torch.profiler``.
+
+    ``matmul`` is the ensembles' ``baddbmm`` calls (the counted FLOPs), ``silu`` the
+    activations, ``other_torch`` every other torch op (log-variance bounds, noise
+    scaling, bias copies), ``numpy_python`` the rest of the wall time (random draws,
+    gathers, the planner's bookkeeping, the goal heuristic, interpreter overhead).
+    """
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        start = time.perf_counter()
+        for _ in range(decisions):
+            planner.plan(state, rng)
+        wall = (time.perf_counter() - start) * 1e3 / decisions
+    self_ms: dict[str, float] = {}
+    for event in prof.key_averages():
+        self_ms[event.key] = event.self_cpu_time_total / 1e3 / decisions
+    matmul = self_ms.get("aten::baddbmm", 0.0)
+    silu = self_ms.get("aten::silu_", 0.0)
+    torch_total = sum(self_ms.values())
+    return {"profile_wall_ms": wall, "profile_matmul_ms": matmul, "profile_silu_ms": silu,
+            "profile_other_torch_ms": torch_total - matmul - silu,
+            "profile_numpy_python_ms": wall - torch_total}
+
+
 def run(repeats: int, loop_repeats: int, rounds: int, threads: int, hidden: Sequence[int],
-        members: int, seed: int) -> dict[str, object]:
+        members: int, seed: int, with_profile: bool = False) -> dict[str, object]:
     """Measure everything in one process; returns the results as a flat dict."""
     torch.set_num_threads(threads)
     planner, options, goal = build(hidden, members, seed)
@@ -159,6 +186,7 @@ def run(repeats: int, loop_repeats: int, rounds: int, threads: int, hidden: Sequ
     slots = -(-SAMPLES // members)
     rows_per_decision = OPTIONS * members * slots * HORIZON
     flops_per_decision = rows_per_decision * model.flops_per_row()
+    breakdown = profile_breakdown(planner, state, rng) if with_profile else {}
     p50, p99 = float(np.percentile(decisions, 50)), float(np.percentile(decisions, 99))
     loop = float(np.median(loops))
     gemm_flops = 2.0 * GEMM_SIZE ** 3 / float(np.median(gemms))
@@ -190,6 +218,7 @@ def run(repeats: int, loop_repeats: int, rounds: int, threads: int, hidden: Sequ
         "cpu_count": os.cpu_count(),
         "machine": platform.machine(),
         "python": platform.python_version(),
+        **breakdown,
     }
 
 
@@ -211,6 +240,12 @@ def _table(result: dict[str, object]) -> str:
                   f" x {result['members']} members"),
         ("decisions timed", f"{result['repeats']} (+ {result['loop_repeats']} naive)"),
     ]
+    if "profile_wall_ms" in result:
+        rows.append(("profile (ms per decision)",
+                     f"wall {result['profile_wall_ms']:.2f} = matmul "
+                     f"{result['profile_matmul_ms']:.2f} + silu {result['profile_silu_ms']:.2f}"
+                     f" + other torch {result['profile_other_torch_ms']:.2f} + numpy/Python "
+                     f"{result['profile_numpy_python_ms']:.2f}"))
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
@@ -227,11 +262,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="hidden layer widths")
     parser.add_argument("--members", type=int, default=DEFAULT_MEMBERS, help="ensemble size")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--profile", action="store_true",
+                        help="also split a decision's time with torch.profiler (50 decisions)")
     args = parser.parse_args(argv)
     if min(args.repeats, args.loop_repeats, args.rounds, args.threads, args.members) < 1:
         parser.error("--repeats, --loop-repeats, --rounds, --threads, --members must be >= 1")
     result = run(args.repeats, args.loop_repeats, args.rounds, args.threads, args.hidden,
-                 args.members, args.seed)
+                 args.members, args.seed, args.profile)
     print(json.dumps(result) if args.json else _table(result))
     return 0
 

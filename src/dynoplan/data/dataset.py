@@ -39,7 +39,7 @@ from dynoplan.data.metadata import (
     read_metadata,
 )
 from dynoplan.errors import DynoplanError
-from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.io import current_umask, ensure_writable_dir, write_json
 
 DATA_DIR = "data"
 MAIN_FILE = "main_data.hdf5"
@@ -126,9 +126,7 @@ def write_dataset(
 
     parent = ensure_writable_dir(target.parent)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(tmp, 0o777 & ~mask)  # mkdtemp makes 0700; a dataset folder gets the usual mode
+    os.chmod(tmp, 0o777 & ~current_umask())  # mkdtemp makes 0700; give the usual mode
     try:
         data = tmp / DATA_DIR
         data.mkdir()

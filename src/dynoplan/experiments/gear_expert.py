@@ -19,6 +19,7 @@ from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.expert import OPTION_NAMES, GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.errors import DynoplanError
+from dynoplan.experiments.episodes import episode_seeds as derive_episode_seeds
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.progress import track
 
@@ -34,8 +35,7 @@ _INFO_KEYS = ("stage", "min_human_distance", "is_success", "human_contacts", "pa
 
 def episode_seeds(seed: int, episodes: int) -> list[int]:
     """Independent ``env.reset`` seeds for ``episodes`` episodes, derived from ``seed``."""
-    children = np.random.SeedSequence(seed).spawn(episodes)
-    return [int(c.generate_state(1)[0]) for c in children]
+    return [s.env_seed for s in derive_episode_seeds(seed, episodes)]
 
 
 def _check(episodes: int, human_mode: str | None) -> None:

@@ -42,7 +42,10 @@ from dynoplan.models.training import TrainingReport, train_gaussian_ensemble
 from dynoplan.types import FloatArray, Generator
 
 MODEL_KIND = "mlp_ensemble_dynamics"
-DEFAULT_HIDDEN = (200, 200)
+# Two hidden layers of 160 keep a default planner decision (4 options x 64 samples x
+# horizon 20, d = 12) under 10 ms on one core of the 2-core development machine; 200
+# (mbrl-lib's default) takes about 12 ms there (docs/benchmarks.md).
+DEFAULT_HIDDEN = (160, 160)
 # 4 members divide the planner's default 64 samples into full blocks of 16 rows, which
 # the batched matrix products run at a higher fraction of peak than blocks of 13
 DEFAULT_MEMBERS = 4
@@ -109,7 +112,7 @@ class MLPEnsembleDynamics:
 
     Args:
         state_dim: ``d``.
-        hidden_sizes: widths of the hidden layers (default two of 200).
+        hidden_sizes: widths of the hidden layers (default two of 160).
         members: ensemble size ``E`` (default 4; PETS used 5).
         option: name of the option this model belongs to (stored in the file).
         seed: seeds the weight initialisation (a local ``torch.Generator``).
@@ -386,6 +389,7 @@ class StackedMLPEnsemble:
 
     def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
         """``(options, samples, d)`` float64 -> next states, same shape, float64."""
+        states = np.asarray(states, dtype=np.float64)
         o, s, d = states.shape
         if o != self.options or d != self.state_dim:
             raise ValueError(f"states must be ({self.options}, samples, {self.state_dim}), "
