@@ -38,7 +38,7 @@ from torch import nn
 from dynoplan.data.episodes import Episode, StateFn
 from dynoplan.errors import DynoplanError
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.models.storage import load_arrays, require, save_arrays
+from dynoplan.models.storage import as_states, load_arrays, require, save_arrays
 from dynoplan.types import FloatArray, Generator, IntArray
 
 _KIND = "goal_network"
@@ -162,7 +162,7 @@ class GoalNetwork:
     # --- the distribution ------------------------------------------------------------
     def beta_params(self, states: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Each member's Beta ``alpha`` and ``beta``, each ``(batch, members)`` float64."""
-        x = self._check_states(states)
+        x = as_states(states, self._state_dim)
         with torch.inference_mode():
             raw = self._net(torch.as_tensor(x, dtype=torch.float32)).to(torch.float64)
             alpha, beta = _beta_params(raw)
@@ -376,12 +376,6 @@ class GoalNetwork:
         net.load_state_dict(state)
         return cls(net, d, h, m)
 
-    def _check_states(self, states: FloatArray) -> FloatArray:
-        x = np.asarray(states, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != self._state_dim:
-            raise DynoplanError(
-                f"states must have shape (batch, {self._state_dim}), got {x.shape}")
-        return x
 
 
 # --- targets from demonstrations -------------------------------------------------------

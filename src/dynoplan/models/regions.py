@@ -22,7 +22,7 @@ import numpy as np
 from sklearn.mixture import GaussianMixture
 
 from dynoplan.errors import DynoplanError
-from dynoplan.models.storage import load_arrays, require, save_arrays
+from dynoplan.models.storage import as_states, load_arrays, require, save_arrays
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
 _KIND = "safety_regions"
@@ -69,7 +69,7 @@ class SafetyRegions:
     # --- Eq. 5 -----------------------------------------------------------------------
     def component_log_density(self, states: FloatArray) -> FloatArray:
         """``log p(s | mu_i, Sigma_i)`` for every state and component: ``(batch, components)``."""
-        x = self._check_states(states)
+        x = as_states(states, self.state_dim)
         d = self.state_dim
         # (batch, components, d): whitened residuals (x - mu_i) @ L_i
         diff = x[:, None, :] - self.means[None, :, :]
@@ -195,12 +195,6 @@ class SafetyRegions:
             log_thresholds=require(arrays, "log_thresholds", (o,), path).astype(np.float64),
         )
 
-    def _check_states(self, states: FloatArray) -> FloatArray:
-        x = np.asarray(states, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != self.state_dim:
-            raise DynoplanError(
-                f"states must have shape (batch, {self.state_dim}), got {x.shape}")
-        return x
 
 
 def _fit_mixture(x: FloatArray, n_components: int | None, max_components: int,

@@ -17,6 +17,7 @@ from safetensors.numpy import save_file
 
 from dynoplan.errors import DynoplanError
 from dynoplan.io import atomic_path
+from dynoplan.types import FloatArray
 
 FORMAT_VERSION = 1
 _META_KEY = "dynoplan"
@@ -66,6 +67,14 @@ def load_arrays(
             f"<= {FORMAT_VERSION})"
         )
     return arrays, meta
+
+
+def as_states(states: FloatArray, state_dim: int) -> FloatArray:
+    """``states`` as a float64 ``(batch, state_dim)`` array, or one clear error."""
+    x = np.asarray(states, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != state_dim:
+        raise DynoplanError(f"states must have shape (batch, {state_dim}), got {x.shape}")
+    return x
 
 
 def require(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, ...],
