@@ -274,6 +274,14 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
         return (self.data.site_xpos[self._peg_tip].copy(),
                 self.data.site_xmat[self._peg_tip].reshape(3, 3).copy())
 
+    def set_human_schedule(self, schedule: HumanSchedule) -> tuple[FloatArray, dict[str, Any]]:
+        """Replace the human's schedule mid-episode (times are absolute simulated time);
+        returns the observation and info of the current state under it, without stepping."""
+        self.schedule = schedule
+        self._set_human(self.time)
+        mujoco.mj_forward(self.model, self.data)
+        return self._observation(), self._info(human_contacts=0)
+
     # --------------------------------------------------------------------- internals
     def _set_human(self, t: float) -> None:
         pos = self.schedule.position(t)

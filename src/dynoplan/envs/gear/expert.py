@@ -27,6 +27,7 @@ from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, HOME_Q, GearAss
 from dynoplan.envs.gear.kinematics import ArmKinematics, downward_tool_rotation
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.envs.gear.task import OPTION_NAMES, STAGE_INDEX
+from dynoplan.envs.gear.trajectory import JointPath
 from dynoplan.types import FloatArray
 
 PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT = range(4)
@@ -69,52 +70,6 @@ class ExpertAction:
     action: FloatArray
     option: int
     step: str
-
-
-class _Path:
-    """A joint-space polyline through ``waypoints`` (K, 12) followed at a joint speed,
-    with a trapezoidal profile on its arc parameter ``s`` in ``[0, 1]``."""
-
-    def __init__(self, waypoints: list[FloatArray], speed: float, accel_time: float) -> None:
-        self.points = np.asarray(waypoints, dtype=np.float64)
-        seg = np.max(np.abs(np.diff(self.points, axis=0)), axis=1) if len(self.points) > 1 \
-            else np.zeros(0)
-        self.cum = np.concatenate([[0.0], np.cumsum(seg)])
-        self.length = float(self.cum[-1])
-        self.sdot_max = speed / self.length if self.length > 1e-9 else np.inf
-        self.accel = self.sdot_max / accel_time if self.length > 1e-9 else np.inf
-        self.s = 0.0 if self.length > 1e-9 else 1.0
-        self.sdot = 0.0
-
-    def at(self, s: float) -> FloatArray:
-        if self.length <= 1e-9:
-            return self.points[-1].copy()
-        d = float(np.clip(s, 0.0, 1.0)) * self.length
-        k = int(np.clip(np.searchsorted(self.cum, d, side="right") - 1, 0, len(self.cum) - 2))
-        span = self.cum[k + 1] - self.cum[k]
-        w = 0.0 if span <= 0 else (d - self.cum[k]) / span
-        out: FloatArray = self.points[k] + w * (self.points[k + 1] - self.points[k])
-        return out
-
-    def advance(self, dt: float, scale: float) -> FloatArray:
-        """Move along the path for ``dt`` at ``scale`` of full speed; the new target."""
-        if self.length > 1e-9:
-            brake = np.sqrt(2.0 * self.accel * max(1.0 - self.s, 0.0))
-            target = min(self.sdot_max * scale, brake)
-            step = self.accel * dt
-            self.sdot = float(np.clip(target, self.sdot - step, self.sdot + step))
-            self.s = min(1.0, self.s + self.sdot * dt)
-            if self.s >= 1.0 - 1e-9:
-                self.s, self.sdot = 1.0, 0.0
-        return self.at(self.s)
-
-    def preview(self, tau: float, scale: float) -> FloatArray:
-        """Where ``advance`` would be after ``tau`` s at ``scale`` of full speed (no ramp)."""
-        return self.at(self.s + min(self.sdot_max * scale, 1e9) * tau)
-
-    @property
-    def finished(self) -> bool:
-        return self.s >= 1.0
 
 
 def _up(height: float) -> FloatArray:
@@ -163,7 +118,7 @@ class GearExpert:
         self.regrasps = 0
         self.insert_retries = 0
         self.displaced = False
-        self.path: _Path | None = None
+        self.path: JointPath | None = None
         self.timer = 0.0
         self.h_target = 0.0
         self.jam_timer = 0.0
@@ -327,9 +282,9 @@ class GearExpert:
                 goals.append(self.path.at(0.0))
         best, best_d = None, -np.inf
         for goal in goals:
-            path = _Path([q0, goal], cfg.retreat_speed, cfg.accel_time)
+            path = JointPath([q0, goal], cfg.retreat_speed, cfg.accel_time)
 
-            def moved(tau: float, path: _Path = path) -> FloatArray:
+            def moved(tau: float, path: JointPath = path) -> FloatArray:
                 return path.preview(tau, 1.0)
             if self.checker.in_collision(moved(cfg.horizon), ignore_gear=True):
                 continue
@@ -407,8 +362,8 @@ class GearExpert:
         via = self._ik(mid, tcp + _up(0.12), rot, free_roll=False)
         return [q0, via, q1]
 
-    def _path(self, waypoints: list[FloatArray], speed: float) -> _Path:
-        return _Path(waypoints, speed, self.cfg.accel_time)
+    def _path(self, waypoints: list[FloatArray], speed: float) -> JointPath:
+        return JointPath(waypoints, speed, self.cfg.accel_time)
 
     def _path_done(self) -> bool:
         return self.path is None or self.path.finished

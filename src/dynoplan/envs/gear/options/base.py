@@ -1,0 +1,48 @@
+"""What every gear option policy provides on top of :class:`~dynoplan.options.OptionPolicy`.
+
+A gear option policy acts on the environment's observation (50,) and returns its action
+(13,). Planning options (pick, fast and cautious moves) also read the live scene through
+the env they were built on (a collision checker synced from ``env.data``: the robot's
+world model, holding nothing the observation does not also carry); they never step the
+env themselves.
+"""
+
+from typing import Any
+
+from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.options import OptionPolicy
+from dynoplan.options.termination import Termination
+
+
+class GearOptionPolicy(OptionPolicy):
+    """Base of the four gear option policies.
+
+    Attributes:
+        env: the environment the policy plans in.
+        plan_ms: wall-clock milliseconds of every motion-planning call since ``reset``
+            (empty for options that do not plan).
+        status: ``"running"``, ``"done"`` (its work is finished) or ``"failed"`` (it
+            gave up, for example no plan was found).
+    """
+
+    name = ""
+
+    def __init__(self, env: GearAssemblyEnv) -> None:
+        self.env = env
+        self.plan_ms: list[float] = []
+        self.status = "idle"
+
+    def finished(self) -> bool:
+        return self.status in ("done", "failed")
+
+    def succeeded(self, info: dict[str, Any]) -> bool:
+        """Whether the option achieved its own goal, judged from the simulator's ``info``
+        after its last step (used by option trials, not by the controller)."""
+        raise NotImplementedError
+
+    def termination(self) -> Termination:
+        """``beta_w`` on planner states (N, 22) (:mod:`dynoplan.envs.gear.state`)."""
+        raise NotImplementedError
+
+
+__all__ = ["GearOptionPolicy"]
