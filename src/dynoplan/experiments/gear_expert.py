@@ -10,7 +10,7 @@ import platform
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -22,6 +22,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.experiments.episodes import episode_seeds as derive_episode_seeds
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.progress import track
+from dynoplan.reports.video import write_mp4
 
 Episode = dict[str, Any]
 """One episode: ``observations`` (T+1, 50), ``actions`` (T, 13), ``rewards`` (T,),
@@ -210,11 +211,8 @@ def render_scene(out: Path, seed: int = 0, video: bool = True, human_mode: str |
         write_with(folder / "scene.png", lambda p: imageio.imwrite(p, first))
         written["scene"] = folder / "scene.png"
         if video:
-            write_with(folder / "episode.mp4",
-                       lambda p: imageio.mimwrite(p, cast(list[Any], frames),
-                                                  fps=env.metadata["render_fps"],
-                                                  codec="libx264", quality=7))
-            written["video"] = folder / "episode.mp4"
+            written["video"] = write_mp4(folder / "episode.mp4", frames,
+                                         fps=int(env.metadata["render_fps"]))
     finally:
         env.close()
     return written
