@@ -107,8 +107,9 @@ class Controller:
         replan_every: plan again after this many steps even if the option runs on
             (``None``: only when it stops).
         margin: score advantage another option needs to replace a running one.
-        hold_action: a safe action to take when no option is admissible (``None``: end
-            the episode instead).
+        hold_action: a safe action to take when no option is admissible, or a callable
+            ``observation -> action`` giving one (for example "stay where you are");
+            ``None``: end the episode instead.
         success_fn: ``(terminated, info) -> bool``.
         record_infos: keep every step's ``info`` in the trace.
     """
@@ -163,7 +164,8 @@ class Controller:
                     trace.decisions.append(Decision(k, trace.env_steps, state, plan, None, 0,
                                                     "hold", state, latency))
                     break
-                obs, reward, terminated, truncated, info = env.step(self.hold_action)
+                hold = self.hold_action(obs) if callable(self.hold_action) else self.hold_action
+                obs, reward, terminated, truncated, info = env.step(hold)
                 self._count(trace, reward, info)
                 trace.decisions.append(Decision(k, trace.env_steps, state, plan, None, 1,
                                                 "hold", self.state_fn(obs), latency))

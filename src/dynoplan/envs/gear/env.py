@@ -249,6 +249,17 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
             self._renderer.close()
             self._renderer = None
 
+    def copy_state_from(self, other: "GearAssemblyEnv") -> tuple[FloatArray, dict[str, Any]]:
+        """Make this env an exact copy of ``other``'s current state (physics, human
+        schedule, counters), for planning with the simulator itself as the model; returns
+        the observation and info there."""
+        mujoco.mj_copyData(self.data, self.model, other.data)
+        self.schedule = other.schedule
+        self._steps = other._steps
+        self._contacts_total = other._contacts_total
+        self._min_distance_episode = other._min_distance_episode
+        return self._observation(), self._info(human_contacts=0)
+
     # ------------------------------------------------------------ for planners etc.
     @property
     def time(self) -> float:

@@ -1,0 +1,1 @@
+"""Baselines that are not option choosers: a flat end-to-end RL policy (Stable-Baselines3)."""

@@ -1,0 +1,148 @@
+"""A flat end-to-end policy for the gear assembly, trained with Stable-Baselines3 PPO.
+
+The baseline the paper's hierarchy is compared with: one network from observation to
+action, no options, no planner. To give it a fair chance:
+
+- actions are normalised: ``a`` in ``[-1, 1]^7`` moves the left arm's joint targets by
+  ``a[:6] * JOINT_STEP`` rad from the current angles and sets the gripper to
+  ``(a[6] + 1) / 2``; the right arm holds the peg where it is;
+- the reward is shaped (the task's own reward is 1 at success only): minus the distance
+  from the left tool point to the gear while it is not held, a bonus per step it is held,
+  minus the distance from the gear to the peg tip while held, a large bonus when seated,
+  and a penalty per physics step of robot-human contact;
+- episodes last at most ``MAX_STEPS`` decisions (20 s).
+
+The trained policy is saved without pickle: its ``state_dict`` as safetensors plus JSON
+with the architecture and the training budget; loading rebuilds the same PPO policy.
+"""
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+
+from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
+from dynoplan.errors import DynoplanError
+from dynoplan.io import write_json, write_with
+from dynoplan.types import FloatArray
+
+JOINT_STEP = 0.05  # rad per decision at |a| = 1
+MAX_STEPS = 400
+FORMAT_VERSION = 1
+NET_ARCH = (128, 128)
+F32 = npt.NDArray[np.float32]
+
+
+class FlatGearTask(gym.Wrapper[Any, Any, Any, Any]):
+    """The gear assembly as a flat RL problem (see the module docstring)."""
+
+    def __init__(self, env: GearAssemblyEnv | None = None) -> None:
+        base = env or GearAssemblyEnv(max_episode_steps=MAX_STEPS)
+        super().__init__(base)
+        self.gear_env = base
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(50,), dtype=np.float32)
+        self._tcp = base.model.site("l_tcp").id
+
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[F32, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        return obs.astype(np.float32), info
+
+    def step(self, action: F32) -> tuple[F32, float, bool, bool, dict[str, Any]]:
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        env = self.gear_env
+        q = env.arm_qpos
+        target = q.copy()
+        target[:6] = q[:6] + JOINT_STEP * a[:6]
+        obs, reward, terminated, truncated, info = env.step(
+            np.concatenate([target, [(a[6] + 1.0) / 2.0]]))
+        return (obs.astype(np.float32), self.shaped_reward(obs, float(reward), info),
+                terminated, truncated, info)
+
+    def shaped_reward(self, obs: FloatArray, reward: float, info: dict[str, Any]) -> float:
+        """Dense reward of one step (see the module docstring)."""
+        gear = obs[OBS_SLICES["gear_pos"]]
+        held = int(info["pads_on_gear"]) >= 2
+        if held:
+            r = 0.5 - 2.0 * float(np.linalg.norm(gear - obs[OBS_SLICES["peg_pos"]]))
+        else:
+            tcp = self.gear_env.data.site_xpos[self._tcp]
+            r = -float(np.linalg.norm(tcp - gear))
+        return r + 50.0 * reward - 0.1 * float(info["human_contacts"])
+
+
+def train_flat_policy(steps: int, seed: int, out: Path, progress: bool = False) -> dict[str, Any]:
+    """Train PPO for ``steps`` environment steps; save ``out/flat_policy.safetensors`` and
+    ``.json``; return the report (budget, wall seconds, last mean episode reward)."""
+    import torch
+    from safetensors.torch import save_file
+    from stable_baselines3 import PPO
+
+    if steps < 64:
+        raise DynoplanError(f"--flat-steps must be >= 64, got {steps}")
+    out.mkdir(parents=True, exist_ok=True)
+    env = FlatGearTask()
+    env.reset(seed=seed)
+    n_steps = min(512, steps)
+    model = PPO("MlpPolicy", env, n_steps=n_steps, batch_size=min(64, n_steps), seed=seed,
+                device="cpu", verbose=0, policy_kwargs={"net_arch": list(NET_ARCH)})
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=steps, progress_bar=progress)
+    seconds = time.perf_counter() - t0
+    rewards = [float(e["r"]) for e in model.ep_info_buffer] if model.ep_info_buffer else []
+    state = {k: v.detach().contiguous() for k, v in model.policy.state_dict().items()}
+    write_with(out / "flat_policy.safetensors", lambda p: save_file(state, str(p)))
+    report = {"format_version": FORMAT_VERSION, "algorithm": "PPO", "env_steps": int(steps),
+              "net_arch": list(NET_ARCH), "n_steps": n_steps, "seed": seed,
+              "train_seconds": seconds, "torch": torch.__version__,
+              "episode_reward_mean_last": float(np.mean(rewards[-20:])) if rewards else None}
+    write_json(out / "flat_policy.json", report)
+    env.close()
+    return report
+
+
+class FlatPolicy:
+    """A trained flat policy: ``act(observation (50,)) -> env action (13,)`` for the raw
+    :class:`GearAssemblyEnv` (it applies the same action mapping as training)."""
+
+    def __init__(self, folder: Path, env: GearAssemblyEnv) -> None:
+        from safetensors.torch import load_file
+        from stable_baselines3 import PPO
+
+        meta_path = folder / "flat_policy.json"
+        weights = folder / "flat_policy.safetensors"
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise DynoplanError(f"{meta_path}: cannot read the flat policy's metadata "
+                                f"({exc.__class__.__name__})") from None
+        if meta.get("format_version") != FORMAT_VERSION:
+            raise DynoplanError(f"{meta_path}: format_version {meta.get('format_version')!r}, "
+                                f"expected {FORMAT_VERSION}")
+        self.wrapper = FlatGearTask(env)
+        self.model = PPO("MlpPolicy", self.wrapper, device="cpu",
+                         policy_kwargs={"net_arch": list(meta["net_arch"])})
+        try:
+            self.model.policy.load_state_dict(load_file(str(weights)))
+        except Exception as exc:  # safetensors raises several types on corrupt files
+            raise DynoplanError(f"{weights}: not a valid flat-policy file "
+                                f"({exc.__class__.__name__})") from None
+        self.meta = meta
+        self.env = env
+
+    def act(self, observation: FloatArray) -> FloatArray:
+        a, _ = self.model.predict(np.asarray(observation, dtype=np.float32), deterministic=True)
+        a = np.clip(np.asarray(a, dtype=np.float64), -1.0, 1.0)
+        q = np.asarray(observation, dtype=np.float64)[OBS_SLICES["arm_qpos"]].copy()
+        q[:6] += JOINT_STEP * a[:6]
+        lim = self.env.joint_limits
+        return np.concatenate([np.clip(q, lim[:, 0], lim[:, 1]), [(a[6] + 1.0) / 2.0]])
+
+
+__all__ = ["FlatGearTask", "FlatPolicy", "train_flat_policy"]

@@ -1,0 +1,103 @@
+"""DynoPlan with the simulator itself as every option's dynamics model (the oracle).
+
+:class:`SimulatorOracle` is an option chooser like
+:class:`~dynoplan.planning.OptionPlanner`, but instead of sampling learned models it
+copies the live MuJoCo state into a scratch environment and runs each admissible
+option's own policy there for up to ``horizon`` decisions of
+:data:`~dynoplan.envs.gear.state.DECISION_STEPS` steps (drawing the option's termination
+after each decision, as the learned planner does), then scores the end state with the
+same goal heuristic. The human's schedule is copied too, so the oracle knows the future
+exactly: an upper bound on what a perfect model could give.
+"""
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
+from dynoplan.models.goal import GoalHeuristic
+from dynoplan.options.option import Option
+from dynoplan.planning.option_planner import Plan
+from dynoplan.types import FloatArray, Generator
+
+PolicyFactory = Callable[[GearAssemblyEnv], GearOptionPolicy]
+
+
+class SimulatorOracle:
+    """Chooses options by simulating them (see the module docstring).
+
+    Args:
+        env: the live environment whose state is copied at every decision.
+        options: the options (their initiation sets and terminations are used).
+        factories: option name -> a policy factory; each builds a private policy bound to
+            the oracle's scratch environment.
+        goal: the goal heuristic ``G``.
+        horizon: decisions simulated per rollout.
+        samples: rollouts per option (the simulator is deterministic given the human's
+            schedule, so samples differ only through termination draws and the policies'
+            own randomness).
+    """
+
+    def __init__(self, env: GearAssemblyEnv, options: Sequence[Option],
+                 factories: dict[str, PolicyFactory], goal: GoalHeuristic, horizon: int = 20,
+                 samples: int = 1) -> None:
+        self.env = env
+        self.options = list(options)
+        self.goal = goal
+        self.horizon = horizon
+        self.samples = samples
+        self.scratch = GearAssemblyEnv(max_episode_steps=10**9)
+        self.policies = {o.name: factories[o.name](self.scratch) for o in self.options}
+        self.state_fn = PlannerState()
+        self.simulated_steps = 0
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        return tuple(o.name for o in self.options)
+
+    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+        n, s, d = len(self.options), self.samples, len(state)
+        admissible = np.array([o.can_start(state) for o in self.options])
+        scores = np.full(n, np.nan)
+        spreads = np.full(n, np.nan)
+        end_states = np.full((n, s, d), np.nan)
+        steps = np.zeros((n, s), dtype=np.int64)
+        for k, option in enumerate(self.options):
+            if not admissible[k]:
+                continue
+            values = np.empty(s)
+            for j in range(s):
+                end, taken = self._rollout(option, rng)
+                end_states[k, j], steps[k, j] = end, taken
+                values[j] = float(self.goal.sample(end[None], rng)[0])
+            scores[k], spreads[k] = values.mean(), values.std()
+        chosen = int(np.nanargmax(scores)) if admissible.any() else None
+        return Plan(self.option_names, admissible, scores, spreads, end_states, steps, chosen)
+
+    def _rollout(self, option: Option, rng: Generator) -> tuple[FloatArray, int]:
+        """Simulate ``option`` from the live state; its end state and decisions taken."""
+        obs, _ = self.scratch.copy_state_from(self.env)
+        policy = self.policies[option.name]
+        policy.reset(obs, rng)
+        state = self.state_fn(obs)
+        for decision in range(1, self.horizon + 1):
+            for _ in range(DECISION_STEPS):
+                obs, _, terminated, truncated, _ = self.scratch.step(policy.act(obs))
+                self.simulated_steps += 1
+                if policy.finished() or terminated or truncated:
+                    return self.state_fn(obs), decision
+            state = self.state_fn(obs)
+            if not option.can_start(state):
+                return state, decision
+            beta = float(option.termination.probability(state[None])[0])
+            if rng.random() < beta:
+                return state, decision
+        return state, self.horizon
+
+    def close(self) -> None:
+        self.scratch.close()
+
+
+__all__ = ["SimulatorOracle"]
