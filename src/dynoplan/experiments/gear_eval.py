@@ -1,0 +1,160 @@
+"""Controllers of the gear assembly on the same seeded episodes, and their metrics.
+
+Controllers (rows of ``results.csv``):
+
+- ``dynoplan``: the option planner (Eq. 1) with the learned dynamics ensembles, the
+  learned goal heuristic and the Gaussian-mixture regions as initiation sets;
+- ``oracle``: the same controller, but each option's future simulated by MuJoCo itself
+  (:class:`~dynoplan.envs.gear.oracle.SimulatorOracle`);
+- ``fixed_script``: pick, fast move, insert, each run to its end, ignoring the human
+  and the regions;
+- ``random``: a uniformly random admissible option at every decision;
+- ``flat_ppo``: one PPO network from observation to action (:mod:`dynoplan.baselines`).
+
+Every controller runs on the same episodes: episode ``i`` resets the env with the same
+seed (gear pose and human schedule: none, crossing or blocking).
+"""
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan.control import Controller
+from dynoplan.control.controller import EpisodeTrace
+from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.scene import FINGER_TRAVEL
+from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
+from dynoplan.experiments.episodes import EpisodeSeed, quantile_or_none
+from dynoplan.progress import track
+from dynoplan.types import FloatArray
+
+RESULT_COLUMNS = (
+    "controller", "episodes", "success_rate", "time_to_success_s", "contacts",
+    "episodes_with_contact", "min_human_distance", "out_of_region_starts", "switches",
+    "holds", "decision_ms_p50", "decision_ms_p99",
+)
+"""Columns of ``results.csv``, in order."""
+
+
+@dataclass(frozen=True)
+class EpisodeMetrics:
+    """What one episode of one controller did."""
+
+    seed: int
+    human_mode: str
+    success: bool
+    seconds: float
+    contacts: int
+    min_human_distance: float
+    out_of_region_starts: int
+    switches: int
+    holds: int
+    decision_ms: tuple[float, ...]
+    options: tuple[str, ...]
+
+
+def trace_metrics(trace: EpisodeTrace, env: GearAssemblyEnv, seed: int) -> EpisodeMetrics:
+    """Metrics of a controller's episode (the trace must have ``record_infos``)."""
+    infos = trace.infos
+    return EpisodeMetrics(
+        seed=seed, human_mode=env.schedule.mode, success=trace.success,
+        seconds=trace.env_steps * CONTROL_DT,
+        contacts=int(sum(int(i["human_contacts"]) for i in infos)),
+        min_human_distance=float(min((float(i["min_human_distance"]) for i in infos),
+                                     default=np.inf)),
+        out_of_region_starts=trace.out_of_region_starts, switches=trace.switches,
+        holds=trace.no_admissible,
+        decision_ms=tuple(1e3 * s for s in trace.latencies_s),
+        options=tuple(d.option or "hold" for d in trace.decisions))
+
+
+def run_controller(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv, controller: Controller,
+                   seeds: Sequence[EpisodeSeed], name: str,
+                   progress: bool = True) -> list[EpisodeMetrics]:
+    """Run ``controller`` on every seeded episode of ``env`` (``gear_env`` itself or a
+    wrapper of it, for example a fault)."""
+    out = []
+    for s in track(seeds, name, total=len(seeds), enabled=progress):
+        trace = controller.run(env, s.rng(), seed=s.env_seed)
+        out.append(trace_metrics(trace, gear_env, s.env_seed))
+    return out
+
+
+def run_policy(env: GearAssemblyEnv, act: Callable[[FloatArray], FloatArray],
+               seeds: Sequence[EpisodeSeed], name: str,
+               progress: bool = True) -> list[EpisodeMetrics]:
+    """Run a flat policy ``act(observation) -> action`` on every seeded episode; its
+    "decision latency" is the time of one ``act`` call."""
+    out = []
+    for s in track(seeds, name, total=len(seeds), enabled=progress):
+        obs, info = env.reset(seed=s.env_seed)
+        contacts, min_d, ms = 0, float(info["min_human_distance"]), []
+        steps, done, success = 0, False, False
+        while not done:
+            t0 = time.perf_counter()
+            action = act(obs)
+            ms.append(1e3 * (time.perf_counter() - t0))
+            obs, _, terminated, truncated, info = env.step(action)
+            steps += 1
+            contacts += int(info["human_contacts"])
+            min_d = min(min_d, float(info["min_human_distance"]))
+            success = bool(info["is_success"])
+            done = terminated or truncated
+        out.append(EpisodeMetrics(s.env_seed, env.schedule.mode, success, steps * CONTROL_DT,
+                                  contacts, min_d, 0, 0, 0, tuple(ms), ()))
+    return out
+
+
+def summarise(name: str, episodes: Sequence[EpisodeMetrics]) -> dict[str, Any]:
+    """One row of ``results.csv`` (see :data:`RESULT_COLUMNS`) plus per-mode success."""
+    ms = [m for e in episodes for m in e.decision_ms]
+    ok = [e for e in episodes if e.success]
+    row: dict[str, Any] = {
+        "controller": name,
+        "episodes": len(episodes),
+        "success_rate": float(np.mean([e.success for e in episodes])) if episodes else 0.0,
+        "time_to_success_s": float(np.median([e.seconds for e in ok])) if ok else None,
+        "contacts": int(sum(e.contacts for e in episodes)),
+        "episodes_with_contact": int(sum(e.contacts > 0 for e in episodes)),
+        "min_human_distance": float(min(e.min_human_distance for e in episodes)),
+        "out_of_region_starts": int(sum(e.out_of_region_starts for e in episodes)),
+        "switches": int(sum(e.switches for e in episodes)),
+        "holds": int(sum(e.holds for e in episodes)),
+        "decision_ms_p50": quantile_or_none(ms, 0.5),
+        "decision_ms_p99": quantile_or_none(ms, 0.99),
+    }
+    by_mode = {}
+    for mode in sorted({e.human_mode for e in episodes}):
+        sub = [e for e in episodes if e.human_mode == mode]
+        by_mode[mode] = {"episodes": len(sub),
+                         "success_rate": float(np.mean([e.success for e in sub])),
+                         "contacts": int(sum(e.contacts for e in sub))}
+    row["by_human_mode"] = by_mode
+    return row
+
+
+def make_controller(options: Sequence[Any], chooser: Any, replan: bool,
+                    max_seconds: float = 40.0) -> Controller:
+    """A gear controller: replans every decision period when ``replan``; holds still when
+    no option is admissible; records infos for the metrics."""
+    max_steps = round(max_seconds / CONTROL_DT)
+    return Controller(options, chooser, state_fn=PlannerState(),
+                      max_decisions=max_steps, max_option_steps=max_steps,
+                      replan_every=DECISION_STEPS if replan else None, margin=0.02,
+                      hold_action=hold_still, record_infos=True)
+
+
+def hold_still(observation: FloatArray) -> FloatArray:
+    """Every arm joint at its current angle and the gripper as it is: the safe action
+    when no option is admissible."""
+    obs = np.asarray(observation, dtype=np.float64)
+    closed = float(obs[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
+    return np.concatenate([obs[OBS_SLICES["arm_qpos"]], [1.0 if closed else 0.0]])
+
+
+__all__ = ["RESULT_COLUMNS", "EpisodeMetrics", "hold_still", "make_controller",
+           "run_controller", "run_policy", "summarise", "trace_metrics"]
