@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, HOME_Q, GearAssemblyEnv
+from dynoplan.envs.gear.grasp import ik_gear_at
 from dynoplan.envs.gear.kinematics import ArmKinematics, downward_tool_rotation
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.envs.gear.task import OPTION_NAMES, STAGE_INDEX
@@ -74,19 +75,6 @@ class ExpertAction:
 
 def _up(height: float) -> FloatArray:
     return np.array([0.0, 0.0, height])
-
-
-def _rotation_between(a: FloatArray, b: FloatArray) -> FloatArray:
-    """(3, 3) smallest rotation taking unit vector ``a`` onto unit vector ``b``."""
-    v = np.cross(a, b)
-    c = float(np.dot(a, b))
-    s = float(np.linalg.norm(v))
-    if s < 1e-12:
-        return np.eye(3)
-    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / s
-    angle = np.arctan2(s, c)
-    out: FloatArray = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
-    return out
 
 
 class GearExpert:
@@ -337,17 +325,8 @@ class GearExpert:
         its axis), with the gear's axis on the peg's axis."""
         gear, gear_rot = self.env.gear_pose()
         tip, peg_rot = self.env.peg_pose()
-        axis = peg_rot[:, 2]
-        tcp, tool_rot = self.kin.tool_pose(self.env.arm_qpos)
-        offset = tool_rot.T @ (gear - tcp)  # gear bottom in the tool frame
-        target_rot = _rotation_between(gear_rot[:, 2], axis) @ tool_rot
-        target_tcp = tip + axis * height - target_rot @ offset
-        # The roll about the approach axis is left free (the gear is symmetric about its
-        # axis); a second pass puts the gear's bottom right for the roll found.
-        q_sol = self.kin.solve(q, target_tcp, target_rot, free_roll=True, iterations=100).q
-        _, rot_sol = self.kin.tool_pose(q_sol)
-        target_tcp = tip + axis * height - rot_sol @ offset
-        return self.kin.solve(q_sol, target_tcp, rot_sol, free_roll=True, iterations=100).q
+        return ik_gear_at(self.kin, q, self.env.arm_qpos, gear, gear_rot, tip, peg_rot,
+                          height)
 
     def _collision_free(self, waypoints: list[FloatArray]) -> list[FloatArray]:
         """``waypoints`` if their straight joint path is free for the arm carrying the

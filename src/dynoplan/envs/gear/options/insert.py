@@ -1,0 +1,434 @@
+"""The ``insert`` option: a neural-network policy that wiggles the held gear onto the peg.
+
+The policy ``pi_insert`` is a small torch MLP (:class:`InsertionNetwork`) trained by
+behaviour cloning with noise injection from scripted insertion demonstrations
+(:mod:`dynoplan.envs.gear.options.insert_training`). Every env step it maps features of
+the observation (:func:`insertion_features`) to a small step of the left arm's joint
+targets:
+
+- input (20,): the gear's bottom centre relative to the peg tip and the gear's axis, both
+  in the peg frame (``z`` = the peg axis, so ``-z`` of the first is the insertion depth),
+  the left arm's joint angles and velocities, and the two finger openings;
+- output (6,): ``delta q`` (rad), the next left-arm joint target minus the current left-arm
+  joint angles; the action is ``q_left + clip(delta q, +-max_joint_step)``, clipped to the
+  joint limits.
+
+Inputs and outputs are standardised inside the network (statistics of the training rows,
+stored in the file). The gripper stays closed (1.0); the right arm's targets are its joint
+angles observed at ``reset`` (held fixed, so the peg does not drift while the option runs).
+
+Termination of the running policy is judged from the observation: ``"done"`` as soon as
+the observed gear pose is seated on the observed peg pose
+(:func:`dynoplan.envs.gear.task.is_seated`), ``"failed"`` when the gear is more than
+``fail_distance`` from the peg tip (dropped). For the planner, :meth:`InsertPolicy.termination`
+gives ``beta_insert`` on planner states (see :func:`insert_termination`).
+
+Model files: safetensors arrays plus JSON metadata (kind ``gear_insertion_policy``, format
+version, feature and output names and sizes, hidden sizes, the training report), no
+pickle (:mod:`dynoplan.models.storage`).
+"""
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+from torch import nn
+
+from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_DIM, OBS_SLICES, RIGHT_HOLD, GearAssemblyEnv
+from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
+from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
+from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
+from dynoplan.errors import DynoplanError
+from dynoplan.models.storage import load_arrays, require, save_arrays
+from dynoplan.options.termination import Termination, TerminationFromCallable
+from dynoplan.types import FloatArray, Generator
+
+MODEL_KIND = "gear_insertion_policy"
+FEATURE_NAMES: tuple[str, ...] = (
+    "gear_in_peg_x", "gear_in_peg_y", "gear_in_peg_z",
+    "gear_axis_in_peg_x", "gear_axis_in_peg_y", "gear_axis_in_peg_z",
+    *(f"q_left_{i}" for i in range(6)), *(f"qvel_left_{i}" for i in range(6)),
+    "finger_left", "finger_right")
+FEATURE_DIM = len(FEATURE_NAMES)
+OUTPUT_NAMES: tuple[str, ...] = tuple(f"dq_left_{i}" for i in range(6))
+OUTPUT_DIM = len(OUTPUT_NAMES)
+OUTPUT_MEANING = "left-arm joint target minus current left-arm joint angles (rad)"
+DEFAULT_HIDDEN = (128, 128)
+
+
+def quat_to_mat(quat: FloatArray) -> FloatArray:
+    """``wxyz`` quaternions (N, 4) -> rotation matrices (N, 3, 3) (normalised first)."""
+    q = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    out = np.empty((len(q), 3, 3))
+    out[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    out[:, 0, 1] = 2 * (x * y - w * z)
+    out[:, 0, 2] = 2 * (x * z + w * y)
+    out[:, 1, 0] = 2 * (x * y + w * z)
+    out[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    out[:, 1, 2] = 2 * (y * z - w * x)
+    out[:, 2, 0] = 2 * (x * z - w * y)
+    out[:, 2, 1] = 2 * (y * z + w * x)
+    out[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+def _as_observations(observations: FloatArray) -> FloatArray:
+    obs = np.atleast_2d(np.asarray(observations, dtype=np.float64))
+    if obs.ndim != 2 or obs.shape[1] != OBS_DIM:
+        raise DynoplanError(f"gear observations have {OBS_DIM} values, got shape "
+                            f"{np.shape(observations)}")
+    return obs
+
+
+def insertion_features(observations: FloatArray) -> FloatArray:
+    """Observations (50,) or (N, 50) -> features (N, 20) in :data:`FEATURE_NAMES` order."""
+    obs = _as_observations(observations)
+    gear = obs[:, OBS_SLICES["gear_pos"]]
+    tip = obs[:, OBS_SLICES["peg_pos"]]
+    gear_rot = quat_to_mat(obs[:, OBS_SLICES["gear_quat"]])
+    peg_rot = quat_to_mat(obs[:, OBS_SLICES["peg_quat"]])
+    out = np.empty((len(obs), FEATURE_DIM))
+    out[:, 0:3] = np.einsum("nji,nj->ni", peg_rot, gear - tip)  # R_peg^T (gear - tip)
+    out[:, 3:6] = np.einsum("nji,nj->ni", peg_rot, gear_rot[:, :, 2])
+    out[:, 6:12] = obs[:, OBS_SLICES["arm_qpos"]][:, :6]
+    out[:, 12:18] = obs[:, OBS_SLICES["arm_qvel"]][:, :6]
+    out[:, 18:20] = obs[:, OBS_SLICES["fingers"]]
+    return out
+
+
+def observed_relation_seated(observation: FloatArray) -> tuple[bool, float]:
+    """From one observation (50,): whether the observed gear is seated on the observed peg,
+    and the distance (m) from the gear's bottom centre to the peg tip."""
+    obs = _as_observations(observation)
+    gear_rot = quat_to_mat(obs[:, OBS_SLICES["gear_quat"]])[0]
+    peg_rot = quat_to_mat(obs[:, OBS_SLICES["peg_quat"]])[0]
+    rel = relation(obs[0, OBS_SLICES["gear_pos"]], gear_rot, obs[0, OBS_SLICES["peg_pos"]],
+                   peg_rot)
+    return is_seated(rel), rel.distance
+
+
+class InsertionNetwork:
+    """``pi_insert``'s network: standardised features (20,) -> standardised joint step (6,).
+
+    An MLP with SiLU activations, float32 inside; :meth:`predict` takes and returns
+    float64 in physical units (features as :func:`insertion_features`, steps in rad).
+
+    Args:
+        hidden_sizes: widths of the hidden layers.
+        seed: seeds the weight initialisation (a local ``torch.Generator``).
+
+    Attributes:
+        network: ``nn.Sequential`` of the layers.
+        input_mean, input_std: (20,) float64 feature standardisation.
+        output_mean, output_std: (6,) float64 standardisation of the joint step.
+        report: what the training measured (data, time, losses); stored in the file.
+    """
+
+    def __init__(self, hidden_sizes: Sequence[int] = DEFAULT_HIDDEN, seed: int = 0) -> None:
+        if not hidden_sizes or min(hidden_sizes) < 1:
+            raise DynoplanError(f"the insertion network needs hidden layers of width >= 1, "
+                                f"got {tuple(hidden_sizes)}")
+        self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
+        gen = torch.Generator().manual_seed(int(seed))
+        sizes = [FEATURE_DIM, *self.hidden_sizes, OUTPUT_DIM]
+        layers: list[nn.Module] = []
+        for i, (fan_in, fan_out) in enumerate(pairwise(sizes)):
+            layer = nn.Linear(fan_in, fan_out)
+            bound = 1.0 / np.sqrt(fan_in)
+            with torch.no_grad():
+                layer.weight.uniform_(-bound, bound, generator=gen)
+                layer.bias.zero_()
+            layers.append(layer)
+            if i < len(sizes) - 2:
+                layers.append(nn.SiLU())
+        self.network = nn.Sequential(*layers)
+        self.input_mean = np.zeros(FEATURE_DIM)
+        self.input_std = np.ones(FEATURE_DIM)
+        self.output_mean = np.zeros(OUTPUT_DIM)
+        self.output_std = np.ones(OUTPUT_DIM)
+        self.report: dict[str, Any] = {}
+
+    @property
+    def linears(self) -> list[nn.Linear]:
+        return [m for m in self.network if isinstance(m, nn.Linear)]
+
+    def set_normalisation(self, features: FloatArray, steps: FloatArray) -> None:
+        """Standardise with the mean and standard deviation of ``features`` (N, 20) and
+        ``steps`` (N, 6) (a floor of 1e-6 on the deviations)."""
+        x = np.asarray(features, dtype=np.float64)
+        y = np.asarray(steps, dtype=np.float64)
+        self.input_mean = x.mean(axis=0)
+        self.input_std = np.maximum(x.std(axis=0), 1e-6)
+        self.output_mean = y.mean(axis=0)
+        self.output_std = np.maximum(y.std(axis=0), 1e-6)
+
+    def normalise(self, features: FloatArray,
+                  steps: FloatArray | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Float32 tensors of standardised features (N, 20) and, if given, steps (N, 6)."""
+        x = (np.asarray(features, dtype=np.float64) - self.input_mean) / self.input_std
+        xt = torch.from_numpy(x.astype(np.float32))
+        if steps is None:
+            return xt, None
+        y = (np.asarray(steps, dtype=np.float64) - self.output_mean) / self.output_std
+        return xt, torch.from_numpy(y.astype(np.float32))
+
+    def predict(self, features: FloatArray) -> FloatArray:
+        """Features (N, 20) -> joint steps (N, 6) float64, rad."""
+        x = np.asarray(features, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != FEATURE_DIM:
+            raise DynoplanError(f"insertion features must have shape (N, {FEATURE_DIM}), "
+                                f"got {x.shape}")
+        xt, _ = self.normalise(x)
+        with torch.no_grad():
+            out = self.network(xt).numpy().astype(np.float64)
+        result: FloatArray = out * self.output_std + self.output_mean
+        return result
+
+    # ------------------------------------------------------------------ files
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the network to ``path`` (safetensors + JSON metadata, atomically)."""
+        arrays: dict[str, np.ndarray] = {}
+        for i, layer in enumerate(self.linears):
+            arrays[f"weight_{i}"] = layer.weight.detach().numpy().copy()
+            arrays[f"bias_{i}"] = layer.bias.detach().numpy().copy()
+        arrays["input_mean"] = self.input_mean
+        arrays["input_std"] = self.input_std
+        arrays["output_mean"] = self.output_mean
+        arrays["output_std"] = self.output_std
+        meta = {"input_dim": FEATURE_DIM, "output_dim": OUTPUT_DIM,
+                "feature_names": list(FEATURE_NAMES), "output_names": list(OUTPUT_NAMES),
+                "output": OUTPUT_MEANING, "hidden_sizes": list(self.hidden_sizes),
+                "activation": "silu", "report": self.report}
+        return save_arrays(path, MODEL_KIND, arrays, meta)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> "InsertionNetwork":
+        """Read a network written by :meth:`save`.
+
+        Raises:
+            DynoplanError: missing, truncated or corrupt file, another kind of model,
+                other inputs or outputs, or arrays that do not match the metadata.
+        """
+        arrays, meta = load_arrays(path, MODEL_KIND)
+        for key, want in (("input_dim", FEATURE_DIM), ("output_dim", OUTPUT_DIM),
+                          ("feature_names", list(FEATURE_NAMES)),
+                          ("output_names", list(OUTPUT_NAMES))):
+            if meta.get(key) != want:
+                raise DynoplanError(f"{path}: metadata '{key}' is {meta.get(key)!r}, this "
+                                    f"dynoplan's insertion policy needs {want!r}")
+        hidden = meta.get("hidden_sizes")
+        if (not isinstance(hidden, list) or not hidden
+                or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
+                           for h in hidden)):
+            raise DynoplanError(f"{path}: metadata field 'hidden_sizes' must be a non-empty "
+                                f"list of positive integers, got {hidden!r}")
+        if meta.get("activation") != "silu":
+            raise DynoplanError(f"{path}: activation {meta.get('activation')!r} is not "
+                                "supported (expected 'silu')")
+        model = cls(hidden)
+        sizes = [FEATURE_DIM, *hidden, OUTPUT_DIM]
+        expected = {"input_mean", "input_std", "output_mean", "output_std"}
+        with torch.no_grad():
+            for i, (layer, (fan_in, fan_out)) in enumerate(zip(model.linears, pairwise(sizes),
+                                                               strict=True)):
+                w = _checked(require(arrays, f"weight_{i}", (fan_out, fan_in), path),
+                             np.float32, f"weight_{i}", path)
+                b = _checked(require(arrays, f"bias_{i}", (fan_out,), path), np.float32,
+                             f"bias_{i}", path)
+                layer.weight.copy_(torch.from_numpy(w))
+                layer.bias.copy_(torch.from_numpy(b))
+                expected |= {f"weight_{i}", f"bias_{i}"}
+        extra = set(arrays) - expected
+        if extra:
+            raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
+                                f"describes {len(hidden)} hidden layers)")
+        for name, dim in (("input_mean", FEATURE_DIM), ("input_std", FEATURE_DIM),
+                          ("output_mean", OUTPUT_DIM), ("output_std", OUTPUT_DIM)):
+            a = _checked(require(arrays, name, (dim,), path), np.float64, name, path)
+            if name.endswith("_std") and np.any(a <= 0.0):
+                raise DynoplanError(f"{path}: array '{name}' must be positive")
+            setattr(model, name, a.copy())
+        report = meta.get("report", {})
+        model.report = report if isinstance(report, dict) else {}
+        return model
+
+
+def _checked(a: np.ndarray, dtype: type, name: str, path: str | os.PathLike[str]) -> np.ndarray:
+    if a.dtype != dtype:
+        raise DynoplanError(f"{path}: array '{name}' has dtype {a.dtype}, expected "
+                            f"{np.dtype(dtype)}")
+    if not np.all(np.isfinite(a)):
+        raise DynoplanError(f"{path}: array '{name}' holds NaN or infinity")
+    return a
+
+
+# ---------------------------------------------------------------------- termination
+class PegTipModel:
+    """The peg tip (3,) and axis (3,) as functions of the right arm's joints (6,).
+
+    The peg module is part of the right hand, so its pose follows from the right arm's
+    joints by forward kinematics of the robot-only model (as in
+    :class:`~dynoplan.envs.gear.kinematics.ArmKinematics`). For batches of
+    planner states it is linearised once about ``q_right0`` (central differences): the
+    right arm does not move during the task, so its joints stay within a few mrad of it.
+    """
+
+    def __init__(self, q_right0: FloatArray = RIGHT_HOLD, eps: float = 1e-4) -> None:
+        model = build_model(objects=False)
+        data = mujoco.MjData(model)
+        qadr = np.array([model.joint(j).qposadr[0] for j in RIGHT_ARM_JOINTS])
+        site = model.site("peg_tip").id
+
+        def tip_and_axis(q: FloatArray) -> tuple[FloatArray, FloatArray]:
+            data.qpos[qadr] = q
+            mujoco.mj_kinematics(model, data)
+            return (data.site_xpos[site].copy(),
+                    data.site_xmat[site].reshape(3, 3)[:, 2].copy())
+
+        self.q_right0 = np.asarray(q_right0, dtype=np.float64).copy()
+        self.tip0, self.axis0 = tip_and_axis(self.q_right0)
+        self.jacobian = np.empty((3, 6))
+        for j in range(6):
+            dq = np.zeros(6)
+            dq[j] = eps
+            hi, _ = tip_and_axis(self.q_right0 + dq)
+            lo, _ = tip_and_axis(self.q_right0 - dq)
+            self.jacobian[:, j] = (hi - lo) / (2 * eps)
+
+    def tip(self, q_right: FloatArray) -> FloatArray:
+        """Right-arm joints (N, 6) -> peg tips (N, 3)."""
+        out: FloatArray = self.tip0 + (np.atleast_2d(q_right) - self.q_right0) @ self.jacobian.T
+        return out
+
+
+def insert_termination(peg: PegTipModel | None = None, base: float = 0.02,
+                       seat_ramp: float = 0.005) -> TerminationFromCallable:
+    """``beta_insert`` on planner states (N, 22) -> (N,):
+    ``max(seated, min(1, base + proximity_beta))``.
+
+    - ``seated`` rises linearly from 0 at ``SEAT_DEPTH - seat_ramp`` to 1 at
+      :data:`~dynoplan.envs.gear.task.SEAT_DEPTH` of the gear bottom (state 16:19) below
+      the peg tip along the peg axis, and is 0 when the gear bottom is more than
+      :data:`~dynoplan.envs.gear.task.RADIAL_TOLERANCE` off the axis. The peg tip comes
+      from the state's right-arm joints (6:12) through ``peg`` (linearised forward
+      kinematics); the planner state has no tilt, so tilt is not judged here.
+    - ``base`` (per planner step) plus :func:`~dynoplan.envs.gear.state.proximity_beta`
+      (rising as the human's hand comes close to the left tool).
+    """
+    model = peg or PegTipModel()
+
+    def beta(states: FloatArray) -> FloatArray:
+        s = np.atleast_2d(np.asarray(states, dtype=np.float64))
+        tip = model.tip(s[:, STATE_SLICES["arm_qpos"]][:, 6:12])
+        rel = s[:, STATE_SLICES["gear_pos"]] - tip
+        along = rel @ model.axis0
+        radial = np.linalg.norm(rel - along[:, None] * model.axis0, axis=1)
+        depth = -along
+        seated = np.clip((depth - (SEAT_DEPTH - seat_ramp)) / seat_ramp, 0.0, 1.0)
+        seated = np.where(radial <= RADIAL_TOLERANCE, seated, 0.0)
+        out: FloatArray = np.maximum(seated, np.minimum(1.0, base + proximity_beta(s)))
+        return out
+
+    return TerminationFromCallable(beta)
+
+
+# ---------------------------------------------------------------------- the policy
+@dataclass(frozen=True)
+class InsertConfig:
+    """Limits of the insertion policy."""
+
+    max_joint_step: float = 0.08  # rad, largest change of a left-arm target per env step
+    fail_distance: float = 0.12  # m, gear bottom this far from the peg tip -> "failed"
+    termination_base: float = 0.02  # beta_insert away from the seat and the human
+
+
+class InsertPolicy(GearOptionPolicy):
+    """``pi_insert``: the trained :class:`InsertionNetwork` in closed loop.
+
+    ``reset(observation, rng)`` records the right arm's joints (its targets while the
+    option runs) and judges the start; ``act(observation)`` returns the action (13,):
+    left-arm joints plus the network's clipped step, right arm held, gripper closed
+    (1.0). ``status`` becomes ``"done"`` when the observed gear is seated on the observed
+    peg and ``"failed"`` when the gear is farther than ``fail_distance`` from the peg
+    tip; once finished, the left arm holds its current joints. No motion planning
+    (``plan_ms`` stays empty). Deterministic: ``rng`` is not used.
+    """
+
+    name = "insert"
+
+    def __init__(self, env: GearAssemblyEnv, network: InsertionNetwork,
+                 config: InsertConfig | None = None) -> None:
+        super().__init__(env)
+        self.network = network
+        self.cfg = config or InsertConfig()
+        self.limits = env.joint_limits.copy()
+        self.steps = 0
+        self._q_right = RIGHT_HOLD.copy()
+        self._peg: PegTipModel | None = None
+
+    @classmethod
+    def from_file(cls, env: GearAssemblyEnv, path: str | os.PathLike[str],
+                  config: InsertConfig | None = None) -> "InsertPolicy":
+        """A policy around the network saved at ``path`` (see :meth:`InsertionNetwork.load`)."""
+        return cls(env, InsertionNetwork.load(path), config)
+
+    def reset(self, observation: FloatArray, rng: Generator) -> None:
+        obs = _as_observations(observation)[0]
+        self._q_right = obs[OBS_SLICES["arm_qpos"]][6:12].copy()
+        self.plan_ms = []
+        self.steps = 0
+        self.status = "running"
+        self._judge(obs)
+
+    def act(self, observation: FloatArray) -> FloatArray:
+        if self.status == "idle":
+            raise RuntimeError("InsertPolicy.act called before reset")
+        obs = _as_observations(observation)[0]
+        self._judge(obs)
+        q_left = obs[OBS_SLICES["arm_qpos"]][:6]
+        if self.status == "running":
+            step = self.network.predict(insertion_features(obs))[0]
+            lim = self.cfg.max_joint_step
+            q_left = q_left + np.clip(step, -lim, lim)
+        target = np.clip(np.concatenate([q_left, self._q_right]), self.limits[:, 0],
+                         self.limits[:, 1])
+        self.steps += 1
+        return np.concatenate([target, [GRIPPER_CLOSED]])
+
+    def _judge(self, obs: FloatArray) -> None:
+        if self.status != "running":
+            return
+        seated, distance = observed_relation_seated(obs)
+        if seated:
+            self.status = "done"
+        elif distance > self.cfg.fail_distance:
+            self.status = "failed"
+
+    def succeeded(self, info: dict[str, Any]) -> bool:
+        """The simulator says the gear is seated (``info["is_success"]``)."""
+        return bool(info["is_success"])
+
+    def termination(self) -> Termination:
+        """``beta_insert`` (:func:`insert_termination`): 1 once the gear bottom is at the
+        seated depth on the peg axis (the peg tip computed from the state's right-arm
+        joints, linearised about those observed at the last ``reset``, or
+        :data:`~dynoplan.envs.gear.env.RIGHT_HOLD` before any), else a small constant plus
+        :func:`~dynoplan.envs.gear.state.proximity_beta`."""
+        if self._peg is None or not np.array_equal(self._peg.q_right0, self._q_right):
+            self._peg = PegTipModel(self._q_right)
+        return insert_termination(self._peg, base=self.cfg.termination_base)
+
+
+__all__ = ["DEFAULT_HIDDEN", "FEATURE_DIM", "FEATURE_NAMES", "MODEL_KIND", "OUTPUT_DIM",
+           "OUTPUT_MEANING", "OUTPUT_NAMES", "InsertConfig", "InsertPolicy", "InsertionNetwork",
+           "PegTipModel",
+           "insert_termination", "insertion_features", "observed_relation_seated",
+           "quat_to_mat"]

@@ -1,0 +1,242 @@
+"""Learned gear-assembly models (issue 5): training, metrics, storage, figures.
+
+The Eq. 5 hand computation in 2-D lives in tests/test_regions.py.
+"""
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+from dynoplan.data import Episode, labelled_transitions, read_dataset
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
+from dynoplan.envs.gear.task import OPTION_NAMES
+from dynoplan.errors import DynoplanError
+from dynoplan.experiments.gear_demos import record_demos
+from dynoplan.experiments.gear_models import (
+    GOAL_FILE,
+    MANIFEST_FILE,
+    METRICS_FILE,
+    REGIONS_FILE,
+    demonstration_transitions,
+    dynamics_file,
+    fit_regions_cross_validated,
+    load_gear_models,
+    train_gear_models,
+    write_demonstration_transitions,
+)
+from dynoplan.models.goal_network import GoalNetwork
+from dynoplan.models.regions import SafetyRegions
+from dynoplan.reports.gear_figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("gear-models")
+    record_demos(3, seed=0, out=root / "demos", progress=False)
+    record_demos(2, seed=1000, out=root / "heldout", progress=False)
+    return root
+
+
+@pytest.fixture(scope="module")
+def trained(data):
+    out = data / "models"
+    metrics = train_gear_models(data / "demos", None, out, seed=0,
+                                heldout_demos=data / "heldout", quick=True, progress=False)
+    return out, metrics
+
+
+def test_metrics_file_has_every_field_and_the_models_load(trained):
+    out, metrics = trained
+    on_disk = json.loads((out / METRICS_FILE).read_text())
+    assert on_disk["goal_spearman"] == pytest.approx(metrics["goal_spearman"])
+    for key in ("goal_spearman", "goal_mae", "region_inside_rate", "region_far_outside_rate",
+                "dynamics_coverage_90"):
+        assert np.isfinite(on_disk[key]), key
+    assert on_disk["dynamics_data"] == "demonstrations subsampled"
+    assert set(on_disk["dynamics"]) == set(OPTION_NAMES)
+    for row in on_disk["dynamics"].values():
+        assert row["one_step_rmse"] > 0 and row["one_step_no_change_rmse"] > 0
+        assert 0.0 <= row["coverage_90"] <= 1.0
+    # held-out states of the demonstrated task, not memorised ones
+    assert on_disk["goal"]["heldout_states"] > 100 and on_disk["data"]["heldout_episodes"] == 2
+    # held-out trial 0 goes wait, pick, move, insert, which three demonstrations cover;
+    # trial 1 backs away from the human mid-insertion, which they do not
+    assert on_disk["goal"]["per_trial_spearman"][0] > 0.9
+    assert on_disk["region_inside_rate"] > 0.8
+    assert on_disk["region_far_outside_rate"] >= 0.99
+    assert on_disk["regions"]["far_states"]["far"] > 100
+
+    models = load_gear_models(out)
+    assert models.option_names == OPTION_NAMES
+    states = np.zeros((5, STATE_DIM))
+    mean, std = models.goal.mean_std(states)
+    assert mean.shape == (5,) and np.all((mean >= 0) & (mean <= 1)) and np.all(std >= 0)
+    assert models.regions.contains_all(states).shape == (5, len(OPTION_NAMES))
+    nxt = models.stacked_dynamics().sample(np.zeros((4, 8, STATE_DIM)), np.random.default_rng(0))
+    assert nxt.shape == (4, 8, STATE_DIM) and np.isfinite(nxt).all()
+
+
+def test_training_on_a_tiny_dataset_reduces_held_out_loss(trained):
+    _, metrics = trained
+    for name, row in metrics["dynamics"].items():
+        first, best = row["holdout_nll_first_best"]
+        assert best < first, name
+    first, last = metrics["goal"]["train_loss_first_last"]
+    assert last < first
+
+
+def test_save_and_load_round_trip_bit_exactly(trained, tmp_path):
+    out, _ = trained
+    models = load_gear_models(out)
+    models.goal.network.save(tmp_path / GOAL_FILE)
+    models.regions.regions.save(tmp_path / REGIONS_FILE)
+    for name, model in models.dynamics.items():
+        model.save(tmp_path / dynamics_file(name))
+    for file in [GOAL_FILE, REGIONS_FILE, *(dynamics_file(n) for n in OPTION_NAMES)]:
+        assert (tmp_path / file).read_bytes() == (out / file).read_bytes(), file
+    again = load_gear_models(out)
+    states = np.random.default_rng(0).normal(size=(20, STATE_DIM))
+    np.testing.assert_array_equal(again.goal.mean_std(states)[0], models.goal.mean_std(states)[0])
+
+
+def _copy(out: Path, tmp_path: Path) -> Path:
+    folder = tmp_path / "models"
+    shutil.copytree(out, folder)
+    return folder
+
+
+def _one_line_error(folder: Path, match: str) -> None:
+    with pytest.raises(DynoplanError, match=match) as info:
+        load_gear_models(folder)
+    assert "\n" not in str(info.value)
+
+
+def test_missing_truncated_and_mismatched_files_are_rejected(trained, tmp_path):
+    out, _ = trained
+    _one_line_error(tmp_path, "models.json: not found")
+
+    folder = _copy(out, tmp_path / "a")
+    (folder / dynamics_file("insert")).unlink()
+    _one_line_error(folder, "model file not found")
+
+    folder = _copy(out, tmp_path / "b")
+    data = (folder / REGIONS_FILE).read_bytes()
+    (folder / REGIONS_FILE).write_bytes(data[: len(data) // 2])
+    _one_line_error(folder, "truncated")
+
+    folder = _copy(out, tmp_path / "c")
+    (folder / MANIFEST_FILE).write_text("{not json")
+    _one_line_error(folder, "not a readable manifest")
+
+    for key, value in (("state_dim", 12), ("option_names", ["pick", "insert"]),
+                       ("decision_steps", 5)):
+        folder = _copy(out, tmp_path / f"d-{key}")
+        manifest = json.loads((folder / MANIFEST_FILE).read_text())
+        manifest[key] = value
+        (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
+        _one_line_error(folder, key)
+
+    # a readable model of the wrong shape, with a checksum that matches it
+    folder = _copy(out, tmp_path / "e")
+    other, _ = GoalNetwork.fit(np.random.default_rng(0).normal(size=(40, 3)),
+                               np.linspace(0, 1, 40), hidden=4, epochs=1)
+    other.save(folder / GOAL_FILE)
+    manifest = json.loads((folder / MANIFEST_FILE).read_text())
+    manifest["goal"]["sha256"] = hashlib.sha256((folder / GOAL_FILE).read_bytes()).hexdigest()
+    (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
+    _one_line_error(folder, "reads 3 columns")
+
+
+def test_held_out_trials_must_not_repeat_the_demonstrations(data, tmp_path):
+    with pytest.raises(DynoplanError, match="share episode seeds"):
+        train_gear_models(data / "demos", None, tmp_path / "m", seed=0,
+                          heldout_demos=data / "demos", quick=True, progress=False)
+
+
+def test_demonstrations_become_decision_rate_runs_of_one_option(tmp_path):
+    labels = np.r_[np.zeros(25), np.ones(5), np.full(12, 3)].astype(np.int64)
+    steps = len(labels)
+    obs = np.arange((steps + 1) * 50, dtype=np.float64).reshape(steps + 1, 50) / 1e3
+    demo = Episode(observations=obs, actions=np.zeros((steps, 13)), rewards=np.zeros(steps),
+                   terminations=np.zeros(steps, bool), truncations=np.zeros(steps, bool),
+                   infos={"option": labels}, seed=5)
+    runs = demonstration_transitions([demo])
+    # option 0: steps 0..24, one run per offset 0..9; option 1 (5 steps): none;
+    # option 3: steps 30..41 (observations 30..42), offsets 0..2 reach a second decision
+    assert [int(r.options[0]) for r in runs] == [0] * DECISION_STEPS + [3] * 3
+    first = runs[0]
+    np.testing.assert_array_equal(first.observations, obs[[0, 10, 20]])
+    np.testing.assert_array_equal(runs[-1].observations, obs[[32, 42]])
+    s, lab, nxt = labelled_transitions(runs)
+    assert np.all(np.isin(lab, [0, 3]))
+    # every transition is DECISION_STEPS environment steps of one option
+    np.testing.assert_allclose(nxt - s, DECISION_STEPS * 50 / 1e3)
+
+
+def test_models_train_on_a_transitions_dataset_at_the_decision_rate(data, tmp_path):
+    path = write_demonstration_transitions(data / "demos", tmp_path / "transitions")
+    dataset = read_dataset(path)
+    assert dataset.metadata.option_names == list(OPTION_NAMES)
+    assert dataset.metadata.extra["decision_steps"] == DECISION_STEPS
+    for episode in dataset:
+        assert (episode.actions == episode.options).all()
+        assert len(np.unique(episode.options)) == 1
+    metrics = train_gear_models(data / "demos", path, tmp_path / "m", seed=0,
+                                heldout_demos=data / "heldout", quick=True, progress=False)
+    assert metrics["dynamics_data"] == "option transitions"
+    assert metrics["data"]["transition_episodes_heldout"] > 0
+    assert load_gear_models(tmp_path / "m").option_names == OPTION_NAMES
+
+    slower = write_demonstration_transitions(data / "demos", tmp_path / "every5", 5)
+    with pytest.raises(DynoplanError, match="recorded every 5 environment steps"):
+        train_gear_models(data / "demos", slower, tmp_path / "m5", seed=0,
+                          heldout_demos=data / "heldout", quick=True, progress=False)
+
+
+def test_cross_validated_thresholds_admit_unseen_demonstrations():
+    # five "demonstrations" per option, each a small cluster offset from the others
+    rng = np.random.default_rng(0)
+    centres = {0: np.array([0.0, 0.0]), 1: np.array([6.0, 0.0])}
+
+    def demos(n_demos: int, seed: int):
+        r = np.random.default_rng(seed)
+        xs, ys, gs = [], [], []
+        for g in range(n_demos):
+            for k, c in centres.items():
+                xs.append(c + r.normal(0, 0.6, 2) + r.normal(0, 0.1, (40, 2)))
+                ys.append(np.full(40, k))
+                gs.append(np.full(40, g))
+        return np.concatenate(xs), np.concatenate(ys), np.concatenate(gs)
+
+    x, y, g = demos(5, 1)
+    kw = dict(reg_covar=1e-6, max_components=6, coverage=0.99, seed=0)
+    plain = SafetyRegions.fit(x, y, ["a", "b"], **kw)
+    wide, info = fit_regions_cross_validated(x, y, g, ["a", "b"], cv_coverage=0.97, **kw)
+    assert info["folds"] == 5 and min(info["slack_nats"]) >= 0.0
+    np.testing.assert_allclose(plain.log_thresholds - wide.log_thresholds, info["slack_nats"],
+                               atol=1e-3)
+    xh, yh, _ = demos(20, 2)
+    inside = lambda r: r.contains_all(xh)[np.arange(len(xh)), yh].mean()  # noqa: E731
+    assert inside(wide) >= 0.93 and inside(wide) > inside(plain)
+    assert not wide.contains_all(rng.normal(30.0, 1.0, size=(50, 2))).any()
+
+
+def test_figures_are_drawn_from_the_trained_models(trained, data, tmp_path):
+    out, _ = trained
+    summary = make_gear_figures(out, data / "demos", data / "heldout", tmp_path / "figs",
+                                seed=0, trial=1, max_points=300)
+    for name in (GOAL_FIGURE, TSNE_FIGURE):
+        image = matplotlib.image.imread(tmp_path / "figs" / name)
+        assert image.ndim == 3 and image.shape[0] > 300
+    assert summary["fig3b"]["points"] == 300
+    assert -1.0 <= summary["fig3a"]["spearman"] <= 1.0
+    assert json.loads((tmp_path / "figs" / "figures.json").read_text())["fig3a"]["trial"] == 1
+    with pytest.raises(DynoplanError, match="--trial"):
+        make_gear_figures(out, data / "demos", data / "heldout", tmp_path / "x", trial=7)
