@@ -119,7 +119,11 @@ def test_collected_transitions_are_at_the_decision_rate(tmp_path: Path) -> None:
     assert ds.metadata.option_names[1] == "fast_move"
     s, labels, _ = labelled_transitions(ds, state_fn=PlannerState())
     assert s.shape[1] == STATE_DIM and set(labels.tolist()) == {1}
-    assert all(len(e) == 3 for e in ds)
+    # 30 steps per run: offset 0 gives 3 decisions, offsets 1..9 give 2
+    lengths = sorted(len(e) for e in ds)
+    assert lengths == sorted(([3] + [2] * 9) * 2)
+    first = ds[0].observations
+    assert first.shape == (4, 50)
 
 
 def test_grasp_slip_drops_the_gear_once(env: GearAssemblyEnv) -> None:

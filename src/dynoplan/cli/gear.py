@@ -62,3 +62,131 @@ def render(
 
     written = render_scene(out, seed=seed, video=video, human_mode=human)
     typer.echo(" ".join(str(p) for p in written.values()))
+
+
+DEFAULT_MODELS = Path("results/gear-models")
+
+
+def _ensure_networks(name: str, models: Path, seed: int) -> dict[str, object] | None:
+    """Train ``name``'s network into ``models`` if it is not there yet; its report."""
+    from dynoplan.envs.gear.options.catalog import NEURAL_FILES, train_option_networks
+
+    if name not in NEURAL_FILES or (models / NEURAL_FILES[name]).is_file():
+        return None
+    typer.echo(f"training the {name} network into {models} ...")
+    report: dict[str, object] = train_option_networks(models, seed, only=(name,))[name]
+    return report
+
+
+@gear_app.command("option")
+def option(
+    name: str = typer.Argument(..., help="pick, fast_move, cautious_move or insert."),
+    trials: int = typer.Option(100, help="Seeded trials from the option's own start region."),
+    seed: int = typer.Option(0, help="Trial i uses numpy default_rng([seed, i])."),
+    out: Path = typer.Option(Path("results/gear-option"), help="Output folder."),
+    models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
+                                "(trained there first if missing)."),
+    human: str | None = typer.Option(None, help="Human mode (default: block for "
+                                     "cautious_move, away otherwise)."),
+    max_steps: int = typer.Option(600, help="Env steps per trial before giving up."),
+    video: bool = typer.Option(False, "--video", help="Also render trial 0 to OUT/NAME.mp4."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Run one option alone from its own starting region; write OUT/summary.json."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import torch
+
+    from dynoplan.envs.gear.options.catalog import policy_factory
+    from dynoplan.envs.gear.options.moves import CAUTIOUS_SAFETY_DISTANCE
+    from dynoplan.envs.gear.task import OPTION_NAMES
+    from dynoplan.errors import DynoplanError
+    from dynoplan.experiments.gear_options import run_option_trials
+
+    if name not in OPTION_NAMES:
+        raise DynoplanError(f"unknown option {name!r}; expected one of {', '.join(OPTION_NAMES)}")
+    torch.set_num_threads(1)
+    extra: dict[str, object] = {}
+    trained = _ensure_networks(name, models, seed)
+    if trained is not None:
+        extra["network_training"] = trained
+    if name == "cautious_move":
+        extra["safety_distance"] = CAUTIOUS_SAFETY_DISTANCE
+    summary = run_option_trials(name, policy_factory(name, models), trials, seed, out,
+                                human_mode=human, max_steps=max_steps, video=video,
+                                progress=not quiet, extra=extra)
+    plan = summary["plan_ms_p50"]
+    typer.echo(f"{name}: success {summary['success_rate']:.1%} ({summary['successes']}/"
+               f"{summary['trials']}), contacts {summary['contacts']}, min human distance "
+               f"{summary['min_human_distance']:.3f} m, plan p50 "
+               f"{'-' if plan is None else f'{plan:.1f} ms'} -> {out}/summary.json")
+
+
+@gear_app.command("collect")
+def collect(
+    runs: int = typer.Option(60, help="Runs per option."),
+    seed: int = typer.Option(0, help="Run r of option k uses default_rng([seed, k, r])."),
+    out: Path = typer.Option(Path("results/gear-transitions"), help="Dataset folder."),
+    models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
+                                "(trained there first if missing)."),
+    max_decisions: int = typer.Option(30, help="Decisions (0.5 s each) per run at most."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Collect option transitions at the decision rate (for the dynamics models)."""
+    import torch
+
+    from dynoplan.envs.gear.options.catalog import policy_factories
+    from dynoplan.experiments.gear_collect import collect_transitions
+
+    torch.set_num_threads(1)
+    for name in ("pick", "insert"):
+        _ensure_networks(name, models, seed)
+    summary = collect_transitions(policy_factories(models), runs, seed, out,
+                                  max_decisions=max_decisions, progress=not quiet)
+    counts = ", ".join(f"{k} {v}" for k, v in summary["transitions"].items())
+    typer.echo(f"{summary['runs']} runs, transitions: {counts} -> {out}")
+
+
+@gear_app.command("train")
+def train(
+    demos: Path = typer.Option(Path("results/gear-demos"), help="Demonstrations dataset."),
+    transitions: Path | None = typer.Option(None, help="Option transitions dataset "
+                                            "(default: the demonstrations subsampled)."),
+    heldout: Path | None = typer.Option(None, help="Held-out expert trials (default: "
+                                        "recorded into OUT/heldout-demos)."),
+    out: Path = typer.Option(DEFAULT_MODELS, help="Models folder (metrics.json too)."),
+    seed: int = typer.Option(0, help="Seed of every fit."),
+    quick: bool = typer.Option(False, "--quick", help="Small settings (CI)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Fit the goal heuristic, the safety regions and the per-option dynamics."""
+    import torch
+
+    from dynoplan.experiments.gear_models import train_gear_models
+
+    torch.set_num_threads(1)
+    m = train_gear_models(demos, transitions, out, seed, heldout, quick, progress=not quiet)
+    typer.echo(f"goal spearman {m['goal_spearman']:.3f}, mae {m['goal_mae']:.3f}; regions "
+               f"inside {m['region_inside_rate']:.3f}, far outside "
+               f"{m['region_far_outside_rate']:.3f}; dynamics coverage_90 "
+               f"{m['dynamics_coverage_90']:.3f} -> {out}/metrics.json")
+
+
+@gear_app.command("figures")
+def figures(
+    models: Path = typer.Option(DEFAULT_MODELS, help="Models folder (dynoplan gear train)."),
+    demos: Path = typer.Option(Path("results/gear-demos"), help="Demonstrations dataset."),
+    heldout: Path | None = typer.Option(None, help="Held-out trials (default: "
+                                        "MODELS/heldout-demos)."),
+    out: Path = typer.Option(Path("results/gear-figures"), help="Output folder."),
+    seed: int = typer.Option(0, help="t-SNE seed."),
+    trial: int = typer.Option(0, help="Held-out trial drawn in Fig. 3(a)."),
+    points: int = typer.Option(1500, help="States embedded by t-SNE at most."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Draw Fig. 3(a) (goal heuristic vs truth) and Fig. 3(b) (t-SNE with regions)."""
+    from dynoplan.reports.gear_figures import make_gear_figures
+
+    info = make_gear_figures(models, demos, heldout, out, seed=seed, trial=trial,
+                             max_points=points, progress=not quiet)
+    typer.echo(" ".join(str(v) for k, v in info.items() if str(v).endswith(".png"))
+               or str(out))

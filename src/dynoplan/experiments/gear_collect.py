@@ -5,10 +5,10 @@ Every run starts one option from a seeded state of its starting region
 (:func:`~dynoplan.envs.gear.options.starts.reach_start`), with the human away, crossing
 or blocking, and, in a fraction of the runs, with the arm displaced by a random joint
 offset first (perturbed starts). The option then runs until it finishes, the episode
-ends or ``max_decisions`` decisions pass; the observation is recorded every
-:data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps. Each run is one
-episode of a dataset in the project's format: observations ``(T+1, 50)``, actions
-``(T,)`` the option's index, ``infos["option"]`` the same index.
+ends or ``max_decisions`` decisions pass. Each run gives one episode per phase offset of
+the decision period (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment
+steps), in the project's dataset format: observations ``(T+1, 50)`` one decision apart,
+actions ``(T,)`` the option's index, ``infos["option"]`` the same index.
 """
 
 from collections import Counter
@@ -37,8 +37,11 @@ PERTURBATION_STD = 0.05  # rad, left-arm joint offset of perturbed starts
 
 
 def collect_run(env: GearAssemblyEnv, policy: Any, option: str, rng: Generator,
-                human_mode: str, perturb: bool, max_decisions: int) -> Episode | None:
-    """One option run recorded at the decision rate; ``None`` if it lasted < 1 decision."""
+                human_mode: str, perturb: bool, max_decisions: int) -> list[Episode]:
+    """One option run, as up to :data:`DECISION_STEPS` episodes at the decision rate: the
+    episode of offset ``o`` holds the observations at env steps ``o, o + 10, o + 20, ...``
+    (every phase of the run is a valid decision-rate trajectory). Offsets that give no
+    full decision are left out."""
     start = reach_start(env, option, rng, human_mode=human_mode)
     obs, info = start.observation, start.info
     if perturb:
@@ -46,33 +49,31 @@ def collect_run(env: GearAssemblyEnv, policy: Any, option: str, rng: Generator,
     policy.reset(obs, rng)
     label = OPTION_NAMES.index(option)
     observations: list[FloatArray] = [obs]
-    contacts: list[int] = []
-    done = False
-    for _ in range(max_decisions):
-        touched = taken = 0
-        while taken < DECISION_STEPS and not done:
-            obs, _, terminated, truncated, info = env.step(policy.act(obs))
-            taken += 1
-            touched += int(info["human_contacts"])
-            done = policy.finished() or terminated or truncated
-        if taken >= DECISION_STEPS // 2:  # a last, short chunk is not a decision
-            observations.append(obs)
-            contacts.append(touched)
-        if done:
+    contacts: list[int] = [0]
+    for _ in range(max_decisions * DECISION_STEPS):
+        obs, _, terminated, truncated, info = env.step(policy.act(obs))
+        observations.append(obs)
+        contacts.append(int(info["human_contacts"]))
+        if policy.finished() or terminated or truncated:
             break
-    steps = len(observations) - 1
-    if steps < 1:
-        return None
-    return Episode(
-        observations=np.asarray(observations),
-        actions=np.full(steps, label, dtype=np.int64),
-        rewards=np.zeros(steps),
-        terminations=np.zeros(steps, dtype=bool),
-        truncations=np.zeros(steps, dtype=bool),
-        infos={"option": np.full(steps, label, dtype=np.int64),
-               "human_contacts": np.asarray(contacts, dtype=np.int64)},
-        seed=start.env_seed,
-    )
+    all_obs, all_contacts = np.asarray(observations), np.cumsum(contacts)
+    episodes = []
+    for offset in range(DECISION_STEPS):
+        rows = np.arange(offset, len(all_obs), DECISION_STEPS)
+        steps = len(rows) - 1
+        if steps < 1:
+            continue
+        episodes.append(Episode(
+            observations=all_obs[rows],
+            actions=np.full(steps, label, dtype=np.int64),
+            rewards=np.zeros(steps),
+            terminations=np.zeros(steps, dtype=bool),
+            truncations=np.zeros(steps, dtype=bool),
+            infos={"option": np.full(steps, label, dtype=np.int64),
+                   "human_contacts": np.diff(all_contacts[rows]).astype(np.int64)},
+            seed=start.env_seed,
+        ))
+    return episodes
 
 
 def collect_transitions(factories: Mapping[str, PolicyFactory], runs_per_option: int,
@@ -88,6 +89,7 @@ def collect_transitions(factories: Mapping[str, PolicyFactory], runs_per_option:
     env = GearAssemblyEnv()
     episodes: list[Episode] = []
     modes: list[str] = []
+    runs = 0
     try:
         jobs = [(name, run) for name in OPTION_NAMES if name in factories
                 for run in range(runs_per_option)]
@@ -97,10 +99,11 @@ def collect_transitions(factories: Mapping[str, PolicyFactory], runs_per_option:
             rng = np.random.default_rng([seed, OPTION_NAMES.index(name), run])
             mode = HUMAN_MODES[int(rng.integers(len(HUMAN_MODES)))]
             perturb = bool(rng.random() < PERTURBED_FRACTION)
-            episode = collect_run(env, policies[name], name, rng, mode, perturb, max_decisions)
-            if episode is not None:
-                episodes.append(episode)
-                modes.append(mode)
+            run_episodes = collect_run(env, policies[name], name, rng, mode, perturb,
+                                       max_decisions)
+            episodes += run_episodes
+            modes += [mode] * len(run_episodes)
+            runs += 1
     finally:
         env.close()
     obs_space = env.observation_space
@@ -116,7 +119,8 @@ def collect_transitions(factories: Mapping[str, PolicyFactory], runs_per_option:
     counts: Counter[str] = Counter()
     for e in episodes:
         counts[OPTION_NAMES[int(e.actions[0])]] += len(e)
-    return {"dataset": str(out), "runs": len(episodes), "transitions": dict(counts),
+    return {"dataset": str(out), "runs": runs, "episodes": len(episodes),
+            "transitions": dict(counts),
             "human_modes": dict(Counter(modes))}
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from dynoplan.envs.gear.grasp import quat_to_mat
 from dynoplan.envs.gear.scene import ARM_JOINTS
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
@@ -200,7 +201,7 @@ class CollisionChecker:
         for i, q in enumerate(qs):
             self.set_arm(q)
             centres[i] = self.data.geom_xpos[robot]
-        rot = _quat_to_mat(np.asarray(hand_quaternions, dtype=np.float64))  # (T, 3, 3)
+        rot = quat_to_mat(np.asarray(hand_quaternions, dtype=np.float64))  # (T, 3, 3)
         local = self.model.geom_pos[human]  # (H, 3) in the hand's frame
         human_centres = hand_positions[:, None, :] + np.einsum("tij,hj->thi", rot, local)
         gap = np.linalg.norm(centres[:, :, None, :] - human_centres[:, None, :, :], axis=-1)
@@ -216,14 +217,3 @@ class CollisionChecker:
             mujoco.mj_kinematics(self.model, self.data)
             best = min(best, min_distance(self.model, self.data, human, robot, best))
         return float(best)
-
-
-def _quat_to_mat(q: FloatArray) -> FloatArray:
-    """(N, 4) ``wxyz`` unit quaternions -> (N, 3, 3) rotation matrices."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    out: FloatArray = np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
-    return out

@@ -68,4 +68,21 @@ def held_gear_position(kin: ArmKinematics, q: FloatArray, q_held: FloatArray,
     return out
 
 
-__all__ = ["held_gear_position", "ik_gear_at", "rotation_between"]
+def quat_to_mat(quat: FloatArray) -> FloatArray:
+    """``wxyz`` quaternions (N, 4) -> rotation matrices (N, 3, 3) (normalised first)."""
+    q = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    out = np.empty((len(q), 3, 3))
+    out[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    out[:, 0, 1] = 2 * (x * y - w * z)
+    out[:, 0, 2] = 2 * (x * z + w * y)
+    out[:, 1, 0] = 2 * (x * y + w * z)
+    out[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    out[:, 1, 2] = 2 * (y * z - w * x)
+    out[:, 2, 0] = 2 * (x * z - w * y)
+    out[:, 2, 1] = 2 * (y * z + w * x)
+    out[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+__all__ = ["held_gear_position", "ik_gear_at", "quat_to_mat", "rotation_between"]

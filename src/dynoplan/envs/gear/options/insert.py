@@ -41,6 +41,7 @@ import torch
 from torch import nn
 
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_DIM, OBS_SLICES, RIGHT_HOLD, GearAssemblyEnv
+from dynoplan.envs.gear.grasp import quat_to_mat
 from dynoplan.envs.gear.options.base import GearOptionPolicy
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
@@ -61,23 +62,6 @@ OUTPUT_NAMES: tuple[str, ...] = tuple(f"dq_left_{i}" for i in range(6))
 OUTPUT_DIM = len(OUTPUT_NAMES)
 OUTPUT_MEANING = "left-arm joint target minus current left-arm joint angles (rad)"
 DEFAULT_HIDDEN = (128, 128)
-
-
-def quat_to_mat(quat: FloatArray) -> FloatArray:
-    """``wxyz`` quaternions (N, 4) -> rotation matrices (N, 3, 3) (normalised first)."""
-    q = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    out = np.empty((len(q), 3, 3))
-    out[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    out[:, 0, 1] = 2 * (x * y - w * z)
-    out[:, 0, 2] = 2 * (x * z + w * y)
-    out[:, 1, 0] = 2 * (x * y + w * z)
-    out[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    out[:, 1, 2] = 2 * (y * z - w * x)
-    out[:, 2, 0] = 2 * (x * z - w * y)
-    out[:, 2, 1] = 2 * (y * z + w * x)
-    out[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
 
 
 def _as_observations(observations: FloatArray) -> FloatArray:
@@ -430,5 +414,4 @@ class InsertPolicy(GearOptionPolicy):
 __all__ = ["DEFAULT_HIDDEN", "FEATURE_DIM", "FEATURE_NAMES", "MODEL_KIND", "OUTPUT_DIM",
            "OUTPUT_MEANING", "OUTPUT_NAMES", "InsertConfig", "InsertPolicy", "InsertionNetwork",
            "PegTipModel",
-           "insert_termination", "insertion_features", "observed_relation_seated",
-           "quat_to_mat"]
+           "insert_termination", "insertion_features", "observed_relation_seated"]

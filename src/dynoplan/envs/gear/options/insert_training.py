@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.grasp import quat_to_mat, rotation_between
 from dynoplan.envs.gear.kinematics import ArmKinematics
 from dynoplan.envs.gear.options.insert import (
     DEFAULT_HIDDEN,
@@ -40,7 +40,6 @@ from dynoplan.envs.gear.options.insert import (
     OUTPUT_MEANING,
     InsertionNetwork,
     insertion_features,
-    quat_to_mat,
 )
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.task import STAGE_INDEX, relation
@@ -76,17 +75,6 @@ class InsertionDemos:
 
     def __len__(self) -> int:
         return len(self.features)
-
-
-def rotation_between(a: FloatArray, b: FloatArray) -> FloatArray:
-    """(3, 3) smallest rotation taking unit vector ``a`` onto unit vector ``b``."""
-    v = np.cross(a, b)
-    s = float(np.linalg.norm(v))
-    if s < 1e-12:
-        return np.eye(3)
-    angle = np.arctan2(s, float(np.dot(a, b)))
-    out: FloatArray = Rotation.from_rotvec(v / s * angle).as_matrix()
-    return out
 
 
 def ik_gear_on_axis(kin: ArmKinematics, q: FloatArray, gear: FloatArray,
@@ -362,4 +350,4 @@ def train_insertion(out_path: str | os.PathLike[str] | None,
 
 __all__ = ["DEFAULT_EPISODES", "DEFAULT_EPOCHS", "DEFAULT_NOISE_STD", "InsertionDemos",
            "ScriptedInserter", "TeacherConfig", "collect_demonstrations", "fit_insertion",
-           "ik_gear_on_axis", "rotation_between", "split_episodes", "train_insertion"]
+           "ik_gear_on_axis", "split_episodes", "train_insertion"]

@@ -112,8 +112,7 @@ class LeftArmPlanner:
         """Plan from ``q_start`` (12,) (its left arm) to ``q_goal`` (6,) left-arm joints.
 
         ``extra_valid(q12) -> bool`` adds a test (for example a human clearance).
-        A start in collision is moved along the straight line towards the goal until
-        valid (at most 2 cm of joint travel); an invalid goal fails the plan.
+        An invalid goal fails the plan at once; an invalid start makes OMPL fail.
         """
         from ompl import base as ob
         from ompl import geometric as og

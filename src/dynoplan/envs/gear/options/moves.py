@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from dynoplan.envs.gear.env import CONTROL_DT, GRIPPER_CLOSED, HOME_Q, OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.grasp import ik_gear_at
+from dynoplan.envs.gear.grasp import ik_gear_at, quat_to_mat
 from dynoplan.envs.gear.kinematics import ArmKinematics
 from dynoplan.envs.gear.options.base import GearOptionPolicy
 from dynoplan.envs.gear.options.motion import LeftArmPlanner
@@ -56,13 +56,6 @@ _FAR_AWAY = np.array([10.0, 10.0, 10.0])  # where the fast move's planner puts t
 
 
 # ------------------------------------------------------------------------- the goal
-def _quat_to_mat(quat: FloatArray) -> FloatArray:
-    out = np.empty(9)
-    mujoco.mju_quat2Mat(out, np.asarray(quat, dtype=np.float64))
-    rot: FloatArray = out.reshape(3, 3)
-    return rot
-
-
 def pre_insertion_target(peg_tip: FloatArray, peg_rot: FloatArray,
                          height: float = OFFSET_HEIGHT) -> FloatArray:
     """(3,) where the gear's bottom centre goes: ``height`` above the peg tip (3,) along the
@@ -83,9 +76,9 @@ def pre_insertion_goal(kin: ArmKinematics, observation: FloatArray,
     obs = np.asarray(observation, dtype=np.float64)
     q = obs[OBS_SLICES["arm_qpos"]]
     gear_pos = obs[OBS_SLICES["gear_pos"]]
-    gear_rot = _quat_to_mat(obs[OBS_SLICES["gear_quat"]])
+    gear_rot = quat_to_mat(obs[None, OBS_SLICES["gear_quat"]])[0]
     tip = obs[OBS_SLICES["peg_pos"]]
-    peg_rot = _quat_to_mat(obs[OBS_SLICES["peg_quat"]])
+    peg_rot = quat_to_mat(obs[None, OBS_SLICES["peg_quat"]])[0]
     seed = q if q_seed is None else np.asarray(q_seed, dtype=np.float64)
     goal = ik_gear_at(kin, seed, q, gear_pos, gear_rot, tip, peg_rot, height)
     return goal, pre_insertion_target(tip, peg_rot, height)
