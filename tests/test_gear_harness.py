@@ -19,7 +19,7 @@ from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState, pr
 from dynoplan.envs.gear.task import STAGE_INDEX
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_collect import collect_transitions
-from dynoplan.experiments.gear_eval import hold_still
+from dynoplan.experiments.gear_controllers import hold_still
 from dynoplan.experiments.gear_options import run_option_trials
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import stack_dynamics

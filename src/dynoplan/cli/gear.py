@@ -190,3 +190,46 @@ def figures(
                              max_points=points, progress=not quiet)
     typer.echo(" ".join(str(v) for k, v in info.items() if str(v).endswith(".png"))
                or str(out))
+
+
+@gear_app.command("run")
+def run(
+    out: Path = typer.Option(Path("results/gear"), help="Output folder (everything goes here)."),
+    seed: int = typer.Option(0, help="Seed of every stage."),
+    quick: bool = typer.Option(False, "--quick", help="Small settings of every stage (about "
+                               "2 minutes)."),
+    episodes: int | None = typer.Option(None, help="Evaluation episodes per controller "
+                                        "(default 100; --quick 6)."),
+    oracle_episodes: int | None = typer.Option(None, help="Episodes of the simulator "
+                                               "oracle (the first of the same list)."),
+    no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Demonstrations, option networks, data, models, figures, baselines, evaluation."""
+    from dataclasses import replace
+
+    os.environ.setdefault("MUJOCO_GL", "egl")  # the video renders offscreen
+
+    from dynoplan.errors import DynoplanError
+    from dynoplan.experiments.gear_run import QUICK_RUN, GearRunSettings, run_gear_pipeline
+
+    settings = QUICK_RUN if quick else GearRunSettings()
+    if episodes is not None:
+        settings = replace(settings, episodes=episodes)
+    if oracle_episodes is not None:
+        settings = replace(settings, oracle_episodes=oracle_episodes)
+    if settings.episodes < 1 or settings.oracle_episodes < 0:
+        raise DynoplanError("--episodes must be >= 1 and --oracle-episodes >= 0")
+    settings = replace(settings, oracle_episodes=min(settings.oracle_episodes,
+                                                     settings.episodes),
+                       fault_episodes=min(settings.fault_episodes, settings.episodes),
+                       video=not no_video)
+    summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
+                                log=(lambda _: None) if quiet else typer.echo)
+    for row in summary["results"]:
+        ms = row["decision_ms_p50"]
+        typer.echo(f"{row['controller']:>12}: success {row['success_rate']:.0%} of "
+                   f"{row['episodes']}, contacts {row['contacts']}, out-of-region starts "
+                   f"{row['out_of_region_starts']}, decision p50 "
+                   f"{'-' if ms is None else f'{ms:.2f} ms'}")
+    typer.echo(f"-> {out}/results.md, results.csv, summary.json")

@@ -112,6 +112,9 @@ class Controller:
             ``None``: end the episode instead.
         success_fn: ``(terminated, info) -> bool``.
         record_infos: keep every step's ``info`` in the trace.
+        termination_every: draw the running option's ``beta`` every this many env steps
+            (the dynamics models' time step, so the real option stops at the rate its
+            imagined rollouts do); a policy that reports it is finished stops at once.
     """
 
     def __init__(
@@ -126,12 +129,14 @@ class Controller:
         hold_action: Any = None,
         success_fn: Callable[[bool, dict[str, Any]], bool] = default_success,
         record_infos: bool = False,
+        termination_every: int = 1,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
             raise DynoplanError("the controller's options and the chooser's must be the same")
-        if max_decisions < 1 or max_option_steps < 1:
-            raise DynoplanError("max_decisions and max_option_steps must be >= 1")
+        if max_decisions < 1 or max_option_steps < 1 or termination_every < 1:
+            raise DynoplanError("max_decisions, max_option_steps and termination_every "
+                                "must be >= 1")
         self.chooser = chooser
         self.state_fn = state_fn
         self.max_decisions = max_decisions
@@ -141,6 +146,7 @@ class Controller:
         self.hold_action = hold_action
         self.success_fn = success_fn
         self.record_infos = record_infos
+        self.termination_every = termination_every
 
     def run(self, env: gym.Env[Any, Any], rng: Generator, seed: int | None = None,
             reset_options: dict[str, Any] | None = None) -> EpisodeTrace:
@@ -192,7 +198,8 @@ class Controller:
                 if not option.can_start(state):
                     reason = "left_region"
                     break
-                if option.should_stop(state, rng):
+                if option.policy.finished() or (steps % self.termination_every == 0
+                                                and option.should_stop(state, rng)):
                     reason = "terminated"
                     break
                 if self.replan_every is not None and steps >= self.replan_every:

@@ -20,6 +20,7 @@ from dynoplan.experiments.gear_expert import record_expert_episodes
 from dynoplan.io import ensure_writable_dir
 
 DATASET_ID = "dynoplan/gear-assembly/expert-v0"
+"""Dataset id of demonstrations by either demonstrator (``metadata.extra`` names it)."""
 
 
 def to_dataset_episode(raw: dict[str, Any]) -> Episode:
@@ -36,10 +37,15 @@ def to_dataset_episode(raw: dict[str, Any]) -> Episode:
 
 
 def record_demos(n: int, seed: int, out: Path, progress: bool = True,
-                 human_mode: str | None = None) -> dict[str, Any]:
-    """Record ``n`` expert demonstrations into the dataset folder ``out``; return a summary."""
+                 human_mode: str | None = None, demonstrator: str = "expert",
+                 models: Path | None = None) -> dict[str, Any]:
+    """Record ``n`` demonstrations into the dataset folder ``out``; return a summary.
+
+    ``demonstrator``: ``expert`` (the scripted expert) or ``options`` (an operator
+    chaining the option policies, whose networks are read from ``models``)."""
     ensure_writable_dir(out.parent if out.parent != Path("") else Path("."))
-    raw = record_expert_episodes(n, seed, progress=progress, human_mode=human_mode)
+    raw = record_expert_episodes(n, seed, progress=progress, human_mode=human_mode,
+                                 demonstrator=demonstrator, models=models)
     episodes = [to_dataset_episode(r) for r in raw]
     modes = [str(r["human_mode"]) for r in raw]
     env = gym.make(GEAR_ASSEMBLY_ID)
@@ -53,7 +59,8 @@ def record_demos(n: int, seed: int, out: Path, progress: bool = True,
             env_spec=spec,
             option_names=list(OPTION_NAMES),
             seed=seed,
-            extra={"human_modes": modes, "state": "observations[:, 0:12] (arm joint angles)",
+            extra={"human_modes": modes, "demonstrator": demonstrator,
+                   "state": "observations[:, 0:12] (arm joint angles)",
                    "progress": "progress[t] = (t + 1) / T describes observations[t + 1]"},
             observation_space=obs_space,
             action_space=act_space,

@@ -25,10 +25,9 @@ import numpy as np
 
 from dynoplan.control import Controller
 from dynoplan.control.controller import EpisodeTrace
-from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.scene import FINGER_TRAVEL
-from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
+from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.experiments.episodes import EpisodeSeed, quantile_or_none
+from dynoplan.options.initiation import RegionModel
 from dynoplan.progress import track
 from dynoplan.types import FloatArray
 
@@ -57,30 +56,44 @@ class EpisodeMetrics:
     options: tuple[str, ...]
 
 
-def trace_metrics(trace: EpisodeTrace, env: GearAssemblyEnv, seed: int) -> EpisodeMetrics:
-    """Metrics of a controller's episode (the trace must have ``record_infos``)."""
+def trace_metrics(trace: EpisodeTrace, env: GearAssemblyEnv, seed: int,
+                  regions: RegionModel | None = None) -> EpisodeMetrics:
+    """Metrics of a controller's episode (the trace must have ``record_infos``).
+
+    Option starts outside their regions are counted against ``regions`` when given (so a
+    controller that ignores the regions, like the fixed script, is measured against the
+    same learned regions as the others), else as the controller saw them."""
     infos = trace.infos
+    if regions is None:
+        outside = trace.out_of_region_starts
+    else:
+        outside = sum(1 for d in trace.decisions if d.option is not None
+                      and not bool(regions.contains(d.state[None], d.option)[0]))
     return EpisodeMetrics(
         seed=seed, human_mode=env.schedule.mode, success=trace.success,
         seconds=trace.env_steps * CONTROL_DT,
         contacts=int(sum(int(i["human_contacts"]) for i in infos)),
         min_human_distance=float(min((float(i["min_human_distance"]) for i in infos),
                                      default=np.inf)),
-        out_of_region_starts=trace.out_of_region_starts, switches=trace.switches,
+        out_of_region_starts=outside, switches=trace.switches,
         holds=trace.no_admissible,
         decision_ms=tuple(1e3 * s for s in trace.latencies_s),
         options=tuple(d.option or "hold" for d in trace.decisions))
 
 
 def run_controller(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv, controller: Controller,
-                   seeds: Sequence[EpisodeSeed], name: str,
-                   progress: bool = True) -> list[EpisodeMetrics]:
+                   seeds: Sequence[EpisodeSeed], name: str, progress: bool = True,
+                   regions: RegionModel | None = None,
+                   on_trace: Callable[[int, EpisodeTrace], None] | None = None
+                   ) -> list[EpisodeMetrics]:
     """Run ``controller`` on every seeded episode of ``env`` (``gear_env`` itself or a
-    wrapper of it, for example a fault)."""
+    wrapper of it, for example a fault); ``on_trace(i, trace)`` sees each episode."""
     out = []
-    for s in track(seeds, name, total=len(seeds), enabled=progress):
+    for i, s in enumerate(track(seeds, name, total=len(seeds), enabled=progress)):
         trace = controller.run(env, s.rng(), seed=s.env_seed)
-        out.append(trace_metrics(trace, gear_env, s.env_seed))
+        if on_trace is not None:
+            on_trace(i, trace)
+        out.append(trace_metrics(trace, gear_env, s.env_seed, regions))
     return out
 
 
@@ -137,24 +150,5 @@ def summarise(name: str, episodes: Sequence[EpisodeMetrics]) -> dict[str, Any]:
     return row
 
 
-def make_controller(options: Sequence[Any], chooser: Any, replan: bool,
-                    max_seconds: float = 40.0) -> Controller:
-    """A gear controller: replans every decision period when ``replan``; holds still when
-    no option is admissible; records infos for the metrics."""
-    max_steps = round(max_seconds / CONTROL_DT)
-    return Controller(options, chooser, state_fn=PlannerState(),
-                      max_decisions=max_steps, max_option_steps=max_steps,
-                      replan_every=DECISION_STEPS if replan else None, margin=0.02,
-                      hold_action=hold_still, record_infos=True)
-
-
-def hold_still(observation: FloatArray) -> FloatArray:
-    """Every arm joint at its current angle and the gripper as it is: the safe action
-    when no option is admissible."""
-    obs = np.asarray(observation, dtype=np.float64)
-    closed = float(obs[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
-    return np.concatenate([obs[OBS_SLICES["arm_qpos"]], [1.0 if closed else 0.0]])
-
-
-__all__ = ["RESULT_COLUMNS", "EpisodeMetrics", "hold_still", "make_controller",
+__all__ = ["RESULT_COLUMNS", "EpisodeMetrics",
            "run_controller", "run_policy", "summarise", "trace_metrics"]

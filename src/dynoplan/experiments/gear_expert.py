@@ -10,19 +10,20 @@ import platform
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
-from dynoplan.envs.gear.expert import OPTION_NAMES, GearExpert
+from dynoplan.envs.gear.expert import OPTION_NAMES, ExpertAction, GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.episodes import episode_seeds as derive_episode_seeds
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.progress import track
 from dynoplan.reports.video import write_mp4
+from dynoplan.types import FloatArray
 
 Episode = dict[str, Any]
 """One episode: ``observations`` (T+1, 50), ``actions`` (T, 13), ``rewards`` (T,),
@@ -46,7 +47,39 @@ def _check(episodes: int, human_mode: str | None) -> None:
         raise DynoplanError(f"--human must be one of {', '.join(HUMAN_MODES)}, got {human_mode!r}")
 
 
-def run_expert_episode(env: GearAssemblyEnv, expert: GearExpert, seed: int,
+class Demonstrator(Protocol):
+    """Who demonstrates: the scripted :class:`GearExpert` or the
+    :class:`~dynoplan.envs.gear.operator.OptionOperator`."""
+
+    def reset(self) -> None: ...
+
+    def act(self, observation: FloatArray, info: dict[str, Any]) -> ExpertAction: ...
+
+
+DEMO_MODE_CYCLE = ("block", "cross", "away")
+"""Human modes of successive option demonstrations (when no mode is forced)."""
+
+DEMONSTRATORS = ("options", "expert")
+"""``options``: the operator chaining the four option policies (the paper's way);
+``expert``: the scripted expert with privileged state."""
+
+
+def make_demonstrator(kind: str, env: GearAssemblyEnv, models: Path | None = None,
+                      seed: int = 0) -> Demonstrator:
+    """The demonstrator ``kind`` (see :data:`DEMONSTRATORS`) on ``env``; the options'
+    neural parts are read from ``models``."""
+    if kind == "expert":
+        return GearExpert(env)
+    if kind == "options":
+        from dynoplan.envs.gear.operator import OptionOperator
+        from dynoplan.envs.gear.options.catalog import policy_factories
+
+        return OptionOperator(env, policy_factories(models), seed=seed)
+    raise DynoplanError(f"unknown demonstrator {kind!r}; expected one of "
+                        f"{', '.join(DEMONSTRATORS)}")
+
+
+def run_expert_episode(env: GearAssemblyEnv, expert: Demonstrator, seed: int,
                        human_mode: str | None = None,
                        frames: list[npt.NDArray[np.uint8]] | None = None) -> Episode:
     """One episode of ``expert`` in ``env`` from ``env.reset(seed=seed)``.
@@ -71,7 +104,7 @@ def run_expert_episode(env: GearAssemblyEnv, expert: GearExpert, seed: int,
     step_seconds = 0.0
     done = False
     while not done:
-        decision = expert.act(info)
+        decision = expert.act(obs, info)
         t0 = time.perf_counter()
         obs, reward, terminated, truncated, info = env.step(decision.action)
         step_seconds += time.perf_counter() - t0
@@ -117,17 +150,40 @@ def _frame(env: GearAssemblyEnv) -> npt.NDArray[np.uint8]:
 
 
 def record_expert_episodes(n: int, seed: int, progress: bool = False,
-                           human_mode: str | None = None) -> list[Episode]:
-    """``n`` expert episodes with seeds derived from ``seed`` (see :data:`Episode`)."""
+                           human_mode: str | None = None, demonstrator: str = "expert",
+                           models: Path | None = None) -> list[Episode]:
+    """``n`` demonstrated episodes with seeds derived from ``seed`` (see :data:`Episode`);
+    ``demonstrator`` is one of :data:`DEMONSTRATORS`."""
     _check(n, human_mode)
     env = GearAssemblyEnv()
-    expert = GearExpert(env)
-    seeds = episode_seeds(seed, n)
     try:
-        return [run_expert_episode(env, expert, s, human_mode)
-                for s in track(seeds, "gear expert", total=n, enabled=progress)]
+        expert = make_demonstrator(demonstrator, env, models, seed)
+        if demonstrator == "expert":
+            seeds = episode_seeds(seed, n)
+            return [run_expert_episode(env, expert, s, human_mode)
+                    for s in track(seeds, "gear expert", total=n, enabled=progress)]
+        return _successful_episodes(env, expert, n, seed, human_mode, progress)
     finally:
         env.close()
+
+
+def _successful_episodes(env: GearAssemblyEnv, demonstrator: Demonstrator, n: int, seed: int,
+                         human_mode: str | None, progress: bool) -> list[Episode]:
+    """The first ``n`` successful episodes over the seeds derived from ``seed`` (a
+    demonstration shows the task done; at most ``3 n`` seeds are tried). Without a
+    ``human_mode``, the modes cycle through :data:`DEMO_MODE_CYCLE`, so that ten
+    demonstrations show the operator every situation (block 4, cross 3, away 3)."""
+    out: list[Episode] = []
+    seeds = episode_seeds(seed, 3 * n)
+    for s in track(seeds, "gear demos (options, tries)", total=len(seeds), enabled=progress):
+        mode = human_mode or DEMO_MODE_CYCLE[len(out) % len(DEMO_MODE_CYCLE)]
+        episode = run_expert_episode(env, demonstrator, s, mode)
+        if bool(np.asarray(episode["infos"]["success"])[-1]):
+            out.append(episode)
+        if len(out) == n:
+            return out
+    raise DynoplanError(f"only {len(out)} of {3 * n} option demonstrations succeeded; "
+                        f"{n} were asked for")
 
 
 def summarise(episodes: list[Episode], seed: int, wall_seconds: float) -> dict[str, Any]:

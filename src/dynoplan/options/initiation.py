@@ -1,14 +1,11 @@
 """Initiation sets ``I_w``: where an option may start (and keep running)."""
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from dynoplan.types import BoolArray, FloatArray
-
-if TYPE_CHECKING:
-    from dynoplan.models.regions import SafetyRegions
 
 
 @runtime_checkable
@@ -35,10 +32,19 @@ class InitiationFromCallable:
         return np.asarray(self.fn(states), dtype=bool)
 
 
+class RegionModel(Protocol):
+    """What :class:`InRegion` needs of a region model (for example
+    :class:`~dynoplan.models.regions.SafetyRegions`)."""
+
+    def option_index(self, option: str | int) -> int: ...
+
+    def contains(self, states: FloatArray, option: str | int) -> BoolArray: ...
+
+
 class InRegion:
     """Option ``k``'s safety region from a fitted Gaussian mixture (Eq. 5)."""
 
-    def __init__(self, regions: "SafetyRegions", option: str) -> None:
+    def __init__(self, regions: RegionModel, option: str) -> None:
         regions.option_index(option)  # fail early on an unknown name
         self.regions = regions
         self.option = option

@@ -5,8 +5,10 @@ It solves the task through the paper's four options and labels every action with
 - ``pick`` (0): move above the gear, descend, close the gripper, lift;
 - ``fast_move`` (1): carry the gear to an offset above the peg (a joint-space path,
   checked for collisions with MuJoCo itself);
-- ``cautious_move`` (2): any step on which the human forces the expert off its nominal
-  motion: it slows down, stops, or backs away;
+- ``cautious_move`` (2): any step after the pick on which the human forces the expert
+  off its nominal motion: it slows down, stops, or backs away (giving way while picking
+  keeps the ``pick`` label: the cautious move is a transport of the held gear, and its
+  region should not cover the states before the grasp);
 - ``insert`` (3): lower the gear along the peg's axis, re-aligning it every step from the
   measured gear pose, and back off and retry when it jams.
 
@@ -113,8 +115,9 @@ class GearExpert:
         self.step = ""
         self._begin("approach")
 
-    def act(self, info: dict[str, Any]) -> ExpertAction:
-        """The next action (13,) and its option label."""
+    def act(self, observation: FloatArray, info: dict[str, Any]) -> ExpertAction:
+        """The next action (13,) and its option label (the expert reads the simulator,
+        not ``observation``)."""
         self.checker.sync(self.env.data, carry_gear=int(info["pads_on_gear"]) >= 2)
         self._transition(info)
         option = self._move(info)
@@ -212,9 +215,15 @@ class GearExpert:
     def _move(self, info: dict[str, Any]) -> int:
         """Advance the current step by one decision, giving way to the human. Returns the
         option label."""
+        nominal = _STEP_OPTION[self.step]
+        option = self._give_way(info, nominal)
+        return PICK if nominal == PICK else option
+
+    def _give_way(self, info: dict[str, Any], nominal: int) -> int:
+        """Follow the plan, slow down, stop or back away (the first that keeps the
+        clearance); ``nominal`` if the plan was followed, else ``CAUTIOUS_MOVE``."""
         cfg = self.cfg
         self.timer += self.dt
-        nominal = _STEP_OPTION[self.step]
         path = self.path
         if self.step == "insert" or path is None:
             q_next = self._insert_target(info) if self.step == "insert" else self.q_cmd.copy()

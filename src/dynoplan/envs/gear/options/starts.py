@@ -110,7 +110,7 @@ def _run_expert_until(env: GearAssemblyEnv, step: str,
     expert = GearExpert(env)
     obs, info = env.set_human_schedule(env.schedule)
     for _ in range(max_steps):
-        decision = expert.act(info)
+        decision = expert.act(obs, info)
         if decision.step == step:
             return obs, info
         if decision.step in ("failed", "done"):

@@ -1,0 +1,146 @@
+"""The gear options as library :class:`~dynoplan.options.Option` objects, and the
+controllers compared in the evaluation table.
+
+Every controller drives the same four option policies (bound to one environment); they
+differ only in how an option is chosen and what may stop it:
+
+============  ====================================  ===========  ====================
+controller    chooser                               initiation   termination
+============  ====================================  ===========  ====================
+dynoplan      :class:`OptionPlanner` (Eq. 1),       regions      ``beta_w``
+              learned dynamics and goal
+oracle        :class:`SimulatorOracle` (MuJoCo      regions      ``beta_w``
+              simulates each option)
+random        uniform among admissible options      regions      ``beta_w``
+fixed_script  pick, fast move, insert               everywhere   policy finished
+============  ====================================  ===========  ====================
+
+The choosers that replan (all but the fixed script) plan again every decision period
+(:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
+rate too: the learned models step at the decision rate.
+"""
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynoplan.control import Controller
+from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
+from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.options.catalog import PolicyFactory
+from dynoplan.envs.gear.oracle import SimulatorOracle
+from dynoplan.envs.gear.scene import FINGER_TRAVEL
+from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
+from dynoplan.errors import DynoplanError
+from dynoplan.experiments.gear_models import GearModels
+from dynoplan.models.corruption import NoisyDynamics
+from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.options.initiation import Everywhere, InRegion
+from dynoplan.options.option import Option
+from dynoplan.options.termination import ConstantTermination
+from dynoplan.planning import OptionPlanner
+from dynoplan.types import FloatArray
+
+CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
+"""Option-level controllers, in table order (the flat PPO policy is run separately)."""
+
+FIXED_SCRIPT = ("pick", "fast_move", "insert")
+"""The fixed script's options, each run until its policy reports it is finished."""
+
+MAX_EPISODE_SECONDS = 40.0
+"""Simulated seconds an episode may last (the env's own limit)."""
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Eq. 1's ``n`` and ``S``, and the controller's switching margin.
+
+    Attributes:
+        horizon: decisions (0.5 s each) a learned rollout may take.
+        samples: Monte-Carlo rollouts per option.
+        oracle_horizon: decisions the simulator oracle simulates per rollout (it pays
+            real simulation time, so it may be shorter).
+        oracle_samples: simulated rollouts per option.
+        margin: score advantage another option needs to replace a running one.
+        dynamics_noise: std of Gaussian noise added to every learned prediction (a
+            fault; 0 for none).
+    """
+
+    horizon: int = 10
+    samples: int = 64
+    oracle_horizon: int = 10
+    oracle_samples: int = 1
+    margin: float = 0.02
+    dynamics_noise: float = 0.0
+
+
+def gear_options(env: GearAssemblyEnv, models: GearModels,
+                 factories: Mapping[str, PolicyFactory], regions: bool = True,
+                 terminations: bool = True, dynamics_noise: float = 0.0) -> list[Option]:
+    """The options in ``models.option_names`` order, their policies bound to ``env``.
+
+    Args:
+        regions: initiation sets are the learned safety regions (else everywhere).
+        terminations: each option's own ``beta_w`` (else 0: the option runs until its
+            policy reports it is finished).
+        dynamics_noise: std of Gaussian noise on every learned prediction.
+    """
+    missing = [n for n in models.option_names if n not in factories]
+    if missing:
+        raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
+    options = []
+    for name in models.option_names:
+        policy = factories[name](env)
+        dynamics: DynamicsModel = models.dynamics[name]
+        if dynamics_noise > 0:
+            dynamics = NoisyDynamics(dynamics, dynamics_noise)
+        options.append(Option(
+            name, policy, dynamics,
+            termination=policy.termination() if terminations else ConstantTermination(0.0),
+            initiation=InRegion(models.regions, name) if regions else Everywhere()))
+    return options
+
+
+def make_gear_controller(name: str, env: GearAssemblyEnv, models: GearModels,
+                         factories: Mapping[str, PolicyFactory],
+                         settings: PlannerSettings = PlannerSettings()) -> Controller:
+    """The controller ``name`` (one of :data:`CONTROLLERS`) on ``env``."""
+    if name not in CONTROLLERS:
+        raise DynoplanError(f"unknown controller {name!r}; expected one of "
+                            f"{', '.join(CONTROLLERS)}")
+    scripted = name == "fixed_script"
+    options = gear_options(env, models, factories, regions=not scripted,
+                           terminations=not scripted,
+                           dynamics_noise=settings.dynamics_noise if name == "dynoplan" else 0.0)
+    chooser: OptionChooser
+    if name == "dynoplan":
+        chooser = OptionPlanner(options, models.goal, horizon=settings.horizon,
+                                samples=settings.samples)
+    elif name == "oracle":
+        chooser = SimulatorOracle(env, options, dict(factories), models.goal,
+                                  horizon=settings.oracle_horizon,
+                                  samples=settings.oracle_samples)
+    elif name == "random":
+        chooser = RandomChoice(options)
+    else:
+        chooser = ScriptedSequence(options, FIXED_SCRIPT)
+    max_steps = round(MAX_EPISODE_SECONDS / CONTROL_DT)
+    return Controller(options, chooser, state_fn=PlannerState(), max_decisions=max_steps,
+                      max_option_steps=max_steps,
+                      replan_every=None if scripted else DECISION_STEPS,
+                      margin=settings.margin, hold_action=hold_still, record_infos=True,
+                      termination_every=1 if scripted else DECISION_STEPS)
+
+
+def hold_still(observation: FloatArray) -> FloatArray:
+    """Every arm joint at its current angle and the gripper as it is: the safe action
+    when no option is admissible."""
+    obs = np.asarray(observation, dtype=np.float64)
+    closed = float(obs[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
+    return np.concatenate([obs[OBS_SLICES["arm_qpos"]], [1.0 if closed else 0.0]])
+
+
+__all__ = ["CONTROLLERS", "FIXED_SCRIPT", "MAX_EPISODE_SECONDS", "PlannerSettings",
+           "gear_options", "hold_still", "make_gear_controller"]
+

@@ -1,0 +1,301 @@
+"""``dynoplan gear run``: the gear assembly end to end, into one output folder.
+
+Stages (each timed in ``summary.json``):
+
+1. ``networks``: the pick option's grasp recogniser and the insertion network
+   (``models/``);
+2. ``demos``: 10 demonstrations by an operator chaining the options
+   (:class:`~dynoplan.envs.gear.operator.OptionOperator`), and as many held-out ones
+   from other seeds (``demos/``, ``heldout/``);
+3. ``collect``: option transitions at the decision rate (``transitions/``);
+4. ``train``: goal heuristic, safety regions and per-option dynamics
+   (``models/metrics.json``);
+5. ``figures``: Fig. 3(a) and 3(b) (``figures/``);
+6. ``flat_ppo``: the flat end-to-end baseline (``flat_ppo/``);
+7. ``evaluate``: every controller on the same seeded episodes (human: none, crossing or
+   blocking), ``results.csv`` and ``results.md``;
+8. ``faults``: DynoPlan under corrupted dynamics, observation noise and a grasp slip;
+9. ``video``: one DynoPlan episode with the human interfering (``episode.mp4``).
+"""
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from dynoplan.control.controller import EpisodeTrace
+from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
+from dynoplan.envs.gear.options.catalog import NEURAL_FILES, policy_factories
+from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
+from dynoplan.experiments.gear_controllers import (
+    CONTROLLERS,
+    PlannerSettings,
+    make_gear_controller,
+)
+from dynoplan.experiments.gear_eval import (
+    RESULT_COLUMNS,
+    EpisodeMetrics,
+    run_controller,
+    run_policy,
+    summarise,
+)
+from dynoplan.experiments.gear_models import HELDOUT_SEED_OFFSET
+from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.reports.tables import markdown_table
+
+EVAL_SEED_OFFSET = 7
+"""Evaluation episodes use seeds derived from ``seed + EVAL_SEED_OFFSET`` (disjoint from
+the demonstrations' and the held-out trials')."""
+
+
+@dataclass(frozen=True)
+class GearRunSettings:
+    """Sizes of every stage (recorded in ``summary.json``).
+
+    Attributes:
+        demos: demonstrations (and held-out trials) recorded.
+        collect_runs: option runs per option for the dynamics data.
+        collect_max_decisions: decisions per collection run at most.
+        quick_models: small training settings for the learned models (goal, regions,
+            dynamics).
+        ppo_steps: environment steps of the flat PPO baseline.
+        episodes: evaluation episodes of every controller.
+        oracle_episodes: episodes of the oracle (the first ones of the same list: it
+            simulates every option at every decision, which costs real time).
+        fault_episodes: episodes per fault.
+        dynamics_noise: std of the noise added to the learned predictions in the
+            dynamics fault.
+        observation_noise: std (m, rad) of the observation-noise fault.
+        planner: horizon, samples and margin of the planners.
+        video: render one episode.
+    """
+
+    demos: int = 10
+    collect_runs: int = 40
+    collect_max_decisions: int = 30
+    quick_models: bool = False
+    ppo_steps: int = 30_000
+    episodes: int = 100
+    oracle_episodes: int = 10
+    fault_episodes: int = 30
+    dynamics_noise: float = 0.02
+    observation_noise: float = 0.005
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    video: bool = True
+
+
+QUICK_RUN = GearRunSettings(
+    demos=10, collect_runs=4, collect_max_decisions=15, quick_models=True, ppo_steps=2048,
+    episodes=6, oracle_episodes=2, fault_episodes=3,
+    planner=PlannerSettings(horizon=6, samples=32, oracle_horizon=3))
+"""``--quick``: every stage on small settings (CI, a first look)."""
+
+
+def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = GearRunSettings(),
+                      progress: bool = True,
+                      log: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """Run every stage (module docstring) into ``out``; return ``summary.json``'s content."""
+    import torch
+
+    from dynoplan.baselines.flat_policy import train_flat_policy
+    from dynoplan.envs.gear.options.catalog import train_option_networks
+    from dynoplan.experiments.gear_collect import collect_transitions
+    from dynoplan.experiments.gear_demos import record_demos
+    from dynoplan.experiments.gear_models import load_gear_models, train_gear_models
+    from dynoplan.reports.gear_figures import make_gear_figures
+
+    torch.set_num_threads(1)
+    ensure_writable_dir(out)
+    models_dir = out / "models"
+    stages: dict[str, float] = {}
+    summary: dict[str, Any] = {"seed": seed, "settings": asdict(settings), "stages_s": stages}
+
+    def stage(name: str, fn: Callable[[], Any]) -> Any:
+        log(f"[{name}]")
+        t0 = time.perf_counter()
+        result = fn()
+        stages[name] = round(time.perf_counter() - t0, 2)
+        return result
+
+    quick = settings.quick_models
+    missing = tuple(n for n, f in NEURAL_FILES.items() if not (models_dir / f).is_file())
+    # the option networks always train on full settings (about 35 s): quick ones fail
+    # too often for ten successful demonstrations
+    summary["networks"] = stage("networks", lambda: train_option_networks(
+        models_dir, seed, quick=False, only=missing) if missing else {})
+    summary["demos"] = stage("demos", lambda: [
+        record_demos(settings.demos, seed, out / "demos", progress, demonstrator="options",
+                     models=models_dir),
+        record_demos(settings.demos, seed + HELDOUT_SEED_OFFSET, out / "heldout", progress,
+                     demonstrator="options", models=models_dir)])
+    factories = policy_factories(models_dir)
+    summary["collect"] = stage("collect", lambda: collect_transitions(
+        factories, settings.collect_runs, seed, out / "transitions",
+        max_decisions=settings.collect_max_decisions, progress=progress))
+    metrics = stage("train", lambda: train_gear_models(
+        out / "demos", out / "transitions", models_dir, seed, out / "heldout", quick,
+        progress=progress))
+    summary["model_metrics"] = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
+    summary["figures"] = stage("figures", lambda: make_gear_figures(
+        models_dir, out / "demos", out / "heldout", out / "figures", seed=seed,
+        max_points=400 if quick else 1500))
+    summary["flat_ppo"] = stage("flat_ppo", lambda: train_flat_policy(
+        settings.ppo_steps, seed, out / "flat_ppo"))
+
+    models = load_gear_models(models_dir)
+    seeds = episode_seeds(seed + EVAL_SEED_OFFSET, settings.episodes)
+    rows, episodes = stage("evaluate", lambda: evaluate_controllers(
+        models, factories, seeds, settings, out / "flat_ppo", progress))
+    summary["results"] = rows
+    write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
+    write_json(out / "episodes.json", {k: [asdict(e) for e in v] for k, v in episodes.items()})
+
+    faults = stage("faults", lambda: evaluate_faults(
+        models, factories, seeds[:settings.fault_episodes], settings, progress))
+    summary["faults"] = faults
+    if settings.video:
+        summary["video"] = stage("video", lambda: record_video(
+            models, factories, seeds, episodes["dynoplan"], settings, out / "episode.mp4"))
+    write_text(out / "results.md", results_markdown(summary))
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def evaluate_controllers(models: Any, factories: dict[str, Any], seeds: Sequence[EpisodeSeed],
+                         settings: GearRunSettings, flat_folder: Path | None,
+                         progress: bool) -> tuple[list[dict[str, Any]],
+                                                  dict[str, list[EpisodeMetrics]]]:
+    """Every controller of :data:`CONTROLLERS` (and the flat policy, if ``flat_folder``)
+    on ``seeds``; the oracle on the first ``settings.oracle_episodes`` of them."""
+    rows, episodes = [], {}
+    for name in CONTROLLERS:
+        env = GearAssemblyEnv()
+        try:
+            controller = make_gear_controller(name, env, models, factories, settings.planner)
+            n = settings.oracle_episodes if name == "oracle" else len(seeds)
+            eps = run_controller(env, env, controller, seeds[:n], name, progress,
+                                 regions=models.regions)
+        finally:
+            env.close()
+        episodes[name] = eps
+        rows.append(summarise(name, eps))
+    if flat_folder is not None:
+        from dynoplan.baselines.flat_policy import FlatPolicy
+
+        env = GearAssemblyEnv()
+        try:
+            eps = run_policy(env, FlatPolicy(flat_folder, env).act, seeds, "flat_ppo", progress)
+        finally:
+            env.close()
+        episodes["flat_ppo"] = eps
+        row = summarise("flat_ppo", eps)
+        row["out_of_region_starts"] = row["switches"] = row["holds"] = None  # no options
+        rows.append(row)
+    return rows, episodes
+
+
+def evaluate_faults(models: Any, factories: dict[str, Any], seeds: Sequence[EpisodeSeed],
+                    settings: GearRunSettings, progress: bool) -> list[dict[str, Any]]:
+    """DynoPlan with each fault on ``seeds`` (rows like ``results.csv`` plus ``fault``)."""
+    faults: list[tuple[str, Callable[[GearAssemblyEnv], gym.Env[Any, Any]], PlannerSettings]] = [
+        ("dynamics_noise", lambda e: e,
+         replace(settings.planner, dynamics_noise=settings.dynamics_noise)),
+        ("observation_noise", lambda e: ObservationNoise(e, settings.observation_noise),
+         settings.planner),
+        ("grasp_slip", GraspSlip, settings.planner),
+    ]
+    rows = []
+    for fault, wrap, planner in faults:
+        env = GearAssemblyEnv()
+        try:
+            controller = make_gear_controller("dynoplan", env, models, factories, planner)
+            eps = run_controller(wrap(env), env, controller, seeds, f"fault {fault}", progress,
+                                 regions=models.regions)
+        finally:
+            env.close()
+        rows.append({"fault": fault, **summarise("dynoplan", eps)})
+    return rows
+
+
+def record_video(models: Any, factories: dict[str, Any], seeds: Sequence[EpisodeSeed],
+                 episodes: Sequence[EpisodeMetrics], settings: GearRunSettings,
+                 path: Path, tries: int = 5) -> dict[str, Any]:
+    """Render a DynoPlan episode in which the human interferes, preferring one where it
+    switched to the cautious move (tried on up to ``tries`` such seeds)."""
+    from dynoplan.reports.video import write_mp4
+
+    ranked = sorted(range(len(episodes)), key=lambda i: (
+        "cautious_move" not in episodes[i].options, episodes[i].human_mode == "away",
+        not episodes[i].success))
+    for i in ranked[:tries]:
+        env = GearAssemblyEnv(render_mode="rgb_array")
+        frames: list[Any] = []
+        try:
+            controller = make_gear_controller("dynoplan", env, models, factories,
+                                              settings.planner)
+            trace = _run_rendered(controller, env, seeds[i], frames)
+        finally:
+            env.close()
+        options = [d.option for d in trace.decisions if d.option is not None]
+        if "cautious_move" in options or i == ranked[min(tries, len(ranked)) - 1]:
+            write_mp4(path, frames, fps=20)
+            return {"file": path.name, "episode": i, "human_mode": episodes[i].human_mode,
+                    "success": trace.success, "options": _runs(options)}
+    return {}
+
+
+def _run_rendered(controller: Any, env: GearAssemblyEnv, seed: EpisodeSeed,
+                  frames: list[Any]) -> EpisodeTrace:
+    class Recorder(gym.Wrapper[Any, Any, Any, Any]):
+        def step(self, action: Any) -> Any:
+            out = self.env.step(action)
+            frames.append(env.render())
+            return out
+
+    trace: EpisodeTrace = controller.run(Recorder(env), seed.rng(), seed=seed.env_seed)
+    return trace
+
+
+def _runs(options: Sequence[str]) -> list[str]:
+    """Consecutive repeats collapsed: ``[a, a, b, a] -> [a, b, a]``."""
+    return [o for k, o in enumerate(options) if k == 0 or options[k - 1] != o]
+
+
+def results_markdown(summary: dict[str, Any]) -> str:
+    """``results.md``: the controllers' table, the faults, the models and the stages."""
+    lines = ["# Gear assembly: DynoPlan and baselines", ""]
+    s = summary["settings"]
+    lines.append(f"Seed {summary['seed']}; {s['episodes']} evaluation episodes per controller "
+                 f"(oracle: the first {s['oracle_episodes']}); planner horizon "
+                 f"{s['planner']['horizon']}, samples {s['planner']['samples']}; flat PPO "
+                 f"{s['ppo_steps']} env steps.")
+    lines += ["", markdown_table(summary["results"], RESULT_COLUMNS), "",
+              "Success by human mode:", ""]
+    modes = sorted({m for r in summary["results"] for m in r["by_human_mode"]})
+    lines.append(markdown_table([
+        {"controller": r["controller"], **{m: _mode_cell(r["by_human_mode"].get(m))
+                                           for m in modes}} for r in summary["results"]]))
+    lines += ["", "## Faults (DynoPlan)", "",
+              markdown_table(summary["faults"], ("fault", "episodes", "success_rate",
+                                                 "contacts", "switches", "holds")),
+              "", "## Learned models", "",
+              markdown_table([summary["model_metrics"]],
+                             ("goal_spearman", "goal_mae", "region_inside_rate",
+                              "region_far_outside_rate", "dynamics_coverage_90")),
+              "", "## Stages (s)", "", markdown_table([summary["stages_s"]])]
+    return "\n".join(lines)
+
+
+def _mode_cell(entry: dict[str, Any] | None) -> str:
+    if not entry:
+        return "–"
+    return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
+
+
+__all__ = ["EVAL_SEED_OFFSET", "QUICK_RUN", "GearRunSettings", "evaluate_controllers",
+           "evaluate_faults", "record_video", "results_markdown", "run_gear_pipeline"]
+
