@@ -22,8 +22,7 @@ install: $(STAMP)
 
 demo: install
 	$(BIN)/dynoplan random-walk --out results/random-walk
-	$(BIN)/dynoplan gear demos --n 10 --seed 0 --out results/gear-demos
-	$(BIN)/dynoplan gear render --seed 0 --out results/gear-render
+	$(BIN)/dynoplan gear run --quick --out results/gear-quick
 
 lint: install
 	$(BIN)/ruff check .

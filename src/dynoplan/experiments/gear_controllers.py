@@ -15,6 +15,11 @@ random        uniform among admissible options      regions      ``beta_w``
 fixed_script  pick, fast move, insert               everywhere   policy finished
 ============  ====================================  ===========  ====================
 
+The two moves carry the gear: their initiation set is their region intersected with
+:func:`holding_gear` (the gear lifted in a closed gripper), a precondition no 10
+demonstrations could teach a region that does not see the grasp itself, and with the
+states where their goal is not yet reached (``beta < 1``).
+
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
 rate too: the learned models step at the decision rate.
@@ -30,17 +35,22 @@ from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSeque
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.catalog import PolicyFactory
 from dynoplan.envs.gear.oracle import SimulatorOracle
-from dynoplan.envs.gear.scene import FINGER_TRAVEL
-from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
+from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_models import GearModels
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
-from dynoplan.options.initiation import Everywhere, InRegion
+from dynoplan.options.initiation import (
+    Everywhere,
+    Initiation,
+    InitiationFromCallable,
+    InRegion,
+)
 from dynoplan.options.option import Option
-from dynoplan.options.termination import ConstantTermination
+from dynoplan.options.termination import ConstantTermination, Termination
 from dynoplan.planning import OptionPlanner
-from dynoplan.types import FloatArray
+from dynoplan.types import BoolArray, FloatArray
 
 CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
 """Option-level controllers, in table order (the flat PPO policy is run separately)."""
@@ -75,6 +85,39 @@ class PlannerSettings:
     dynamics_noise: float = 0.0
 
 
+MOVES = ("fast_move", "cautious_move")
+HELD_GEAR_HEIGHT = 0.02
+"""Gear bottom above the table (m) from which the gear counts as lifted."""
+
+
+def holding_gear(states: FloatArray) -> BoolArray:
+    """(N, 22) planner states -> (N,): the gripper closed and the gear lifted."""
+    s = np.atleast_2d(states)
+    closed = s[:, STATE_SLICES["gripper"].start] < 0.8 * FINGER_TRAVEL
+    lifted = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + HELD_GEAR_HEIGHT
+    out: BoolArray = closed & lifted
+    return out
+
+
+class AllOf:
+    """The intersection of initiation sets."""
+
+    def __init__(self, *parts: Initiation) -> None:
+        self.parts = parts
+
+    def contains(self, states: FloatArray) -> BoolArray:
+        out = np.ones(np.atleast_2d(states).shape[0], dtype=bool)
+        for part in self.parts:
+            out &= part.contains(states)
+        return out
+
+
+def _not_finished(termination: Termination) -> Initiation:
+    """States where ``termination`` is not certain: a move whose pose is reached
+    (``beta = 1``) has nothing left to do there."""
+    return InitiationFromCallable(lambda states: termination.probability(states) < 1.0)
+
+
 def gear_options(env: GearAssemblyEnv, models: GearModels,
                  factories: Mapping[str, PolicyFactory], regions: bool = True,
                  terminations: bool = True, dynamics_noise: float = 0.0) -> list[Option]:
@@ -95,10 +138,14 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
         dynamics: DynamicsModel = models.dynamics[name]
         if dynamics_noise > 0:
             dynamics = NoisyDynamics(dynamics, dynamics_noise)
+        initiation: Initiation = InRegion(models.regions, name) if regions else Everywhere()
+        if regions and name in MOVES:
+            initiation = AllOf(initiation, InitiationFromCallable(holding_gear),
+                               _not_finished(policy.termination()))
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
-            initiation=InRegion(models.regions, name) if regions else Everywhere()))
+            initiation=initiation))
     return options
 
 
@@ -141,6 +188,16 @@ def hold_still(observation: FloatArray) -> FloatArray:
     return np.concatenate([obs[OBS_SLICES["arm_qpos"]], [1.0 if closed else 0.0]])
 
 
-__all__ = ["CONTROLLERS", "FIXED_SCRIPT", "MAX_EPISODE_SECONDS", "PlannerSettings",
-           "gear_options", "hold_still", "make_gear_controller"]
+__all__ = [
+    "CONTROLLERS",
+    "FIXED_SCRIPT",
+    "MAX_EPISODE_SECONDS",
+    "MOVES",
+    "AllOf",
+    "PlannerSettings",
+    "gear_options",
+    "hold_still",
+    "holding_gear",
+    "make_gear_controller",
+]
 

@@ -82,6 +82,12 @@ HELDOUT_DIR = "heldout-demos"
 HELDOUT_SEED_OFFSET = 1000
 """Held-out trials are recorded from ``seed + HELDOUT_SEED_OFFSET`` (disjoint episodes)."""
 TASK_FEATURES: tuple[int, ...] = tuple(range(STATE_SLICES["human_pos"].start))
+REGION_FEATURES: tuple[int, ...] = tuple(range(STATE_SLICES["gripper"].start,
+                                               STATE_SLICES["human_pos"].start))
+"""Columns the safety regions read: the gripper opening, the tool point and the gear
+(12:19). Not the joint angles: the planning options reach the same tool poses through
+different arm configurations (other IK branches, other paths), and regions over 19
+dimensions fitted on 10 demonstrations reject those configurations."""
 """Planner-state columns the goal heuristic and the regions read: arm joints, gripper,
 tool point and gear (everything but the human's hand)."""
 CAUTIOUS = OPTION_NAMES.index("cautious_move")
@@ -451,7 +457,7 @@ def far_states(train: FloatArray, heldout: FloatArray, rng: Generator, n: int,
     tool = STATE_SLICES["tool_pos"]
     for row in base:
         row[tool] = kin.tool_pose(row[STATE_SLICES["arm_qpos"]])[0]
-    cols = list(TASK_FEATURES)
+    cols = list(REGION_FEATURES)
     scale = np.maximum(train[:, cols].std(axis=0), np.sqrt(reg_covar))
     nn = NearestNeighbors(n_neighbors=1).fit(train[:, cols] / scale)
     threshold = float(nn.kneighbors(heldout[:, cols] / scale)[0].max())
@@ -637,6 +643,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         "option_names": list(OPTION_NAMES),
         "decision_steps": DECISION_STEPS,
         "task_features": [STATE_NAMES[i] for i in TASK_FEATURES],
+        "region_features": [STATE_NAMES[i] for i in REGION_FEATURES],
         "seed": seed,
         "settings": {**asdict(cfg), "quick": settings is None and quick},
         "seconds": seconds,
@@ -693,7 +700,7 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
 def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                    held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
                    cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
-    cols = list(TASK_FEATURES)
+    cols = list(REGION_FEATURES)
     s = np.concatenate([st[:-1] for st, _, _ in train])
     y = np.concatenate([lab for _, _, lab in train])
     g = np.concatenate([np.full(len(lab), i) for i, (_, _, lab) in enumerate(train)])
@@ -797,7 +804,7 @@ def _manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, Any]:
         "option_names": list(OPTION_NAMES),
         "decision_steps": DECISION_STEPS,
         "goal": {**entry(GOAL_FILE), "features": list(TASK_FEATURES)},
-        "regions": {**entry(REGIONS_FILE), "features": list(TASK_FEATURES)},
+        "regions": {**entry(REGIONS_FILE), "features": list(REGION_FEATURES)},
         "dynamics": {name: entry(dynamics_file(name)) for name in OPTION_NAMES},
         "seed": seed,
         "settings": asdict(cfg),

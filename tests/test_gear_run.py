@@ -1,0 +1,104 @@
+"""The gear assembly end to end (``dynoplan gear run --quick``), the controllers' option
+preconditions, the margin rule and the termination rate of the controller."""
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from dynoplan.cli.main import app
+from dynoplan.control import Controller, FixedChoice
+from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
+from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
+from dynoplan.experiments.gear_controllers import AllOf, holding_gear
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS
+from dynoplan.options import ConstantTermination, FunctionPolicy, Option
+from dynoplan.options.initiation import Everywhere, InitiationFromCallable
+
+REQUIRED = ("controller", "success_rate", "contacts", "min_human_distance",
+            "out_of_region_starts", "switches", "decision_ms_p50", "decision_ms_p99")
+
+
+def _state(gripper: float, gear_z: float) -> np.ndarray:
+    s = np.zeros(STATE_DIM)
+    s[STATE_SLICES["gripper"]] = gripper
+    s[STATE_SLICES["gear_pos"].stop - 1] = gear_z
+    return s
+
+
+def test_moves_need_the_gear_lifted_in_a_closed_gripper():
+    states = np.stack([
+        _state(0.2 * FINGER_TRAVEL, TABLE_TOP_Z + 0.05),  # held and lifted
+        _state(FINGER_TRAVEL, TABLE_TOP_Z + 0.05),  # open gripper
+        _state(0.2 * FINGER_TRAVEL, TABLE_TOP_Z + 0.001),  # closed, gear on the table
+    ])
+    assert holding_gear(states).tolist() == [True, False, False]
+    left_half = InitiationFromCallable(lambda s: s[:, 0] < 0.5)
+    both = AllOf(left_half, InitiationFromCallable(holding_gear))
+    states[:, 0] = [0.0, 0.0, 0.0]
+    states2 = states.copy()
+    states2[:, 0] = 1.0
+    assert both.contains(states).tolist() == [True, False, False]
+    assert not both.contains(states2).any()
+
+
+def test_controller_draws_termination_only_every_decision_period():
+    """With beta = 1 drawn every 5 steps, an option runs exactly 5 steps per decision."""
+    import gymnasium as gym
+
+    env = gym.make("dynoplan/RandomWalk19-v0")
+    option = Option("right", FunctionPolicy(lambda obs, rng: 1), _ZeroDynamics(),
+                    ConstantTermination(1.0), Everywhere())
+    controller = Controller([option], FixedChoice([option], "right"), max_decisions=3,
+                            termination_every=5)
+    trace = controller.run(env, np.random.default_rng(0), seed=0)
+    steps = [d.steps for d in trace.decisions if d.stop_reason == "terminated"]
+    assert steps and all(s == 5 for s in steps)
+    every_step = Controller([option], FixedChoice([option], "right"), max_decisions=3)
+    trace = every_step.run(env, np.random.default_rng(0), seed=0)
+    assert all(d.steps == 1 for d in trace.decisions)
+
+
+class _ZeroDynamics:
+    state_dim = 1
+
+    def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return states.copy()
+
+
+@pytest.mark.slow
+def test_gear_run_quick_writes_every_result_with_every_column(tmp_path: Path):
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["gear", "run", "--quick", "--out", str(out), "--quiet",
+                                      "--no-video", "--episodes", "3",
+                                      "--oracle-episodes", "1"])
+    assert result.exit_code == 0, result.output
+    with (out / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [r["controller"] for r in rows] == ["dynoplan", "oracle", "fixed_script", "random",
+                                             "flat_ppo"]
+    assert set(REQUIRED) <= set(rows[0]) and tuple(rows[0]) == RESULT_COLUMNS
+    for row in rows:
+        assert 0.0 <= float(row["success_rate"]) <= 1.0
+        assert int(row["contacts"]) >= 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert {f["fault"] for f in summary["faults"]} == {"dynamics_noise", "observation_noise",
+                                                      "grasp_slip"}
+    assert summary["results"][0]["episodes"] == 3 and summary["results"][1]["episodes"] == 1
+    # the learned planner chooses only admissible options, so it never starts one outside
+    # its region; the oracle is measured against the same regions
+    assert summary["results"][0]["out_of_region_starts"] == 0
+    for name in ("results.md", "figures", "models/metrics.json", "flat_ppo/flat_policy.json",
+                 "demos", "heldout", "transitions"):
+        assert (out / name).exists(), name
+    assert "| dynoplan |" in (out / "results.md").read_text()
+
+
+def test_gear_run_rejects_bad_episode_counts(tmp_path: Path):
+    result = CliRunner().invoke(app, ["gear", "run", "--quick", "--out", str(tmp_path / "x"),
+                                      "--episodes", "0"])
+    assert result.exit_code != 0
+    assert not (tmp_path / "x" / "results.csv").exists()
