@@ -82,12 +82,12 @@ HELDOUT_DIR = "heldout-demos"
 HELDOUT_SEED_OFFSET = 1000
 """Held-out trials are recorded from ``seed + HELDOUT_SEED_OFFSET`` (disjoint episodes)."""
 TASK_FEATURES: tuple[int, ...] = tuple(range(STATE_SLICES["human_pos"].start))
-REGION_FEATURES: tuple[int, ...] = tuple(range(STATE_SLICES["gripper"].start,
-                                               STATE_SLICES["human_pos"].start))
-"""Columns the safety regions read: the gripper opening, the tool point and the gear
-(12:19). Not the joint angles: the planning options reach the same tool poses through
-different arm configurations (other IK branches, other paths), and regions over 19
-dimensions fitted on 10 demonstrations reject those configurations."""
+POSE_FEATURES: tuple[int, ...] = tuple(range(STATE_SLICES["gripper"].start,
+                                             STATE_SLICES["human_pos"].start))
+"""Region columns without the joint angles: the gripper opening, the tool point and the
+gear (12:19). ``dynoplan gear run`` fits its regions on these: the planning options
+reach the same tool poses through different arm configurations (other IK branches,
+other paths), and regions over 19 dimensions fitted on 10 demonstrations reject them."""
 """Planner-state columns the goal heuristic and the regions read: arm joints, gripper,
 tool point and gear (everything but the human's hand)."""
 CAUTIOUS = OPTION_NAMES.index("cautious_move")
@@ -127,6 +127,8 @@ class GearTrainSettings:
         rollouts: Monte-Carlo rollouts per start state in the n-step report.
         heldout_episodes: held-out expert trials recorded when none are given.
         far_states: candidate far-away states for ``region_far_outside_rate``.
+        region_features: planner-state columns the regions read (:data:`TASK_FEATURES`
+            or :data:`POSE_FEATURES`).
     """
 
     goal_hidden: int = 64
@@ -145,6 +147,7 @@ class GearTrainSettings:
     rollouts: int = 32
     heldout_episodes: int = 10
     far_states: int = 2000
+    region_features: tuple[int, ...] = TASK_FEATURES
 
 
 DEFAULT_SETTINGS = GearTrainSettings()
@@ -432,7 +435,8 @@ def fit_regions_cross_validated(
 
 
 def far_states(train: FloatArray, heldout: FloatArray, rng: Generator, n: int,
-               reg_covar: float) -> tuple[FloatArray, dict[str, Any]]:
+               reg_covar: float, features: Sequence[int] = TASK_FEATURES
+               ) -> tuple[FloatArray, dict[str, Any]]:
     """Planner states far from every demonstration, for ``region_far_outside_rate``.
 
     Candidates (``n``, half each): (a) uniformly random left-arm joint angles within the
@@ -457,7 +461,7 @@ def far_states(train: FloatArray, heldout: FloatArray, rng: Generator, n: int,
     tool = STATE_SLICES["tool_pos"]
     for row in base:
         row[tool] = kin.tool_pose(row[STATE_SLICES["arm_qpos"]])[0]
-    cols = list(REGION_FEATURES)
+    cols = list(features)
     scale = np.maximum(train[:, cols].std(axis=0), np.sqrt(reg_covar))
     nn = NearestNeighbors(n_neighbors=1).fit(train[:, cols] / scale)
     threshold = float(nn.kneighbors(heldout[:, cols] / scale)[0].max())
@@ -643,7 +647,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         "option_names": list(OPTION_NAMES),
         "decision_steps": DECISION_STEPS,
         "task_features": [STATE_NAMES[i] for i in TASK_FEATURES],
-        "region_features": [STATE_NAMES[i] for i in REGION_FEATURES],
+        "region_features": [STATE_NAMES[i] for i in cfg.region_features],
         "seed": seed,
         "settings": {**asdict(cfg), "quick": settings is None and quick},
         "seconds": seconds,
@@ -700,7 +704,7 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
 def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                    held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
                    cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
-    cols = list(REGION_FEATURES)
+    cols = list(cfg.region_features)
     s = np.concatenate([st[:-1] for st, _, _ in train])
     y = np.concatenate([lab for _, _, lab in train])
     g = np.concatenate([np.full(len(lab), i) for i, (_, _, lab) in enumerate(train)])
@@ -721,7 +725,7 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
               for k, n in enumerate(OPTION_NAMES)}
     train_own = regions.contains_all(s)[np.arange(len(s)), y]
     far, far_info = far_states(s, sh, np.random.default_rng([seed, 2]), cfg.far_states,
-                               cfg.region_reg_covar)
+                               cfg.region_reg_covar, cfg.region_features)
     far_outside = float((~regions.contains_all(far).any(axis=1)).mean()) if len(far) else None
     return {
         "inside_rate": float(own.mean()),
@@ -804,7 +808,7 @@ def _manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, Any]:
         "option_names": list(OPTION_NAMES),
         "decision_steps": DECISION_STEPS,
         "goal": {**entry(GOAL_FILE), "features": list(TASK_FEATURES)},
-        "regions": {**entry(REGIONS_FILE), "features": list(REGION_FEATURES)},
+        "regions": {**entry(REGIONS_FILE), "features": list(cfg.region_features)},
         "dynamics": {name: entry(dynamics_file(name)) for name in OPTION_NAMES},
         "seed": seed,
         "settings": asdict(cfg),

@@ -105,7 +105,13 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     from dynoplan.envs.gear.options.catalog import train_option_networks
     from dynoplan.experiments.gear_collect import collect_transitions
     from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.experiments.gear_models import load_gear_models, train_gear_models
+    from dynoplan.experiments.gear_models import (
+        DEFAULT_SETTINGS,
+        POSE_FEATURES,
+        QUICK_SETTINGS,
+        load_gear_models,
+        train_gear_models,
+    )
     from dynoplan.reports.gear_figures import make_gear_figures
 
     torch.set_num_threads(1)
@@ -136,9 +142,10 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     summary["collect"] = stage("collect", lambda: collect_transitions(
         factories, settings.collect_runs, seed, out / "transitions",
         max_decisions=settings.collect_max_decisions, progress=progress))
+    base = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
     metrics = stage("train", lambda: train_gear_models(
         out / "demos", out / "transitions", models_dir, seed, out / "heldout", quick,
-        progress=progress))
+        progress=progress, settings=replace(base, region_features=POSE_FEATURES)))
     summary["model_metrics"] = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
     summary["figures"] = stage("figures", lambda: make_gear_figures(
         models_dir, out / "demos", out / "heldout", out / "figures", seed=seed,
