@@ -68,6 +68,7 @@ from dynoplan.models.dynamics import StackedDynamics
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
 from dynoplan.models.neural_dynamics import DEFAULT_HIDDEN, DEFAULT_MEMBERS, MLPEnsembleDynamics
 from dynoplan.models.regions import SafetyRegions
+from dynoplan.models.storage import as_states
 from dynoplan.models.training import calibration, one_step_error
 from dynoplan.progress import track
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
@@ -158,16 +159,10 @@ QUICK_SETTINGS = GearTrainSettings(
 
 
 # --- models on the task columns ---------------------------------------------------------
-class GoalOnFeatures:
-    """The goal heuristic ``G(s)`` of full planner states, read from some of their columns.
+class _OnFeatures:
+    """A model of full planner states ``(batch, state_dim)`` that reads ``features``."""
 
-    Satisfies :class:`~dynoplan.models.goal.GoalHeuristic` for ``(batch, state_dim)``
-    states; ``network`` sees ``states[:, features]``.
-    """
-
-    def __init__(self, network: GoalNetwork, features: Sequence[int],
-                 state_dim: int = STATE_DIM) -> None:
-        self.network = network
+    def __init__(self, features: Sequence[int], state_dim: int) -> None:
         self.features = np.asarray(features, dtype=np.int64)
         self._state_dim = int(state_dim)
 
@@ -176,11 +171,20 @@ class GoalOnFeatures:
         return self._state_dim
 
     def _columns(self, states: FloatArray) -> FloatArray:
-        x = np.asarray(states, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != self._state_dim:
-            raise DynoplanError(f"states must have shape (batch, {self._state_dim}), got "
-                                f"{x.shape}")
-        return x[:, self.features]
+        return as_states(states, self._state_dim)[:, self.features]
+
+
+class GoalOnFeatures(_OnFeatures):
+    """The goal heuristic ``G(s)`` of full planner states, read from some of their columns.
+
+    Satisfies :class:`~dynoplan.models.goal.GoalHeuristic` for ``(batch, state_dim)``
+    states; ``network`` sees ``states[:, features]``.
+    """
+
+    def __init__(self, network: GoalNetwork, features: Sequence[int],
+                 state_dim: int = STATE_DIM) -> None:
+        super().__init__(features, state_dim)
+        self.network = network
 
     def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
         """One draw of ``g ~ G(s)`` per state: ``(batch, state_dim)`` -> ``(batch,)``."""
@@ -195,7 +199,7 @@ class GoalOnFeatures:
         return self.network.interval(self._columns(states), level)
 
 
-class RegionsOnFeatures:
+class RegionsOnFeatures(_OnFeatures):
     """Safety regions (Eq. 5) of full planner states, read from some of their columns.
 
     Offers what :class:`~dynoplan.options.initiation.InRegion` and the planner use
@@ -205,13 +209,8 @@ class RegionsOnFeatures:
 
     def __init__(self, regions: SafetyRegions, features: Sequence[int],
                  state_dim: int = STATE_DIM) -> None:
+        super().__init__(features, state_dim)
         self.regions = regions
-        self.features = np.asarray(features, dtype=np.int64)
-        self._state_dim = int(state_dim)
-
-    @property
-    def state_dim(self) -> int:
-        return self._state_dim
 
     @property
     def option_names(self) -> list[str]:
@@ -219,13 +218,6 @@ class RegionsOnFeatures:
 
     def option_index(self, option: str | int) -> int:
         return self.regions.option_index(option)
-
-    def _columns(self, states: FloatArray) -> FloatArray:
-        x = np.asarray(states, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != self._state_dim:
-            raise DynoplanError(f"states must have shape (batch, {self._state_dim}), got "
-                                f"{x.shape}")
-        return x[:, self.features]
 
     def log_likelihood(self, states: FloatArray, option: str | int) -> FloatArray:
         """``log L(s | k)`` of Eq. 5, ``(batch,)``."""

@@ -47,7 +47,8 @@ from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
 from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
 from dynoplan.errors import DynoplanError
-from dynoplan.models.storage import load_arrays, require, save_arrays
+from dynoplan.models.mlp_file import hidden_sizes, load_linears, require_finite
+from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
 
@@ -208,50 +209,24 @@ class InsertionNetwork:
             if meta.get(key) != want:
                 raise DynoplanError(f"{path}: metadata '{key}' is {meta.get(key)!r}, this "
                                     f"dynoplan's insertion policy needs {want!r}")
-        hidden = meta.get("hidden_sizes")
-        if (not isinstance(hidden, list) or not hidden
-                or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
-                           for h in hidden)):
-            raise DynoplanError(f"{path}: metadata field 'hidden_sizes' must be a non-empty "
-                                f"list of positive integers, got {hidden!r}")
-        if meta.get("activation") != "silu":
-            raise DynoplanError(f"{path}: activation {meta.get('activation')!r} is not "
-                                "supported (expected 'silu')")
+        hidden = hidden_sizes(meta, path)
         model = cls(hidden)
         sizes = [FEATURE_DIM, *hidden, OUTPUT_DIM]
         expected = {"input_mean", "input_std", "output_mean", "output_std"}
-        with torch.no_grad():
-            for i, (layer, (fan_in, fan_out)) in enumerate(zip(model.linears, pairwise(sizes),
-                                                               strict=True)):
-                w = _checked(require(arrays, f"weight_{i}", (fan_out, fan_in), path),
-                             np.float32, f"weight_{i}", path)
-                b = _checked(require(arrays, f"bias_{i}", (fan_out,), path), np.float32,
-                             f"bias_{i}", path)
-                layer.weight.copy_(torch.from_numpy(w))
-                layer.bias.copy_(torch.from_numpy(b))
-                expected |= {f"weight_{i}", f"bias_{i}"}
+        expected |= load_linears(model.linears, sizes, arrays, path)
         extra = set(arrays) - expected
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
                                 f"describes {len(hidden)} hidden layers)")
         for name, dim in (("input_mean", FEATURE_DIM), ("input_std", FEATURE_DIM),
                           ("output_mean", OUTPUT_DIM), ("output_std", OUTPUT_DIM)):
-            a = _checked(require(arrays, name, (dim,), path), np.float64, name, path)
+            a = require_finite(arrays, name, (dim,), np.float64, path)
             if name.endswith("_std") and np.any(a <= 0.0):
                 raise DynoplanError(f"{path}: array '{name}' must be positive")
             setattr(model, name, a.copy())
         report = meta.get("report", {})
         model.report = report if isinstance(report, dict) else {}
         return model
-
-
-def _checked(a: np.ndarray, dtype: type, name: str, path: str | os.PathLike[str]) -> np.ndarray:
-    if a.dtype != dtype:
-        raise DynoplanError(f"{path}: array '{name}' has dtype {a.dtype}, expected "
-                            f"{np.dtype(dtype)}")
-    if not np.all(np.isfinite(a)):
-        raise DynoplanError(f"{path}: array '{name}' holds NaN or infinity")
-    return a
 
 
 # ---------------------------------------------------------------------- termination

@@ -53,7 +53,8 @@ from dynoplan.envs.gear.options.pick import PickPolicy
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
-from dynoplan.models.storage import load_arrays, require, save_arrays
+from dynoplan.models.mlp_file import hidden_sizes, load_linears, require_finite
+from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
 MODEL_KIND = "grasp_recognizer"
@@ -215,52 +216,24 @@ class GraspRecognizer:
         if meta.get("feature_names") != list(FEATURE_NAMES):
             raise DynoplanError(f"{path}: recogniser features {meta.get('feature_names')!r} "
                                 f"do not match this dynoplan's {list(FEATURE_NAMES)}")
-        hidden = meta.get("hidden_sizes")
-        if (not isinstance(hidden, list) or not hidden
-                or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
-                           for h in hidden)):
-            raise DynoplanError(f"{path}: metadata field 'hidden_sizes' must be a non-empty "
-                                f"list of positive integers, got {hidden!r}")
-        if meta.get("activation") != "silu":
-            raise DynoplanError(f"{path}: activation {meta.get('activation')!r} is not "
-                                "supported (expected 'silu')")
+        hidden = hidden_sizes(meta, path)
         model = cls(hidden)
         sizes = [FEATURE_DIM, *hidden, 1]
         expected = {"feature_mean", "feature_std"}
-        with torch.no_grad():
-            for i, (layer, (fan_in, fan_out)) in enumerate(zip(model.linears, pairwise(sizes),
-                                                               strict=True)):
-                w = _float_array(require(arrays, f"weight_{i}", (fan_out, fan_in), path),
-                                 np.float32, f"weight_{i}", path)
-                b = _float_array(require(arrays, f"bias_{i}", (fan_out,), path), np.float32,
-                                 f"bias_{i}", path)
-                layer.weight.copy_(torch.from_numpy(w))
-                layer.bias.copy_(torch.from_numpy(b))
-                expected |= {f"weight_{i}", f"bias_{i}"}
+        expected |= load_linears(model.linears, sizes, arrays, path)
         extra = set(arrays) - expected
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
                                 f"describes {len(hidden)} hidden layers)")
-        model.feature_mean = _float_array(require(arrays, "feature_mean", (FEATURE_DIM,), path),
-                                          np.float64, "feature_mean", path)
-        std = _float_array(require(arrays, "feature_std", (FEATURE_DIM,), path), np.float64,
-                           "feature_std", path)
+        model.feature_mean = require_finite(arrays, "feature_mean", (FEATURE_DIM,),
+                                            np.float64, path)
+        std = require_finite(arrays, "feature_std", (FEATURE_DIM,), np.float64, path)
         if np.any(std <= 0.0):
             raise DynoplanError(f"{path}: array 'feature_std' must be positive")
         model.feature_std = std
         report = meta.get("report", {})
         model.report = report if isinstance(report, dict) else {}
         return model
-
-
-def _float_array(a: np.ndarray, dtype: type, name: str,
-                 path: str | os.PathLike[str]) -> np.ndarray:
-    if a.dtype != dtype:
-        raise DynoplanError(f"{path}: array '{name}' has dtype {a.dtype}, expected "
-                            f"{np.dtype(dtype)}")
-    if not np.all(np.isfinite(a)):
-        raise DynoplanError(f"{path}: array '{name}' holds NaN or infinity")
-    return a.copy()
 
 
 # ---------------------------------------------------------------------- data
