@@ -83,16 +83,13 @@ def trace_metrics(trace: EpisodeTrace, env: GearAssemblyEnv, seed: int,
 
 def run_controller(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv, controller: Controller,
                    seeds: Sequence[EpisodeSeed], name: str, progress: bool = True,
-                   regions: RegionModel | None = None,
-                   on_trace: Callable[[int, EpisodeTrace], None] | None = None
-                   ) -> list[EpisodeMetrics]:
+                   regions: RegionModel | None = None) -> list[EpisodeMetrics]:
     """Run ``controller`` on every seeded episode of ``env`` (``gear_env`` itself or a
-    wrapper of it, for example a fault); ``on_trace(i, trace)`` sees each episode."""
+    wrapper of it, for example a fault); out-of-region starts are counted against
+    ``regions`` when given (see :func:`trace_metrics`)."""
     out = []
-    for i, s in enumerate(track(seeds, name, total=len(seeds), enabled=progress)):
+    for s in track(seeds, name, total=len(seeds), enabled=progress):
         trace = controller.run(env, s.rng(), seed=s.env_seed)
-        if on_trace is not None:
-            on_trace(i, trace)
         out.append(trace_metrics(trace, gear_env, s.env_seed, regions))
     return out
 
