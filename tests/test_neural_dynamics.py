@@ -186,6 +186,27 @@ def test_every_row_uses_a_uniformly_chosen_member():
     np.testing.assert_allclose(counts / 3000, 1 / 3, atol=0.04)
 
 
+def test_planner_rollouts_keep_one_member_each():
+    # constant, far-apart member deltas with tiny noise: a rollout of 5 steps ends at
+    # 5 x its member's delta; drawing a member per step would give sums in between
+    model = _distinct_models(members=3)[0]
+    with torch.no_grad():
+        model.network.weights[-1].zero_()
+        model.network.max_logvar.fill_(-12.0)
+    model.refresh()
+    step_deltas = np.array([model.sample(np.zeros((1, 2)), np.random.default_rng(k))[0, 0]
+                            for k in range(200)])
+    per_member = np.unique(np.round(step_deltas, 1))
+    assert len(per_member) == 3
+    options = [Option("o", FunctionPolicy(lambda obs, rng: 0), model, ConstantTermination(0.0))]
+    planner = OptionPlanner(options, _SigmoidGoal(), horizon=5, samples=300)
+    ends = planner.rollout([0], np.zeros(2), np.random.default_rng(0)).end_states[0, :, 0]
+    nearest = np.abs(ends[:, None] - 5 * per_member[None, :])
+    assert nearest.min(axis=1).max() < 0.2
+    counts = np.bincount(nearest.argmin(axis=1), minlength=3)
+    assert counts.min() >= 60  # every member carries about a third of the rollouts
+
+
 def test_one_model_stacked_alone_gives_the_same_draws():
     model = _distinct_models(members=4)[1]
     x = np.random.default_rng(1).normal(size=(9, 2))
@@ -202,18 +223,19 @@ def test_mixed_architectures_fall_back_to_a_loop():
     assert stacked.sample(np.zeros((2, 5, 2)), np.random.default_rng(0)).shape == (2, 5, 2)
 
 
+class _SigmoidGoal:
+    def sample(self, states, rng):
+        return 1.0 / (1.0 + np.exp(-states[:, 0]))
+
+    def mean_std(self, states):
+        return self.sample(states, None), np.zeros(len(states))
+
+
 def test_planner_rolls_out_neural_options_in_one_stack():
-    class Goal:
-        def sample(self, states, rng):
-            return 1.0 / (1.0 + np.exp(-states[:, 0]))
-
-        def mean_std(self, states):
-            return self.sample(states, None), np.zeros(len(states))
-
     options = [Option(f"o{k}", FunctionPolicy(lambda obs, rng: 0),
                       MLPEnsembleDynamics(3, hidden_sizes=(8, 8), members=2, seed=k),
                       ConstantTermination(0.0)) for k in range(3)]
-    planner = OptionPlanner(options, Goal(), horizon=4, samples=10)
+    planner = OptionPlanner(options, _SigmoidGoal(), horizon=4, samples=10)
     plan = planner.plan(np.zeros(3), np.random.default_rng(0))
     assert plan.chosen is not None and (plan.steps == 4).all()
     again = planner.plan(np.zeros(3), np.random.default_rng(0))

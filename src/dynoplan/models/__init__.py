@@ -1,6 +1,11 @@
 """What is learned (or given): dynamics models, goal heuristics, safety regions."""
 
-from dynoplan.models.dynamics import DynamicsModel, StackedDynamics, stack_dynamics
+from dynoplan.models.dynamics import (
+    DynamicsModel,
+    StackedDynamics,
+    stack_dynamics,
+    trajectory_sampler,
+)
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.regions import SafetyRegions
 
@@ -10,4 +15,5 @@ __all__ = [
     "SafetyRegions",
     "StackedDynamics",
     "stack_dynamics",
+    "trajectory_sampler",
 ]

@@ -4,11 +4,16 @@ Used to test that a controller recovers when its models are wrong (it replans fr
 state it actually reaches).
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from dynoplan.models.dynamics import DynamicsModel, StackedDynamics, stack_dynamics
+from dynoplan.models.dynamics import (
+    DynamicsModel,
+    StackedDynamics,
+    stack_dynamics,
+    trajectory_sampler,
+)
 from dynoplan.types import FloatArray, Generator
 
 
@@ -45,6 +50,17 @@ class _StackedNoisy:
         noise = rng.normal(size=states.shape) * self.std[:, None, :]
         out: FloatArray = self.base.sample(states, rng) + noise
         return out
+
+    def trajectory_sampler(self, samples: int,
+                           rng: Generator) -> Callable[[FloatArray], FloatArray]:
+        """The base stack's rollout steps (members kept per rollout), plus the noise."""
+        base = trajectory_sampler(self.base, samples, rng)
+
+        def step(states: FloatArray) -> FloatArray:
+            noise = rng.normal(size=states.shape) * self.std[:, None, :]
+            out: FloatArray = base(states) + noise
+            return out
+        return step
 
 
 __all__ = ["NoisyDynamics"]

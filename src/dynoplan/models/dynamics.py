@@ -6,7 +6,7 @@ stochastic: each call draws one sample per row, using the generator it is given 
 other source of randomness.
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -37,6 +37,10 @@ class StackedDynamics(Protocol):
 
     ``sample(states, rng)`` maps ``(options, samples, state_dim)`` to the same shape;
     slice ``o`` follows option ``o``'s model.
+
+    A stack of models with discrete members (ensembles) may also offer
+    ``trajectory_sampler(samples, rng) -> step``, a step function that keeps each
+    rollout on one member for its whole length (see :func:`trajectory_sampler`).
     """
 
     def sample(self, states: FloatArray, rng: Generator) -> FloatArray: ...
@@ -53,6 +57,21 @@ class LoopStackedDynamics:
         for o, model in enumerate(self.models):
             out[o] = model.sample(states[o], rng)
         return out
+
+
+def trajectory_sampler(dynamics: StackedDynamics, samples: int,
+                       rng: Generator) -> Callable[[FloatArray], FloatArray]:
+    """The step function of one batch of rollouts, ``(options, samples, d) -> same``.
+
+    Stacks that offer ``trajectory_sampler`` keep every rollout on one ensemble member for
+    its whole length (PETS's TS-infinity); for any other stack every step is a fresh
+    ``dynamics.sample(states, rng)``.
+    """
+    own = getattr(dynamics, "trajectory_sampler", None)
+    if callable(own):
+        step: Callable[[FloatArray], FloatArray] = own(samples, rng)
+        return step
+    return lambda states: dynamics.sample(states, rng)
 
 
 def stack_dynamics(models: Sequence[DynamicsModel]) -> StackedDynamics:

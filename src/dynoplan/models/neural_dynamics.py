@@ -5,8 +5,12 @@ over the normalised state *change* ``s_{t+1} - s_t``. The log-variance is soft-b
 between learned ``min_logvar`` and ``max_logvar`` as in PETS and mbrl-lib's
 ``GaussianMLP``. Input and output normalisation live in the model and in its file.
 
-Sampling (``D_w`` for the planner) propagates like mbrl-lib's ``random_model`` / PETS's
-TS1: at every call the rows are split across the members by a fresh random permutation,
+Sampling (``D_w``) has two modes. A rollout of the planner keeps one member for its whole
+length (PETS's TS-infinity, :meth:`StackedMLPEnsemble.trajectory_sampler`): the spread of
+the futures then shows the members' disagreement, not just their average. A single
+``sample`` call propagates like mbrl-lib's ``random_model`` / PETS's TS1. In both, the
+rows are split across the members by a random permutation (drawn once per batch of
+rollouts, or at every ``sample`` call),
 in groups of equal size (``ceil(batch / members)`` slots each; when ``members`` does not
 divide ``batch`` a random rotation decides which members get the extra rows). Each row
 therefore uses a member that is uniform over the ensemble, and each member runs on one
@@ -25,7 +29,7 @@ float64.
 """
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -394,13 +398,39 @@ class StackedMLPEnsemble:
         if o != self.options or d != self.state_dim:
             raise ValueError(f"states must be ({self.options}, samples, {self.state_dim}), "
                              f"got {states.shape}")
-        lay = self._layouts.get(s)
+        lay = self._layout(s)
+        return self._sample(states, lay, *lay.draw(rng), rng)
+
+    def trajectory_sampler(self, samples: int, rng: Generator) -> Callable[[FloatArray],
+                                                                              FloatArray]:
+        """A step function for one batch of rollouts of ``samples`` rows per option that
+        keeps every row on one ensemble member (drawn now, uniform over the members) for
+        as many steps as it is called: ``(options, samples, d) -> same shape``. The
+        Gaussian noise is fresh at every step."""
+        lay = self._layout(samples)
+        gather, scatter = lay.draw(rng)
+        o, d = self.options, self.state_dim
+
+        def step(states: FloatArray) -> FloatArray:
+            x = np.asarray(states, dtype=np.float64)
+            if x.shape != (o, samples, d):
+                raise ValueError(f"states must be {(o, samples, d)}, got {x.shape}")
+            return self._sample(x, lay, gather, scatter, rng)
+        return step
+
+    def _layout(self, samples: int) -> "_Layout":
+        lay = self._layouts.get(samples)
         if lay is None:
             if len(self._layouts) >= _MAX_LAYOUTS:
                 del self._layouts[next(iter(self._layouts))]
             widths = [w.shape[2] for w in self._weights]
-            lay = self._layouts[s] = _Layout(o, self.members, s, d, widths)
-        gather, scatter = lay.draw(rng)
+            lay = self._layouts[samples] = _Layout(self.options, self.members, samples,
+                                                   self.state_dim, widths)
+        return lay
+
+    def _sample(self, states: FloatArray, lay: "_Layout", gather: np.ndarray,
+                scatter: np.ndarray, rng: Generator) -> FloatArray:
+        o, s, d = states.shape
         noise = rng.standard_normal((self.groups, lay.slots, d), dtype=np.float32)
         np.take(states.reshape(o * s, d), gather, axis=0, out=lay.x64)
         lay.x32_np[...] = lay.x64_blocks

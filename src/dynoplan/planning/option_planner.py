@@ -5,8 +5,9 @@
 For every option admissible at ``s_t`` the planner draws ``samples`` rollouts of the
 option's dynamics model, each running until the option's termination ``beta_w`` fires
 (drawn per step, as in the real run), the rollout leaves the option's initiation set, or
-``horizon`` steps pass. The goal heuristic scores each end state; an option's score is
-the mean over its rollouts minus ``risk`` times their standard deviation (``risk=0`` is
+``horizon`` steps pass; ensemble models keep one member per rollout (PETS's
+TS-infinity). The goal heuristic scores each end state; an option's score is the mean
+over its rollouts minus ``risk`` times their standard deviation (``risk=0`` is
 the paper's expectation).
 
 All admissible options x samples advance together, one stacked array computation per
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynoplan.errors import DynoplanError
-from dynoplan.models.dynamics import StackedDynamics, stack_dynamics
+from dynoplan.models.dynamics import StackedDynamics, stack_dynamics, trajectory_sampler
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import Everywhere
 from dynoplan.options.option import Option
@@ -155,10 +156,11 @@ class OptionPlanner:
                    if self.respect_regions and not isinstance(self.options[i].initiation,
                                                                Everywhere)]
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
+        step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
         for t in range(self.horizon):
             if not alive.any():
                 break
-            nxt = dynamics.sample(x, rng)
+            nxt = step(x)
             moved = alive
             if not np.isfinite(nxt).all():  # rare: stop diverged rollouts where they are
                 finite = np.isfinite(nxt).all(axis=-1)
