@@ -15,10 +15,12 @@ random        uniform among admissible options      regions      ``beta_w``
 fixed_script  pick, fast move, insert               everywhere   policy finished
 ============  ====================================  ===========  ====================
 
-The two moves carry the gear: their initiation set is their region intersected with
-:func:`holding_gear` (the gear lifted in a closed gripper), a precondition no 10
-demonstrations could teach a region that does not see the grasp itself, and with the
-states where their goal is not yet reached (``beta < 1``).
+Two preconditions of the options themselves are intersected with the learned regions,
+because 10 demonstrations cannot teach a mixture where the task's phases begin and end:
+the two moves carry the gear, so their initiation set is their region intersected with
+:func:`holding_gear` (the gear lifted in a closed gripper) and with the states where
+their goal is not yet reached (``beta < 1``); the pick has nothing to do once the gear
+is carried (:func:`not_carried`), so its region is intersected with that.
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -90,6 +92,21 @@ HELD_GEAR_HEIGHT = 0.02
 """Gear bottom above the table (m) from which the gear counts as lifted."""
 
 
+CARRIED_GEAR_HEIGHT = 0.10
+"""Gear bottom above the table (m) from which the gear counts as carried: 0.1 m into the
+pick's 0.25 m lift, below the gear seated on the peg (about 0.15 m) and every pose the
+moves carry it through."""
+
+
+def not_carried(states: FloatArray) -> BoolArray:
+    """(N, 22) planner states -> (N,): the gear is not held :data:`CARRIED_GEAR_HEIGHT`
+    above the table (where the pick has nothing left to do)."""
+    s = np.atleast_2d(states)
+    high = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + CARRIED_GEAR_HEIGHT
+    out: BoolArray = ~(holding_gear(s) & high)
+    return out
+
+
 def holding_gear(states: FloatArray) -> BoolArray:
     """(N, 22) planner states -> (N,): the gripper closed and the gear lifted."""
     s = np.atleast_2d(states)
@@ -142,6 +159,8 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
         if regions and name in MOVES:
             initiation = AllOf(initiation, InitiationFromCallable(holding_gear),
                                _not_finished(policy.termination()))
+        elif regions and name == "pick":
+            initiation = AllOf(initiation, InitiationFromCallable(not_carried))
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
@@ -189,6 +208,7 @@ def hold_still(observation: FloatArray) -> FloatArray:
 
 
 __all__ = [
+    "CARRIED_GEAR_HEIGHT",
     "CONTROLLERS",
     "FIXED_SCRIPT",
     "MAX_EPISODE_SECONDS",
@@ -199,5 +219,6 @@ __all__ = [
     "hold_still",
     "holding_gear",
     "make_gear_controller",
+    "not_carried",
 ]
 

@@ -16,12 +16,13 @@ with, and measures it on held-out data:
   transitions collected by ``dynoplan gear collect`` or, without them, from the
   demonstrations subsampled (:func:`demonstration_transitions`).
 
-The goal heuristic and the regions read the planner state without the human's hand
-(:data:`TASK_FEATURES`, columns 0:19): where the task stands and where an option was
-demonstrated do not depend on where the human is, and with 10 demonstrations the
-human's varied positions otherwise become spurious cues (pooled held-out Spearman 0.85
-with the hand, 0.90 without; region inside rate 0.93 against 0.96). The human enters planning
-through the dynamics models (which predict all 22 columns) and the terminations.
+The goal heuristic reads the planner state without the human's hand (the ``task``
+feature map, columns 0:19): where the task stands does not depend on where the human is,
+and with 10 demonstrations the hand's varied positions otherwise become spurious cues
+(pooled held-out Spearman 0.85 with the hand, 0.90 without). The regions read a named
+feature map (:mod:`dynoplan.envs.gear.features`; ``task`` by default, ``relative`` in
+``dynoplan gear run``). The human enters planning through the dynamics models (which
+predict all 22 columns), the terminations and, with ``relative``, the regions.
 
 Everything is saved in one folder (:func:`load_gear_models` reads it back): one
 safetensors file per model and ``models.json``, the manifest (format version, state
@@ -52,6 +53,7 @@ from dynoplan.data import (
     write_dataset,
 )
 from dynoplan.envs.gear.env import OBS_DIM
+from dynoplan.envs.gear.features import FEATURE_MAPS, TASK, FeatureMap, feature_map
 from dynoplan.envs.gear.kinematics import ArmKinematics
 from dynoplan.envs.gear.scene import ARM_JOINTS
 from dynoplan.envs.gear.state import (
@@ -68,13 +70,13 @@ from dynoplan.models.dynamics import StackedDynamics
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
 from dynoplan.models.neural_dynamics import DEFAULT_HIDDEN, DEFAULT_MEMBERS, MLPEnsembleDynamics
 from dynoplan.models.regions import SafetyRegions
-from dynoplan.models.storage import as_states
 from dynoplan.models.training import calibration, one_step_error
 from dynoplan.progress import track
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
 MODELS_KIND = "gear_models"
-MODELS_FORMAT_VERSION = 1
+MODELS_FORMAT_VERSION = 2
+"""2: feature maps are named (``"features": "task"``); 1 listed state columns."""
 MANIFEST_FILE = "models.json"
 METRICS_FILE = "metrics.json"
 GOAL_FILE = "goal.safetensors"
@@ -82,15 +84,8 @@ REGIONS_FILE = "regions.safetensors"
 HELDOUT_DIR = "heldout-demos"
 HELDOUT_SEED_OFFSET = 1000
 """Held-out trials are recorded from ``seed + HELDOUT_SEED_OFFSET`` (disjoint episodes)."""
-TASK_FEATURES: tuple[int, ...] = tuple(range(STATE_SLICES["human_pos"].start))
-POSE_FEATURES: tuple[int, ...] = tuple(range(STATE_SLICES["gripper"].start,
-                                             STATE_SLICES["human_pos"].start))
-"""Region columns without the joint angles: the gripper opening, the tool point and the
-gear (12:19). ``dynoplan gear run`` fits its regions on these: the planning options
-reach the same tool poses through different arm configurations (other IK branches,
-other paths), and regions over 19 dimensions fitted on 10 demonstrations reject them."""
-"""Planner-state columns the goal heuristic and the regions read: arm joints, gripper,
-tool point and gear (everything but the human's hand)."""
+GOAL_FEATURES = TASK
+"""What the goal heuristic reads: arm joints, gripper, tool point and gear (no human)."""
 CAUTIOUS = OPTION_NAMES.index("cautious_move")
 TRANSITIONS_ID = "dynoplan/gear-assembly/demo-transitions-v0"
 _BATCH = 256
@@ -128,8 +123,8 @@ class GearTrainSettings:
         rollouts: Monte-Carlo rollouts per start state in the n-step report.
         heldout_episodes: held-out expert trials recorded when none are given.
         far_states: candidate far-away states for ``region_far_outside_rate``.
-        region_features: planner-state columns the regions read (:data:`TASK_FEATURES`
-            or :data:`POSE_FEATURES`).
+        region_features: name of the feature map the regions read
+            (:data:`~dynoplan.envs.gear.features.FEATURE_MAPS`).
     """
 
     goal_hidden: int = 64
@@ -148,7 +143,7 @@ class GearTrainSettings:
     rollouts: int = 32
     heldout_episodes: int = 10
     far_states: int = 2000
-    region_features: tuple[int, ...] = TASK_FEATURES
+    region_features: str = TASK.name
 
 
 DEFAULT_SETTINGS = GearTrainSettings()
@@ -160,30 +155,28 @@ QUICK_SETTINGS = GearTrainSettings(
 
 # --- models on the task columns ---------------------------------------------------------
 class _OnFeatures:
-    """A model of full planner states ``(batch, state_dim)`` that reads ``features``."""
+    """A model of full planner states ``(batch, 22)`` that reads ``features(states)``."""
 
-    def __init__(self, features: Sequence[int], state_dim: int) -> None:
-        self.features = np.asarray(features, dtype=np.int64)
-        self._state_dim = int(state_dim)
+    def __init__(self, features: FeatureMap) -> None:
+        self.features = features
 
     @property
     def state_dim(self) -> int:
-        return self._state_dim
+        return STATE_DIM
 
     def _columns(self, states: FloatArray) -> FloatArray:
-        return as_states(states, self._state_dim)[:, self.features]
+        return self.features(states)
 
 
 class GoalOnFeatures(_OnFeatures):
     """The goal heuristic ``G(s)`` of full planner states, read from some of their columns.
 
     Satisfies :class:`~dynoplan.models.goal.GoalHeuristic` for ``(batch, state_dim)``
-    states; ``network`` sees ``states[:, features]``.
+    states; ``network`` sees ``features(states)``.
     """
 
-    def __init__(self, network: GoalNetwork, features: Sequence[int],
-                 state_dim: int = STATE_DIM) -> None:
-        super().__init__(features, state_dim)
+    def __init__(self, network: GoalNetwork, features: FeatureMap) -> None:
+        super().__init__(features)
         self.network = network
 
     def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
@@ -204,12 +197,11 @@ class RegionsOnFeatures(_OnFeatures):
 
     Offers what :class:`~dynoplan.options.initiation.InRegion` and the planner use
     (``option_names``, ``option_index``, ``contains``, ``contains_all``, ``log_likelihood``)
-    on ``(batch, state_dim)`` states; ``regions`` sees ``states[:, features]``.
+    on ``(batch, state_dim)`` states; ``regions`` sees ``features(states)``.
     """
 
-    def __init__(self, regions: SafetyRegions, features: Sequence[int],
-                 state_dim: int = STATE_DIM) -> None:
-        super().__init__(features, state_dim)
+    def __init__(self, regions: SafetyRegions, features: FeatureMap) -> None:
+        super().__init__(features)
         self.regions = regions
 
     @property
@@ -427,7 +419,7 @@ def fit_regions_cross_validated(
 
 
 def far_states(train: FloatArray, heldout: FloatArray, rng: Generator, n: int,
-               reg_covar: float, features: Sequence[int] = TASK_FEATURES
+               reg_covar: float, features: FeatureMap = TASK
                ) -> tuple[FloatArray, dict[str, Any]]:
     """Planner states far from every demonstration, for ``region_far_outside_rate``.
 
@@ -436,7 +428,7 @@ def far_states(train: FloatArray, heldout: FloatArray, rng: Generator, n: int,
     0.4-0.8 rad (random sign, clipped to the limits). The right arm, gripper, gear and
     human come from random held-out demonstration states; the tool point is recomputed
     by forward kinematics. A candidate counts as far when its distance to the nearest
-    training demonstration state (task columns, each divided by its spread, floored at
+    training demonstration state (in ``features``, each divided by its spread, floored at
     ``sqrt(reg_covar)``) exceeds that of every held-out demonstration state.
 
     Returns:
@@ -453,11 +445,11 @@ def far_states(train: FloatArray, heldout: FloatArray, rng: Generator, n: int,
     tool = STATE_SLICES["tool_pos"]
     for row in base:
         row[tool] = kin.tool_pose(row[STATE_SLICES["arm_qpos"]])[0]
-    cols = list(features)
-    scale = np.maximum(train[:, cols].std(axis=0), np.sqrt(reg_covar))
-    nn = NearestNeighbors(n_neighbors=1).fit(train[:, cols] / scale)
-    threshold = float(nn.kneighbors(heldout[:, cols] / scale)[0].max())
-    dist = nn.kneighbors(base[:, cols] / scale)[0][:, 0]
+    f_train = features(train)
+    scale = np.maximum(f_train.std(axis=0), np.sqrt(reg_covar))
+    nn = NearestNeighbors(n_neighbors=1).fit(f_train / scale)
+    threshold = float(nn.kneighbors(features(heldout) / scale)[0].max())
+    dist = nn.kneighbors(features(base) / scale)[0][:, 0]
     far = base[dist > threshold]
     return far, {"candidates": n, "far": len(far), "distance_threshold": round(threshold, 3)}
 
@@ -638,8 +630,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         "state_dim": STATE_DIM,
         "option_names": list(OPTION_NAMES),
         "decision_steps": DECISION_STEPS,
-        "task_features": [STATE_NAMES[i] for i in TASK_FEATURES],
-        "region_features": [STATE_NAMES[i] for i in cfg.region_features],
+        "task_features": list(GOAL_FEATURES.names),
+        "region_features": list(feature_map(cfg.region_features).names),
         "seed": seed,
         "settings": {**asdict(cfg), "quick": settings is None and quick},
         "seconds": seconds,
@@ -651,24 +643,24 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
 def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
                 cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
-    cols = list(TASK_FEATURES)
-    x = np.concatenate([s[:, cols] for s, _, _ in train])
+    f = GOAL_FEATURES
+    x = np.concatenate([f(s) for s, _, _ in train])
     y = np.concatenate([p for _, p, _ in train])
     network, report = GoalNetwork.fit(x, y, hidden=cfg.goal_hidden, members=cfg.goal_members,
                                       epochs=cfg.goal_epochs, seed=seed)
     network.save(out / GOAL_FILE)
-    xh = np.concatenate([s[:, cols] for s, _, _ in held])
+    xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
     pooled = evaluate_goal(network, xh, yh)
     interrupted = np.array([bool((lab == CAUTIOUS).any()) for _, _, lab in held])
-    per_trial = [float(stats.spearmanr(network.mean_std(s[:, cols])[0], p).statistic)
+    per_trial = [float(stats.spearmanr(network.mean_std(f(s))[0], p).statistic)
                  for s, p, _ in held]
-    per_trial_mae = [float(np.mean(np.abs(network.mean_std(s[:, cols])[0] - p)))
+    per_trial_mae = [float(np.mean(np.abs(network.mean_std(f(s))[0] - p)))
                      for s, p, _ in held]
     calm = [i for i in range(len(held)) if not interrupted[i]]
     calm_metrics = None
     if calm:
-        calm_metrics = evaluate_goal(network, np.concatenate([held[i][0][:, cols] for i in calm]),
+        calm_metrics = evaluate_goal(network, np.concatenate([f(held[i][0]) for i in calm]),
                                      np.concatenate([held[i][1] for i in calm]))
     return {
         "spearman": float(np.mean(per_trial)),
@@ -696,16 +688,16 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
 def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                    held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
                    cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
-    cols = list(cfg.region_features)
+    features = feature_map(cfg.region_features)
     s = np.concatenate([st[:-1] for st, _, _ in train])
     y = np.concatenate([lab for _, _, lab in train])
     g = np.concatenate([np.full(len(lab), i) for i, (_, _, lab) in enumerate(train)])
     fitted, info = fit_regions_cross_validated(
-        s[:, cols], y, g, OPTION_NAMES, reg_covar=cfg.region_reg_covar,
+        features(s), y, g, OPTION_NAMES, reg_covar=cfg.region_reg_covar,
         max_components=cfg.region_max_components, coverage=cfg.region_coverage,
         cv_coverage=cfg.region_cv_coverage, seed=seed)
     fitted.save(out / REGIONS_FILE)
-    regions = RegionsOnFeatures(fitted, cols)
+    regions = RegionsOnFeatures(fitted, features)
     sh = np.concatenate([st[:-1] for st, _, _ in held])
     yh = np.concatenate([lab for _, _, lab in held])
     member = regions.contains_all(sh)
@@ -717,7 +709,7 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
               for k, n in enumerate(OPTION_NAMES)}
     train_own = regions.contains_all(s)[np.arange(len(s)), y]
     far, far_info = far_states(s, sh, np.random.default_rng([seed, 2]), cfg.far_states,
-                               cfg.region_reg_covar, cfg.region_features)
+                               cfg.region_reg_covar, features)
     far_outside = float((~regions.contains_all(far).any(axis=1)).mean()) if len(far) else None
     return {
         "inside_rate": float(own.mean()),
@@ -799,8 +791,8 @@ def _manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, Any]:
         "state_names": list(STATE_NAMES),
         "option_names": list(OPTION_NAMES),
         "decision_steps": DECISION_STEPS,
-        "goal": {**entry(GOAL_FILE), "features": list(TASK_FEATURES)},
-        "regions": {**entry(REGIONS_FILE), "features": list(cfg.region_features)},
+        "goal": {**entry(GOAL_FILE), "features": GOAL_FEATURES.name},
+        "regions": {**entry(REGIONS_FILE), "features": cfg.region_features},
         "dynamics": {name: entry(dynamics_file(name)) for name in OPTION_NAMES},
         "seed": seed,
         "settings": asdict(cfg),
@@ -828,9 +820,9 @@ def load_gear_models(folder: str | os.PathLike[str]) -> GearModels:
     if not isinstance(manifest, dict) or manifest.get("kind") != MODELS_KIND:
         raise DynoplanError(f"{path}: not a gear models manifest")
     version = manifest.get("format_version")
-    if not isinstance(version, int) or version > MODELS_FORMAT_VERSION:
+    if not isinstance(version, int) or version != MODELS_FORMAT_VERSION:
         raise DynoplanError(f"{path}: format_version {version!r} is not supported (this "
-                            f"dynoplan reads <= {MODELS_FORMAT_VERSION})")
+                            f"dynoplan reads {MODELS_FORMAT_VERSION}; train the models again)")
     expected = {"state_dim": STATE_DIM, "option_names": list(OPTION_NAMES),
                 "decision_steps": DECISION_STEPS}
     for key, value in expected.items():
@@ -849,25 +841,24 @@ def load_gear_models(folder: str | os.PathLike[str]) -> GearModels:
                                 "or from another training run)")
         return file
 
-    def features(entry: Any, what: str) -> list[int]:
-        cols = entry.get("features") if isinstance(entry, dict) else None
-        if (not isinstance(cols, list) or not cols
-                or not all(isinstance(c, int) and 0 <= c < STATE_DIM for c in cols)):
-            raise DynoplanError(f"{path}: {what} features must be column indices in "
-                                f"0..{STATE_DIM - 1}")
-        return cols
+    def features(entry: Any, what: str) -> FeatureMap:
+        name = entry.get("features") if isinstance(entry, dict) else None
+        if not isinstance(name, str) or name not in FEATURE_MAPS:
+            raise DynoplanError(f"{path}: {what} features must name a feature map "
+                                f"({', '.join(FEATURE_MAPS)})")
+        return FEATURE_MAPS[name]
 
-    goal_cols = features(manifest.get("goal"), "goal")
+    goal_features = features(manifest.get("goal"), "goal")
     network = GoalNetwork.load(checked(manifest.get("goal"), "goal heuristic"))
-    if network.state_dim != len(goal_cols):
-        raise DynoplanError(f"{root / GOAL_FILE}: reads {network.state_dim} columns, the "
-                            f"manifest gives {len(goal_cols)}")
-    region_cols = features(manifest.get("regions"), "regions")
+    if network.state_dim != goal_features.dim:
+        raise DynoplanError(f"{root / GOAL_FILE}: reads {network.state_dim} features, the "
+                            f"manifest's '{goal_features.name}' has {goal_features.dim}")
+    region_features = features(manifest.get("regions"), "regions")
     fitted = SafetyRegions.load(checked(manifest.get("regions"), "safety regions"))
-    if fitted.option_names != list(OPTION_NAMES) or fitted.state_dim != len(region_cols):
+    if fitted.option_names != list(OPTION_NAMES) or fitted.state_dim != region_features.dim:
         raise DynoplanError(f"{root / REGIONS_FILE}: options {fitted.option_names} on "
-                            f"{fitted.state_dim} columns, expected {list(OPTION_NAMES)} on "
-                            f"{len(region_cols)}")
+                            f"{fitted.state_dim} features, expected {list(OPTION_NAMES)} on "
+                            f"{region_features.dim} ('{region_features.name}')")
     entries = manifest.get("dynamics")
     if not isinstance(entries, dict) or sorted(entries) != sorted(OPTION_NAMES):
         raise DynoplanError(f"{path}: dynamics must list the options {list(OPTION_NAMES)}")
@@ -879,6 +870,7 @@ def load_gear_models(folder: str | os.PathLike[str]) -> GearModels:
             raise DynoplanError(f"{file}: a model of option '{model.option}' on "
                                 f"{model.state_dim} values, expected '{name}' on {STATE_DIM}")
         dynamics[name] = model
-    return GearModels(GoalOnFeatures(network, goal_cols), RegionsOnFeatures(fitted, region_cols),
+    return GearModels(GoalOnFeatures(network, goal_features),
+                      RegionsOnFeatures(fitted, region_features),
                       dynamics, manifest)
 

@@ -29,6 +29,7 @@ import gymnasium as gym
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
+from dynoplan.envs.gear.features import RELATIVE
 from dynoplan.envs.gear.options.catalog import NEURAL_FILES, policy_factories
 from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_controllers import (
@@ -107,7 +108,6 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     from dynoplan.experiments.gear_demos import record_demos
     from dynoplan.experiments.gear_models import (
         DEFAULT_SETTINGS,
-        POSE_FEATURES,
         QUICK_SETTINGS,
         load_gear_models,
         train_gear_models,
@@ -145,7 +145,7 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     base = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
     metrics = stage("train", lambda: train_gear_models(
         out / "demos", out / "transitions", models_dir, seed, out / "heldout", quick,
-        progress=progress, settings=replace(base, region_features=POSE_FEATURES)))
+        progress=progress, settings=replace(base, region_features=RELATIVE.name)))
     summary["model_metrics"] = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
     summary["figures"] = stage("figures", lambda: make_gear_figures(
         models_dir, out / "demos", out / "heldout", out / "figures", seed=seed,

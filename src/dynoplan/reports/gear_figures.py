@@ -99,7 +99,7 @@ def plot_tsne_regions(states: FloatArray, labels: IntArray, interrupted: BoolArr
         ``{"points", "region_share"}``: number of points and, per option, the share of
         points inside its region.
     """
-    x = states[:, regions.features]
+    x = regions.features(states)
     scale = np.maximum(x.std(axis=0), 1e-3)
     z = (x - x.mean(axis=0)) / scale
     perplexity = float(min(30.0, max(2.0, (len(z) - 1) / 3.0)))

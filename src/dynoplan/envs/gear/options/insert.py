@@ -307,6 +307,8 @@ class InsertConfig:
     max_joint_step: float = 0.08  # rad, largest change of a left-arm target per env step
     fail_distance: float = 0.12  # m, gear bottom this far from the peg tip -> "failed"
     termination_base: float = 0.02  # beta_insert away from the seat and the human
+    settle_speed: float = 0.05  # rad/s: the network starts once every left joint is slower
+    settle_steps: int = 20  # env steps the start pose is held at most before the network
 
 
 class InsertPolicy(GearOptionPolicy):
@@ -319,6 +321,11 @@ class InsertPolicy(GearOptionPolicy):
     peg and ``"failed"`` when the gear is farther than ``fail_distance`` from the peg
     tip; once finished, the left arm holds its current joints. No motion planning
     (``plan_ms`` stays empty). Deterministic: ``rng`` is not used.
+
+    The network learned from starts at rest. Started while the left arm still moves (a
+    controller that switches as soon as the pre-insertion pose is reached), the policy
+    first holds the start pose until every left joint is slower than
+    ``config.settle_speed`` (at most ``config.settle_steps`` steps).
     """
 
     name = "insert"
@@ -331,6 +338,8 @@ class InsertPolicy(GearOptionPolicy):
         self.limits = env.joint_limits.copy()
         self.steps = 0
         self._q_right = RIGHT_HOLD.copy()
+        self._q_start = np.zeros(6)
+        self._settled = True
         self._peg: PegTipModel | None = None
 
     @classmethod
@@ -345,6 +354,8 @@ class InsertPolicy(GearOptionPolicy):
         self.plan_ms = []
         self.steps = 0
         self.status = "running"
+        self._q_start = obs[OBS_SLICES["arm_qpos"]][:6].copy()
+        self._settled = False
         self._judge(obs)
 
     def act(self, observation: FloatArray) -> FloatArray:
@@ -353,7 +364,12 @@ class InsertPolicy(GearOptionPolicy):
         obs = _as_observations(observation)[0]
         self._judge(obs)
         q_left = obs[OBS_SLICES["arm_qpos"]][:6]
-        if self.status == "running":
+        if not self._settled:
+            speed = float(np.abs(obs[OBS_SLICES["arm_qvel"]][:6]).max())
+            self._settled = speed < self.cfg.settle_speed or self.steps >= self.cfg.settle_steps
+        if self.status == "running" and not self._settled:
+            q_left = self._q_start
+        elif self.status == "running":
             step = self.network.predict(insertion_features(obs))[0]
             lim = self.cfg.max_joint_step
             q_left = q_left + np.clip(step, -lim, lim)

@@ -1,0 +1,87 @@
+"""Named feature maps of planner states: what the goal heuristic and the regions read.
+
+A learned model of the gear assembly sees a feature vector computed from the planner
+state ``(N, 22)`` (:mod:`dynoplan.envs.gear.state`), chosen by name and recorded in the
+models' manifest:
+
+============  ====  ============================================================
+name          size  features
+============  ====  ============================================================
+``task``      19    state columns 0:19: arm joints, gripper, tool point, gear (no
+                    human)
+``pose``      7     state columns 12:19: gripper, tool point, gear
+``relative``  8     gripper; tool point minus gear (3); gear (3); tool-hand
+                    distance capped at :data:`HUMAN_DISTANCE_CAP`
+============  ====  ============================================================
+
+``relative`` is what the safety regions of ``dynoplan gear run`` read. With 10
+demonstrations, joint angles mislead a region (the planning options reach one tool pose
+through other arm configurations), and the gear's random start on the table spreads the
+pick states over an area 10 demonstrations sample thinly; the tool's offset from the gear
+is the same for every start. The capped tool-hand distance lets a region learn that an
+option was only demonstrated with the human away (the operator moves cautiously, or
+backs off, when the hand comes near); beyond the cap, where the hand is does not matter.
+"""
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynoplan.envs.gear.state import STATE_DIM, STATE_NAMES, STATE_SLICES, tool_human_distance
+from dynoplan.errors import DynoplanError
+from dynoplan.models.storage import as_states
+from dynoplan.types import FloatArray
+
+HUMAN_DISTANCE_CAP = 1.0
+"""m: tool-hand distances beyond this read as this (the hand is out of the way)."""
+
+
+@dataclass(frozen=True)
+class FeatureMap:
+    """``states (N, 22) -> features (N, dim)``, with a name and one name per feature."""
+
+    name: str
+    names: tuple[str, ...]
+    fn: Callable[[FloatArray], FloatArray]
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def __call__(self, states: FloatArray) -> FloatArray:
+        """``(N, 22)`` -> ``(N, dim)`` float64 (another shape: one clear error)."""
+        out: FloatArray = self.fn(as_states(states, STATE_DIM))
+        return out
+
+
+def _columns(name: str, cols: Sequence[int]) -> FeatureMap:
+    idx = np.asarray(cols, dtype=np.int64)
+    return FeatureMap(name, tuple(STATE_NAMES[i] for i in cols), lambda s: s[:, idx])
+
+
+def _relative(states: FloatArray) -> FloatArray:
+    tool, gear = states[:, STATE_SLICES["tool_pos"]], states[:, STATE_SLICES["gear_pos"]]
+    human = np.minimum(tool_human_distance(states), HUMAN_DISTANCE_CAP)
+    return np.concatenate([states[:, STATE_SLICES["gripper"]], tool - gear, gear,
+                           human[:, None]], axis=1)
+
+
+TASK = _columns("task", range(STATE_SLICES["human_pos"].start))
+POSE = _columns("pose", range(STATE_SLICES["gripper"].start, STATE_SLICES["human_pos"].start))
+RELATIVE = FeatureMap("relative", ("gripper", "tool_minus_gear_x", "tool_minus_gear_y",
+                                   "tool_minus_gear_z", "gear_x", "gear_y", "gear_z",
+                                   "tool_hand_distance"), _relative)
+FEATURE_MAPS: dict[str, FeatureMap] = {m.name: m for m in (TASK, POSE, RELATIVE)}
+
+
+def feature_map(name: str) -> FeatureMap:
+    """The feature map called ``name`` (one of :data:`FEATURE_MAPS`)."""
+    if name not in FEATURE_MAPS:
+        raise DynoplanError(f"unknown feature map {name!r}; expected one of "
+                            f"{', '.join(FEATURE_MAPS)}")
+    return FEATURE_MAPS[name]
+
+
+__all__ = ["FEATURE_MAPS", "HUMAN_DISTANCE_CAP", "POSE", "RELATIVE", "TASK", "FeatureMap",
+           "feature_map"]
