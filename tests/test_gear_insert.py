@@ -8,7 +8,7 @@ import pytest
 import torch
 from safetensors.numpy import save_file
 
-from dynoplan.envs.gear.env import GRIPPER_CLOSED, GearAssemblyEnv
+from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.insert import (
     FEATURE_DIM,
     InsertionNetwork,
@@ -179,6 +179,25 @@ def test_policy_actions_are_finite_and_within_joint_limits(env, trained):
             break
     with pytest.raises(DynoplanError):
         policy.act(np.zeros(49))
+
+
+def test_started_while_the_arm_moves_it_holds_the_start_pose_first(env, trained):
+    network, _ = trained
+    policy = InsertPolicy(env, network)
+    start = reach_start(env, "insert", np.random.default_rng([99, 4]))
+    moving = start.observation.copy()
+    moving[OBS_SLICES["arm_qvel"]][:6] = 0.5  # rad/s, still arriving
+    policy.reset(moving, np.random.default_rng(0))
+    held = policy.act(moving)
+    np.testing.assert_array_equal(held[:6], moving[:6])
+    still = moving.copy()
+    still[:6] += 0.01  # it has drifted on and stopped: the network takes over from here
+    still[OBS_SLICES["arm_qvel"]] = 0.0
+    stepped = policy.act(still)
+    assert not np.array_equal(stepped[:6], moving[:6])
+    # a start at rest goes to the network at once
+    policy.reset(still, np.random.default_rng(0))
+    assert not np.array_equal(policy.act(still)[:6], still[:6])
 
 
 def test_termination_is_high_when_seated_and_near_the_human(env, trained):

@@ -11,9 +11,16 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
 from dynoplan.control import Controller, FixedChoice
+from dynoplan.envs.gear.features import HUMAN_DISTANCE_CAP, RELATIVE, feature_map
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
-from dynoplan.experiments.gear_controllers import AllOf, holding_gear
+from dynoplan.errors import DynoplanError
+from dynoplan.experiments.gear_controllers import (
+    CARRIED_GEAR_HEIGHT,
+    AllOf,
+    holding_gear,
+    not_carried,
+)
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
 from dynoplan.options import ConstantTermination, FunctionPolicy, Option
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
@@ -43,6 +50,33 @@ def test_moves_need_the_gear_lifted_in_a_closed_gripper():
     states2[:, 0] = 1.0
     assert both.contains(states).tolist() == [True, False, False]
     assert not both.contains(states2).any()
+
+
+def test_the_pick_is_not_admissible_once_the_gear_is_carried():
+    states = np.stack([
+        _state(FINGER_TRAVEL, TABLE_TOP_Z + 0.001),  # gear on the table, gripper open
+        _state(0.2 * FINGER_TRAVEL, TABLE_TOP_Z + 0.05),  # lifting
+        _state(0.2 * FINGER_TRAVEL, TABLE_TOP_Z + CARRIED_GEAR_HEIGHT + 0.01),  # carried
+        _state(FINGER_TRAVEL, TABLE_TOP_Z + CARRIED_GEAR_HEIGHT + 0.01),  # let go up there
+    ])
+    assert not_carried(states).tolist() == [True, True, False, True]
+
+
+def test_relative_features_read_the_tool_offset_and_the_capped_hand_distance():
+    s = np.zeros((2, STATE_DIM))
+    s[:, STATE_SLICES["gripper"]] = 0.02
+    s[:, STATE_SLICES["tool_pos"]] = [0.5, 0.2, 0.9]
+    s[:, STATE_SLICES["gear_pos"]] = [0.5, 0.2, 0.8]
+    s[0, STATE_SLICES["human_pos"]] = [0.5, 0.5, 0.9]  # 0.3 m from the tool
+    s[1, STATE_SLICES["human_pos"]] = [3.0, 0.2, 0.9]  # 2.5 m: beyond the cap
+    f = RELATIVE(s)
+    assert f.shape == (2, RELATIVE.dim) == (2, len(RELATIVE.names))
+    np.testing.assert_allclose(f[0], [0.02, 0.0, 0.0, 0.1, 0.5, 0.2, 0.8, 0.3])
+    assert f[1, -1] == HUMAN_DISTANCE_CAP
+    with pytest.raises(DynoplanError, match="unknown feature map"):
+        feature_map("joints")
+    with pytest.raises(DynoplanError, match="shape"):
+        RELATIVE(np.zeros((2, 19)))
 
 
 def test_controller_draws_termination_only_every_decision_period():
