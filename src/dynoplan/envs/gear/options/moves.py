@@ -103,6 +103,7 @@ class PreInsertionBeta:
         self._qadr = np.array([self._model.joint(j).qposadr[0] for j in RIGHT_ARM_JOINTS])
         self._site = self._model.site("peg_tip").id
         self._cache: dict[bytes, FloatArray] = {}
+        self._linear: dict[bytes, tuple[FloatArray, FloatArray]] = {}
 
     def target(self, q_right: FloatArray) -> FloatArray:
         """(3,) gear-bottom target for right-arm joints (6,)."""
@@ -121,11 +122,33 @@ class PreInsertionBeta:
         return hit
 
     def distance(self, states: FloatArray) -> FloatArray:
-        """(N,) distance (m) of the gear's bottom from its target in states (N, 22)."""
+        """(N,) distance (m) of the gear's bottom from its target in states (N, 22).
+
+        The right arm holds the peg still, so a batch's right-arm joints stay within a few
+        mrad of each other: the target is linearised about the first row's joints rounded
+        to 0.01 rad (exact FK there and central differences, cached), which is exact to
+        well under a millimetre and costs no FK per row."""
         s = np.atleast_2d(np.asarray(states, dtype=np.float64))
-        targets = np.array([self.target(row) for row in s[:, 6:12]]).reshape(len(s), 3)
+        q = s[:, 6:12]
+        q0 = np.round(q[0], 2)
+        target0, jacobian = self._linearised(q0)
+        targets = target0 + (q - q0) @ jacobian.T
         d: FloatArray = np.linalg.norm(s[:, STATE_SLICES["gear_pos"]] - targets, axis=1)
         return d
+
+    def _linearised(self, q0: FloatArray) -> tuple[FloatArray, FloatArray]:
+        key = q0.tobytes()
+        hit = self._linear.get(key)
+        if hit is None:
+            if len(self._linear) > 256:
+                self._linear.clear()
+            jacobian = np.empty((3, 6))
+            for j in range(6):
+                dq = np.zeros(6)
+                dq[j] = 1e-3
+                jacobian[:, j] = (self.target(q0 + dq) - self.target(q0 - dq)) / 2e-3
+            hit = self._linear[key] = (self.target(q0), jacobian)
+        return hit
 
     def __call__(self, states: FloatArray) -> FloatArray:
         d = self.distance(states)
