@@ -151,7 +151,7 @@ def test_missing_truncated_and_mismatched_files_are_rejected(trained, tmp_path):
     manifest = json.loads((folder / MANIFEST_FILE).read_text())
     manifest["goal"]["sha256"] = hashlib.sha256((folder / GOAL_FILE).read_bytes()).hexdigest()
     (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
-    _one_line_error(folder, "reads 3 columns")
+    _one_line_error(folder, "reads 3 features")
 
 
 def test_held_out_trials_must_not_repeat_the_demonstrations(data, tmp_path):

@@ -261,3 +261,26 @@ def test_mixture_quantile_and_calibration_of_a_known_gaussian():
     cal = calibration(Exact(), s, s + rng.normal(size=s.shape), level=0.9)
     assert abs(cal.coverage - 0.9) < 0.01
     np.testing.assert_allclose(cal.mean_width, 2 * norm.ppf(0.95), rtol=1e-6)
+
+
+def test_calibration_widens_an_over_confident_model_to_the_nominal_coverage(tmp_path):
+    model, _ = _trained()
+    # the world turns out noisier than the training data: the intervals are too narrow
+    s_cal, nxt_cal = _linear_system(n=600, noise=0.2, seed=5)
+    s_new, nxt_new = _linear_system(n=600, noise=0.2, seed=6)
+    before = calibration(model, s_new, nxt_new, 0.9).coverage
+    scale = model.calibrate(s_cal, nxt_cal, 0.9)
+    after = calibration(model, s_new, nxt_new, 0.9).coverage
+    assert before < 0.75 and abs(after - 0.9) < 0.04 and (scale > 1.5).all()
+    # the sampler spreads as the calibrated prediction says, and the scale is saved
+    x = np.repeat(s_new[:1], 4000, axis=0)
+    draws = model.sample(x, np.random.default_rng(0))
+    means, variances = model.predict(s_new[:1])
+    mix_var = (variances + means ** 2).mean(axis=0)[0] - means.mean(axis=0)[0] ** 2
+    np.testing.assert_allclose(draws.var(axis=0), mix_var, rtol=0.1)
+    loaded = MLPEnsembleDynamics.load(model.save(tmp_path / "m.safetensors"))
+    np.testing.assert_array_equal(loaded.std_scale, scale)
+    # a model that is already wide enough is left as it is (the scale only widens)
+    wide = _trained()[0]
+    s_easy, nxt_easy = _linear_system(n=600, noise=0.01, seed=7)
+    np.testing.assert_array_equal(wide.calibrate(s_easy, nxt_easy), np.ones(3))

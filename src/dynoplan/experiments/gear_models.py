@@ -119,6 +119,10 @@ class GearTrainSettings:
         dynamics_heldout_fraction: share of each option's transition episodes (grouped by
             their ``seed``) held out for the dynamics report, when option transitions are
             given.
+        dynamics_calibration_fraction: share of the remaining runs (grouped the same way)
+            kept out of the fit to calibrate the predicted spread
+            (:meth:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics.calibrate`);
+            options with runs from fewer than 4 seeds are not calibrated.
         n_step: decision steps of the n-step report.
         rollouts: Monte-Carlo rollouts per start state in the n-step report.
         heldout_episodes: held-out expert trials recorded when none are given.
@@ -139,6 +143,7 @@ class GearTrainSettings:
     dynamics_epochs: int = 50
     dynamics_max_updates: int = 1500
     dynamics_heldout_fraction: float = 0.2
+    dynamics_calibration_fraction: float = 0.15
     n_step: int = 3
     rollouts: int = 32
     heldout_episodes: int = 10
@@ -728,7 +733,11 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
 def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
                     held_eps: Sequence[Episode], planner: PlannerState, out: Path,
                     cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
-    s, labels, nxt = labelled_transitions(train_eps, state_fn=planner)
+    own = [e for e in train_eps if e.options is not None and int(e.options[0]) == k]
+    fit_eps, cal_eps = (_split_episodes(own, cfg.dynamics_calibration_fraction,
+                                        np.random.default_rng([seed, 4, k]))
+                        if len({e.seed for e in own}) >= 4 else (own, []))
+    s, labels, nxt = labelled_transitions(fit_eps, state_fn=planner)
     sh, labels_h, nxth = labelled_transitions(held_eps, state_fn=planner)
     s, nxt = s[labels == k], nxt[labels == k]
     sh, nxth = sh[labels_h == k], nxth[labels_h == k]
@@ -740,6 +749,11 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     batches = -(-round(0.9 * len(s)) // _BATCH)  # fit holds out 10% of the rows
     epochs = max(5, min(cfg.dynamics_epochs, cfg.dynamics_max_updates // batches))
     report = model.fit(s, nxt, epochs=epochs, batch_size=_BATCH, seed=seed + k)
+    std_scale = None
+    if cal_eps:
+        sc, labels_c, nxtc = labelled_transitions(cal_eps, state_fn=planner)
+        if (labels_c == k).sum() >= 10:
+            std_scale = model.calibrate(sc[labels_c == k], nxtc[labels_c == k], 0.9)
     model.save(out / dynamics_file(name))
     row: dict[str, Any] = {
         "transitions_train": len(s),
@@ -750,6 +764,9 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
         "train_nll_first_last": [report.train_loss[0], report.train_loss[-1]],
         "epochs": epochs,
         "best_epoch": report.best_epoch,
+        "calibration_episodes": len(cal_eps),
+        "std_scale": None if std_scale is None else dict(zip(
+            STATE_NAMES, np.round(std_scale, 3).tolist(), strict=True)),
     }
     if len(sh) == 0:  # nothing of this option among the held-out data: no report
         return {**row, "one_step_rmse": None, "one_step_no_change_rmse": None,

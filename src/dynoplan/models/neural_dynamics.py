@@ -42,7 +42,7 @@ from torch.nn import functional as F
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import LoopStackedDynamics, StackedDynamics
 from dynoplan.models.storage import load_arrays, require, save_arrays
-from dynoplan.models.training import TrainingReport, train_gaussian_ensemble
+from dynoplan.models.training import TrainingReport, mixture_quantile, train_gaussian_ensemble
 from dynoplan.types import FloatArray, Generator
 
 MODEL_KIND = "mlp_ensemble_dynamics"
@@ -125,6 +125,8 @@ class MLPEnsembleDynamics:
         network: the :class:`GaussianEnsembleMLP` on normalised inputs and targets.
         input_mean, input_std: ``(d,)`` float64, state normalisation.
         delta_mean, delta_std: ``(d,)`` float64, normalisation of ``s_{t+1} - s_t``.
+        std_scale: ``(d,)`` float64, every member's predicted standard deviation is
+            multiplied by it (ones until :meth:`calibrate`).
 
     Sampling uses a float32 snapshot of the weights, made on first use and renewed by
     :meth:`fit`; call :meth:`refresh` after changing ``network`` or the normalisers by
@@ -147,6 +149,7 @@ class MLPEnsembleDynamics:
         self.input_std = np.ones(d)
         self.delta_mean = np.zeros(d)
         self.delta_std = np.ones(d)
+        self.std_scale = np.ones(d)
         self._single: StackedMLPEnsemble | None = None
 
     # --- description ------------------------------------------------------------------
@@ -207,7 +210,49 @@ class MLPEnsembleDynamics:
             mean, logvar = self.network(xn.expand(self.members, *xn.shape))
         mean64 = mean.numpy().astype(np.float64)
         var64 = np.exp(logvar.numpy().astype(np.float64))
-        return x + mean64 * self.delta_std + self.delta_mean, var64 * self.delta_std ** 2
+        return (x + mean64 * self.delta_std + self.delta_mean,
+                var64 * (self.delta_std * self.std_scale) ** 2)
+
+    def calibrate(self, states: FloatArray, next_states: FloatArray,
+                  level: float = 0.9, min_scale: float = 1.0) -> FloatArray:
+        """Rescale the predicted spread so that, on these transitions, a fraction ``level``
+        of true next states falls inside the central ``level`` interval, per dimension.
+
+        Post-hoc recalibration (Kuleshov et al. 2018, with one scale per dimension): the
+        members' standard deviations are multiplied by ``std_scale`` (``(d,)``), found by
+        bisection on ``log(scale)`` in ``[log(min_scale), 5]``. Use transitions the model
+        was not fitted on (whole held-out runs, not rows of the training runs). The default
+        ``min_scale = 1`` only ever widens: a few calibration runs that happen to be easy
+        must not make the model over-confident elsewhere. Returns ``std_scale``.
+
+        Args:
+            states, next_states: ``(N, d)``.
+        """
+        s, nxt = self._check_pairs(states, next_states)
+        if not 0.0 < level < 1.0 or not 0.0 < min_scale <= np.exp(5.0):
+            raise DynoplanError(f"level must be in (0, 1) and min_scale in (0, e^5], got "
+                                f"{level}, {min_scale}")
+        self.std_scale = np.ones(self.state_dim)
+        means, variances = self.predict(s)
+        std = np.sqrt(variances)
+
+        def coverage(log_scale: FloatArray) -> FloatArray:
+            scaled = std * np.exp(log_scale)
+            low = mixture_quantile(means, scaled, (1.0 - level) / 2.0)
+            high = mixture_quantile(means, scaled, (1.0 + level) / 2.0)
+            out: FloatArray = ((nxt >= low) & (nxt <= high)).mean(axis=0)
+            return out
+
+        lo = np.full(self.state_dim, np.log(min_scale))
+        hi = np.full(self.state_dim, 5.0)
+        enough = coverage(lo) >= level  # these dimensions keep min_scale exactly
+        for _ in range(30):
+            mid = 0.5 * (lo + hi)
+            short = coverage(mid) < level
+            lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
+        self.std_scale = np.where(enough, min_scale, np.exp(hi))
+        self.refresh()
+        return self.std_scale.copy()
 
     @classmethod
     def stack(cls, items: Sequence["MLPEnsembleDynamics"]) -> StackedDynamics:
@@ -252,6 +297,7 @@ class MLPEnsembleDynamics:
         n_holdout = round(n * holdout_fraction)
         if holdout_fraction > 0.0:
             n_holdout = min(max(n_holdout, 1), n - 2)
+        self.std_scale = np.ones(self.state_dim)  # a new fit needs a new calibration
         perm = np.random.default_rng(seed).permutation(n)
         train, hold = perm[n_holdout:], perm[:n_holdout]
         delta = nxt - s
@@ -295,6 +341,7 @@ class MLPEnsembleDynamics:
         arrays["input_std"] = self.input_std
         arrays["delta_mean"] = self.delta_mean
         arrays["delta_std"] = self.delta_std
+        arrays["std_scale"] = self.std_scale
         meta = {"state_dim": self.state_dim, "hidden_sizes": list(self.hidden_sizes),
                 "members": self.members, "option": self.option, "activation": "silu",
                 "output": "gaussian_delta"}
@@ -336,16 +383,18 @@ class MLPEnsembleDynamics:
                 getattr(net, name).copy_(torch.from_numpy(a))
         extra = set(arrays) - {f"weight_{i}" for i in range(len(sizes) - 1)} - {
             f"bias_{i}" for i in range(len(sizes) - 1)} - {
-            "min_logvar", "max_logvar", "input_mean", "input_std", "delta_mean", "delta_std"}
+            "min_logvar", "max_logvar", "input_mean", "input_std", "delta_mean", "delta_std",
+            "std_scale"}
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
                                 f"describes {len(hidden)} hidden layers)")
-        for name in ("input_mean", "input_std", "delta_mean", "delta_std"):
+        for name in ("input_mean", "input_std", "delta_mean", "delta_std", "std_scale"):
             a = require(arrays, name, (d,), path)
             if a.dtype != np.float64 or not np.isfinite(a).all():
                 raise DynoplanError(f"{path}: array '{name}' must be finite float64")
             setattr(model, name, a.copy())
-        if (model.input_std <= 0).any() or (model.delta_std <= 0).any():
+        if (model.input_std <= 0).any() or (model.delta_std <= 0).any() \
+                or (model.std_scale <= 0).any():
             raise DynoplanError(f"{path}: normalisation standard deviations must be positive")
         return model
 
@@ -383,7 +432,7 @@ class StackedMLPEnsemble:
         with torch.no_grad():
             lo = per_group([m.network.min_logvar.numpy()[0].astype(np.float64) for m in models])
             hi = per_group([m.network.max_logvar.numpy()[0].astype(np.float64) for m in models])
-        log_sd = per_group([np.log(m.delta_std) for m in models])
+        log_sd = per_group([np.log(m.delta_std * m.std_scale) for m in models])
         # logvar = lo + softplus((hi - lo) - softplus(hi - raw)), and in state units
         # sigma = exp(0.5 * logvar + log(delta_std)) = exp(0.5 * softplus(.) + offset)
         self._max_logvar = torch.from_numpy(hi.astype(np.float32))
