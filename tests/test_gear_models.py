@@ -152,6 +152,16 @@ def test_missing_truncated_and_mismatched_files_are_rejected(trained, tmp_path):
     manifest["goal"]["sha256"] = hashlib.sha256((folder / GOAL_FILE).read_bytes()).hexdigest()
     (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
     _one_line_error(folder, "reads 3 features")
+    # models from an older format (feature columns instead of a named feature map)
+    folder = _copy(out, tmp_path / "f")
+    manifest = json.loads((folder / MANIFEST_FILE).read_text())
+    manifest["format_version"] = 1
+    manifest["regions"]["features"] = list(range(19))
+    (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
+    _one_line_error(folder, "train the models again")
+    manifest["format_version"] = 2
+    (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
+    _one_line_error(folder, "must name a feature map")
 
 
 def test_held_out_trials_must_not_repeat_the_demonstrations(data, tmp_path):
