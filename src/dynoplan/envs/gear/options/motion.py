@@ -32,7 +32,9 @@ def seed_ompl(seed: int) -> None:
     from ompl import util as ou
 
     if not _seeded:
-        ou.setLogLevel(ou.LOG_ERROR)
+        # a plan that fails is reported by the option's status ("failed"); OMPL's own
+        # error lines would only clutter the command line's output
+        ou.setLogLevel(ou.LOG_NONE)
         ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
         _seeded.append(seed)
 
