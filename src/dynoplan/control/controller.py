@@ -7,8 +7,8 @@ One episode:
 3. if no option is admissible, hold still with ``hold_action`` (counted), or end the
    episode when there is no safe hold action;
 4. run the chosen option step by step until its termination fires, it leaves its
-   initiation set, the state becomes non-finite, ``replan_every`` steps pass, or
-   ``max_option_steps`` is reached;
+   continuation set (its initiation set unless the option gives another), the state
+   becomes non-finite, ``replan_every`` steps pass, or ``max_option_steps`` is reached;
 5. repeat until the environment terminates or truncates, or ``max_decisions`` is hit.
 
 After an interruption by ``replan_every`` the running option is kept unless another
@@ -195,7 +195,7 @@ class Controller:
                 if not np.isfinite(state).all():
                     reason = "invalid_state"
                     break
-                if not option.can_start(state):
+                if not option.can_continue(state):
                     reason = "left_region"
                     break
                 if option.policy.finished() or (steps % self.termination_every == 0

@@ -19,8 +19,12 @@ Two preconditions of the options themselves are intersected with the learned reg
 because 10 demonstrations cannot teach a mixture where the task's phases begin and end:
 the two moves carry the gear, so their initiation set is their region intersected with
 :func:`holding_gear` (the gear lifted in a closed gripper) and with the states where
-their goal is not yet reached (``beta < 1``); the pick has nothing to do once the gear
-is carried (:func:`not_carried`), so its region is intersected with that.
+the gear is still :data:`MOVE_START_DISTANCE` from their goal (:class:`FarFromGoal`);
+once running, a move goes on while it is
+in its region with the gear held (its continuation set) and ends at its goal when its
+policy reports the arm has settled there (an insertion started while the arm still
+moves misses the peg); the pick has nothing to do once the gear is carried
+(:func:`not_carried`), so its region is intersected with that.
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -36,6 +40,7 @@ from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.catalog import PolicyFactory
+from dynoplan.envs.gear.options.moves import PreInsertionBeta
 from dynoplan.envs.gear.oracle import SimulatorOracle
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
@@ -50,7 +55,7 @@ from dynoplan.options.initiation import (
     InRegion,
 )
 from dynoplan.options.option import Option
-from dynoplan.options.termination import ConstantTermination, Termination
+from dynoplan.options.termination import ConstantTermination
 from dynoplan.planning import OptionPlanner
 from dynoplan.types import BoolArray, FloatArray
 
@@ -74,7 +79,9 @@ class PlannerSettings:
         oracle_horizon: decisions the simulator oracle simulates per rollout (it pays
             real simulation time, so it may be shorter).
         oracle_samples: simulated rollouts per option.
-        margin: score advantage another option needs to replace a running one.
+        margin: score advantage another option needs to replace a running one (0.1:
+            near the peg the goal heuristic's estimates of the moves and the insertion
+            differ by less than their noise, and a smaller margin lets them take turns).
         dynamics_noise: std of Gaussian noise added to every learned prediction (a
             fault; 0 for none).
     """
@@ -83,7 +90,7 @@ class PlannerSettings:
     samples: int = 64
     oracle_horizon: int = 10
     oracle_samples: int = 1
-    margin: float = 0.02
+    margin: float = 0.1
     dynamics_noise: float = 0.0
 
 
@@ -129,10 +136,24 @@ class AllOf:
         return out
 
 
-def _not_finished(termination: Termination) -> Initiation:
-    """States where ``termination`` is not certain: a move whose pose is reached
-    (``beta = 1``) has nothing left to do there."""
-    return InitiationFromCallable(lambda states: termination.probability(states) < 1.0)
+MOVE_START_DISTANCE = 0.05
+"""m: a move may start only with the gear farther than this from the pre-insertion pose.
+Nearer, the insertion takes over: the insertion network first lifts the gear a few
+centimetres to its own approach height, and a move started there would carry it back
+down (the goal heuristic cannot tell that lift from a move's approach)."""
+
+
+class FarFromGoal:
+    """Initiation of the moves: the gear more than ``distance`` (m) from the pre-insertion
+    pose, ``(N, 22) -> (N,)``."""
+
+    def __init__(self, distance: float = MOVE_START_DISTANCE) -> None:
+        self.distance = distance
+        self._goal = PreInsertionBeta()
+
+    def contains(self, states: FloatArray) -> BoolArray:
+        out: BoolArray = self._goal.distance(states) > self.distance
+        return out
 
 
 def gear_options(env: GearAssemblyEnv, models: GearModels,
@@ -156,15 +177,16 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
         if dynamics_noise > 0:
             dynamics = NoisyDynamics(dynamics, dynamics_noise)
         initiation: Initiation = InRegion(models.regions, name) if regions else Everywhere()
+        continuation: Initiation | None = None
         if regions and name in MOVES:
-            initiation = AllOf(initiation, InitiationFromCallable(holding_gear),
-                               _not_finished(policy.termination()))
+            continuation = AllOf(initiation, InitiationFromCallable(holding_gear))
+            initiation = AllOf(continuation, FarFromGoal())
         elif regions and name == "pick":
             initiation = AllOf(initiation, InitiationFromCallable(not_carried))
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
-            initiation=initiation))
+            initiation=initiation, continuation=continuation))
     return options
 
 
@@ -213,7 +235,9 @@ __all__ = [
     "FIXED_SCRIPT",
     "MAX_EPISODE_SECONDS",
     "MOVES",
+    "MOVE_START_DISTANCE",
     "AllOf",
+    "FarFromGoal",
     "PlannerSettings",
     "gear_options",
     "hold_still",

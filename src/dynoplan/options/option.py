@@ -2,7 +2,10 @@
 
 Lifecycle (like a behaviour tree's ``initialise / update / terminate``):
 
-1. ``can_start(state)`` -- the controller only starts an option inside ``I_w``.
+1. ``can_start(state)`` -- the controller only starts an option inside ``I_w``; once
+   running, it stops the option when ``can_continue(state)`` turns false (the
+   continuation set, ``I_w`` unless given: a precondition that only matters at the start
+   -- a move may not start at its goal -- is left out of it).
 2. ``start(observation, rng)`` -- once, when the option is chosen (a motion-planned
    option plans here; a neural one may reset a recurrent state).
 3. ``act(observation) -> action`` -- once per environment step; must not block for long.
@@ -60,6 +63,8 @@ class Option:
         dynamics: ``D_w``, predicts the next planner state under ``pi_w``.
         termination: ``beta_w`` on planner states.
         initiation: ``I_w`` on planner states (default: everywhere).
+        continuation: where a running option may go on (default: ``initiation``); the
+            controller and the planner's rollouts stop the option when it leaves it.
     """
 
     name: str
@@ -67,10 +72,21 @@ class Option:
     dynamics: DynamicsModel
     termination: Termination
     initiation: Initiation = field(default_factory=Everywhere)
+    continuation: Initiation | None = None
+
+    @property
+    def continuation_set(self) -> Initiation:
+        """The set a running option stays in: ``continuation``, else ``initiation``."""
+        return self.initiation if self.continuation is None else self.continuation
 
     def can_start(self, state: np.ndarray) -> bool:
         """Whether ``state`` (shape ``(state_dim,)``) lies in ``I_w``."""
         return bool(self.initiation.contains(np.asarray(state, dtype=np.float64)[None])[0])
+
+    def can_continue(self, state: np.ndarray) -> bool:
+        """Whether a running option may go on in ``state`` (shape ``(state_dim,)``)."""
+        s = np.asarray(state, dtype=np.float64)[None]
+        return bool(self.continuation_set.contains(s)[0])
 
     def start(self, observation: Any, rng: Generator) -> None:
         self.policy.reset(observation, rng)

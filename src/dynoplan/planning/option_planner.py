@@ -4,11 +4,11 @@
 
 For every option admissible at ``s_t`` the planner draws ``samples`` rollouts of the
 option's dynamics model, each running until the option's termination ``beta_w`` fires
-(drawn per step, as in the real run), the rollout leaves the option's initiation set, or
-``horizon`` steps pass; ensemble models keep one member per rollout (PETS's
-TS-infinity). The goal heuristic scores each end state; an option's score is the mean
-over its rollouts minus ``risk`` times their standard deviation (``risk=0`` is
-the paper's expectation).
+(drawn per step, as in the real run), the rollout leaves the option's continuation set
+(its initiation set unless it has another), or ``horizon`` steps pass; ensemble models
+keep one member per rollout (PETS's TS-infinity). The goal heuristic scores each end
+state; an option's score is the mean over its rollouts minus ``risk`` times their
+standard deviation (``risk=0`` is the paper's expectation).
 
 All admissible options x samples advance together, one stacked array computation per
 horizon step; the only Python loop is over the horizon.
@@ -84,8 +84,9 @@ class OptionPlanner:
         horizon: ``n``, the most steps a rollout may take.
         samples: ``S``, Monte-Carlo rollouts per option.
         risk: ``k`` in ``mean - k * std``; 0 reproduces the paper.
-        respect_regions: stop a rollout when it leaves the option's initiation set (the
-            controller would stop the real option there too).
+        respect_regions: stop a rollout when it leaves the option's continuation set
+            (its initiation set unless given; the controller would stop the real option
+            there too).
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
@@ -152,9 +153,9 @@ class OptionPlanner:
         alive = np.ones(x.shape[:2], dtype=bool)
         valid = np.ones_like(alive)
         steps = np.zeros(x.shape[:2], dtype=np.int64)
-        regions = [(j, self.options[i].initiation) for j, i in enumerate(idx)
-                   if self.respect_regions and not isinstance(self.options[i].initiation,
-                                                               Everywhere)]
+        regions = [(j, self.options[i].continuation_set) for j, i in enumerate(idx)
+                   if self.respect_regions and not isinstance(
+                       self.options[i].continuation_set, Everywhere)]
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
         step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
         for t in range(self.horizon):
