@@ -84,27 +84,33 @@ def parallel_map(setup: Callable[[C], S], run: Callable[[S, T], R], context: C,
     process and context, so ``run`` must leave the state fit for the next item.
     """
     results: list[Any] = [None] * len(items)
-    for i, result in imap_unordered(setup, run, context, items, workers, description,
-                                    progress):
+    for i, result in imap_unordered(setup, run, [(context, item) for item in items], workers,
+                                    description, progress):
         results[i] = result
     return results
 
 
-def imap_unordered(setup: Callable[[C], S], run: Callable[[S, T], R], context: C,
-                   items: Sequence[T], workers: Workers = SERIAL, description: str = "",
-                   progress: bool = False) -> Iterator[tuple[int, R]]:
-    """``(index, result)`` of every item as it finishes (in order when serial); see
-    :func:`parallel_map`. Each index comes exactly once."""
+def imap_unordered(setup: Callable[[C], S], run: Callable[[S, T], R],
+                   tasks: Sequence[tuple[C, T]], workers: Workers = SERIAL,
+                   description: str = "", progress: bool = False) -> Iterator[tuple[int, R]]:
+    """``(index, run(setup(context), item))`` of every ``(context, item)`` task as it
+    finishes: in order when serial, in any order on Ray; each index exactly once. Tasks
+    may differ in context (the cells of a sweep); grouping tasks of one context together
+    saves set-ups. See :func:`parallel_map`."""
     if not workers.parallel:
-        state = setup(context)
-        for i, item in enumerate(track(items, description, total=len(items),
-                                       enabled=progress)):
+        state: Any = None
+        current: Any = None
+        for i, (context, item) in enumerate(track(tasks, description, total=len(tasks),
+                                                  enabled=progress)):
+            if i == 0 or context != current:
+                state, current = None, context  # drop the old state before building anew
+                state = setup(context)
             yield i, run(state, item)
         return
-    if not items:
+    if not tasks:
         return
     with ray_session(workers):
-        yield from _ray_map(setup, run, context, items, workers, description, progress)
+        yield from _ray_map(setup, run, tasks, workers, description, progress)
 
 
 @contextmanager
@@ -152,15 +158,18 @@ def _import_ray() -> Any:
     return ray
 
 
-def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], context: C,
-             items: Sequence[T], workers: Workers, description: str,
-             progress: bool) -> Iterator[tuple[int, R]]:
+def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], tasks: Sequence[tuple[C, T]],
+             workers: Workers, description: str, progress: bool) -> Iterator[tuple[int, R]]:
     ray = _import_ray()
     from ray.exceptions import RayTaskError
 
-    task = ray.remote(max_retries=workers.retries, retry_exceptions=False)(_run_item)
-    context_ref = ray.put(context)
-    pending = {task.remote(setup, run, context_ref, item): i for i, item in enumerate(items)}
+    remote = ray.remote(max_retries=workers.retries, retry_exceptions=False)(_run_item)
+    refs: dict[Any, Any] = {}  # one copy of each context in the object store
+    pending = {}
+    for i, (context, item) in enumerate(tasks):
+        if context not in refs:
+            refs[context] = ray.put(context)
+        pending[remote.remote(setup, run, refs[context], item)] = i
 
     def finished() -> Iterator[tuple[int, Any]]:
         waiting = list(pending)
@@ -177,7 +186,7 @@ def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], context: C,
             for ref in waiting:  # an error or an interrupt: do not leave work behind
                 ray.cancel(ref, force=True)
 
-    yield from track(finished(), description, total=len(items), enabled=progress)
+    yield from track(finished(), description, total=len(tasks), enabled=progress)
 
 
 _states: "OrderedDict[tuple[Any, Hashable], Any]" = OrderedDict()
