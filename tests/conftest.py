@@ -1,5 +1,7 @@
 import os
 
+import pytest
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
@@ -9,3 +11,32 @@ def pytest_configure(config):
     import torch
 
     torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="session")
+def quick_gear_run(tmp_path_factory):
+    """``dynoplan gear run --quick`` once per session (a few minutes; slow tests only): its
+    output folder, with ``models/``, ``flat_ppo/`` and the results of 3 episodes."""
+    from typer.testing import CliRunner
+
+    from dynoplan.cli.main import app
+
+    out = tmp_path_factory.mktemp("gear-quick") / "run"
+    result = CliRunner().invoke(app, ["gear", "run", "--quick", "--out", str(out), "--quiet",
+                                      "--no-video", "--episodes", "3",
+                                      "--oracle-episodes", "1"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+@pytest.fixture(scope="session")
+def ray_runtime():
+    """A light local Ray runtime (2 CPUs, no dashboard) for the session's Ray tests; the
+    library's maps use it rather than starting their own."""
+    import logging
+
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, logging_level=logging.ERROR,
+             log_to_driver=False)
+    yield ray
+    ray.shutdown()

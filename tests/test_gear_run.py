@@ -104,12 +104,8 @@ class _ZeroDynamics:
 
 
 @pytest.mark.slow
-def test_gear_run_quick_writes_every_result_with_every_column(tmp_path: Path):
-    out = tmp_path / "run"
-    result = CliRunner().invoke(app, ["gear", "run", "--quick", "--out", str(out), "--quiet",
-                                      "--no-video", "--episodes", "3",
-                                      "--oracle-episodes", "1"])
-    assert result.exit_code == 0, result.output
+def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Path):
+    out = quick_gear_run  # gear run --quick --episodes 3 --oracle-episodes 1 (conftest)
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [r["controller"] for r in rows] == ["dynoplan", "oracle", "fixed_script", "random",

@@ -2,8 +2,11 @@
 
 import os
 from pathlib import Path
+from typing import Any
 
 import typer
+
+from dynoplan.cli.workers import ray_address_option, workers_option
 
 gear_app = typer.Typer(
     help="The simulated PR2 gear assembly: scripted expert, demonstrations, renders.",
@@ -129,19 +132,22 @@ def collect(
     models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
     max_decisions: int = typer.Option(30, help="Decisions (0.5 s each) per run at most."),
+    workers: int = workers_option(),
+    ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Collect option transitions at the decision rate (for the dynamics models)."""
     import torch
 
-    from dynoplan.envs.gear.options.catalog import policy_factories
     from dynoplan.experiments.gear_collect import collect_transitions
+    from dynoplan.parallel import Workers
 
+    pool = Workers(workers, ray_address)
     torch.set_num_threads(1)
     for name in ("pick", "insert"):
         _ensure_networks(name, models, seed)
-    summary = collect_transitions(policy_factories(models), runs, seed, out,
-                                  max_decisions=max_decisions, progress=not quiet)
+    summary = collect_transitions(models, runs, seed, out, max_decisions=max_decisions,
+                                  progress=not quiet, workers=pool)
     counts = ", ".join(f"{k} {v}" for k, v in summary["transitions"].items())
     typer.echo(f"{summary['runs']} runs, transitions: {counts} -> {out}")
 
@@ -203,6 +209,8 @@ def run(
     oracle_episodes: int | None = typer.Option(None, help="Episodes of the simulator "
                                                "oracle (the first of the same list)."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
+    workers: int = workers_option(),
+    ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Demonstrations, option networks, data, models, figures, baselines, evaluation."""
@@ -212,6 +220,9 @@ def run(
 
     from dynoplan.errors import DynoplanError
     from dynoplan.experiments.gear_run import QUICK_RUN, GearRunSettings, run_gear_pipeline
+    from dynoplan.parallel import Workers
+
+    pool = Workers(workers, ray_address)
 
     settings = QUICK_RUN if quick else GearRunSettings()
     if episodes is not None:
@@ -225,11 +236,54 @@ def run(
                        fault_episodes=min(settings.fault_episodes, settings.episodes),
                        video=not no_video)
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
-                                log=(lambda _: None) if quiet else typer.echo)
-    for row in summary["results"]:
+                                log=(lambda _: None) if quiet else typer.echo, workers=pool)
+    _echo_results(summary["results"])
+    typer.echo(f"-> {out}/results.md, results.csv, summary.json")
+
+
+@gear_app.command("evaluate")
+def evaluate(
+    models: Path = typer.Option(DEFAULT_MODELS, help="Models folder (gear train, or gear "
+                                "run's OUT/models)."),
+    out: Path = typer.Option(Path("results/gear-eval"), help="Output folder."),
+    controllers: str = typer.Option("dynoplan", help="Comma-separated controllers: dynoplan, "
+                                    "oracle, fixed_script, random, flat_ppo."),
+    episodes: int = typer.Option(100, help="Episodes per controller."),
+    seed: int = typer.Option(0, help="Episodes are gear run's for the same seed."),
+    horizon: int | None = typer.Option(None, help="Planner horizon (default 10)."),
+    samples: int | None = typer.Option(None, help="Monte-Carlo rollouts per option "
+                                       "(default 64)."),
+    flat: Path | None = typer.Option(None, help="The flat policy's folder for flat_ppo "
+                                     "(default: MODELS/../flat_ppo)."),
+    workers: int = workers_option(),
+    ray_address: str | None = ray_address_option(),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Evaluate controllers on trained models only; writes results and the wall time."""
+    from dataclasses import replace
+
+    from dynoplan.experiments.gear_controllers import PlannerSettings
+    from dynoplan.experiments.gear_evaluate import run_gear_evaluation
+    from dynoplan.parallel import Workers
+
+    pool = Workers(workers, ray_address)
+    planner = PlannerSettings()
+    if horizon is not None:
+        planner = replace(planner, horizon=horizon)
+    if samples is not None:
+        planner = replace(planner, samples=samples)
+    names = tuple(c.strip() for c in controllers.split(",") if c.strip())
+    summary = run_gear_evaluation(models, out, names, episodes, seed, planner,
+                                  flat or models.parent / "flat_ppo", pool, progress=not quiet)
+    _echo_results(summary["results"])
+    typer.echo(f"{summary['wall_s']:.1f} s on {workers} worker(s) -> {out}/results.md, "
+               "results.csv, episodes.json, summary.json")
+
+
+def _echo_results(rows: list[dict[str, Any]]) -> None:
+    for row in rows:
         ms = row["decision_ms_p50"]
         typer.echo(f"{row['controller']:>12}: success {row['success_rate']:.0%} of "
                    f"{row['episodes']}, contacts {row['contacts']}, out-of-region starts "
                    f"{row['out_of_region_starts']}, decision p50 "
                    f"{'-' if ms is None else f'{ms:.2f} ms'}")
-    typer.echo(f"-> {out}/results.md, results.csv, summary.json")

@@ -11,6 +11,7 @@ import typer
 
 from dynoplan.cli.gear import gear_app
 from dynoplan.cli.generic import generic_app
+from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.errors import DynoplanError
 
 app = typer.Typer(
@@ -51,6 +52,31 @@ def random_walk(
         f"{summary['planning_steps_median']}, p90 {summary['planning_steps_p90']}, "
         f"{summary['episodes']} episodes in {summary['seconds']:.2f} s -> {out}/summary.json"
     )
+
+
+@app.command("sweep")
+def sweep(
+    config: Path = typer.Argument(..., help="Sweep configuration (.toml or .json)."),
+    out: Path | None = typer.Option(None, help="Output folder (default: results/sweep-"
+                                    "CONFIG_NAME). Re-running into it skips finished cells."),
+    workers: int = workers_option(),
+    ray_address: str | None = ray_address_option(),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Evaluate a grid of planner settings and seeds on gear models (resumable)."""
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from dynoplan.experiments.sweep import run_sweep
+    from dynoplan.parallel import Workers
+
+    pool = Workers(workers, ray_address)
+    folder = out if out is not None else Path("results") / f"sweep-{config.stem}"
+    summary = run_sweep(config, folder, pool, progress=not quiet,
+                        log=(lambda _: None) if quiet else typer.echo)
+    typer.echo(f"{summary['cells']} cells ({summary['cells_run']} run, "
+               f"{summary['cells_reused']} already finished) in {summary['wall_s']:.1f} s "
+               f"-> {folder}/results.md, results.csv, sweep.png")
 
 
 app.add_typer(gear_app, name="gear")

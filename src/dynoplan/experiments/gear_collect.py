@@ -13,6 +13,7 @@ actions ``(T,)`` the option's index, ``infos["option"]`` the same index.
 
 from collections import Counter
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,12 +24,14 @@ from dynoplan.data import DatasetMetadata, Episode, write_dataset
 from dynoplan.envs import GEAR_ASSEMBLY_ID
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
+from dynoplan.envs.gear.options.catalog import policy_factories
+from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_options import PolicyFactory
-from dynoplan.progress import track
+from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.types import FloatArray, Generator
 
 DATASET_ID = "dynoplan/gear-assembly/option-transitions-v0"
@@ -76,37 +79,93 @@ def collect_run(env: GearAssemblyEnv, policy: Any, option: str, rng: Generator,
     return episodes
 
 
-def collect_transitions(factories: Mapping[str, PolicyFactory], runs_per_option: int,
+@dataclass(frozen=True)
+class CollectJob:
+    """Collection runs as a worker rebuilds them (see :func:`collect_transitions`):
+    the option policies come from ``factories``, or from the models folder ``models``
+    (:func:`~dynoplan.envs.gear.options.catalog.policy_factories`) when ``factories`` is
+    None, which is what workers in other processes get."""
+
+    models: Path | None
+    options: tuple[str, ...]
+    seed: int
+    max_decisions: int
+    factories: Mapping[str, PolicyFactory] | None = field(default=None, hash=False,
+                                                          compare=False)
+
+
+@dataclass
+class CollectState:
+    """What a worker holds for a :class:`CollectJob`: the env and every option's policy
+    bound to it."""
+
+    job: CollectJob
+    env: GearAssemblyEnv
+    policies: dict[str, Any]
+
+
+def build_collection(job: CollectJob) -> CollectState:
+    """The environment and the options' policies (once per process)."""
+    import torch
+
+    torch.set_num_threads(1)  # as in the command line: identical predictions everywhere
+    factories = job.factories if job.factories is not None else policy_factories(job.models)
+    env = GearAssemblyEnv()
+    return CollectState(job, env, {name: factories[name](env) for name in job.options})
+
+
+def collect_option_run(state: CollectState, run: tuple[str, int]) -> tuple[str, list[Episode]]:
+    """Run ``index`` of option ``name`` (``run = (name, index)``): its human mode and its
+    episodes. Every random choice (and OMPL) is seeded from ``[seed, option's index,
+    index]`` alone, so a run gives the same episodes on any worker, after any other run."""
+    name, index = run
+    key = [state.job.seed, OPTION_NAMES.index(name), index]
+    reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
+    rng = np.random.default_rng(key)
+    mode = HUMAN_MODES[int(rng.integers(len(HUMAN_MODES)))]
+    perturb = bool(rng.random() < PERTURBED_FRACTION)
+    return mode, collect_run(state.env, state.policies[name], name, rng, mode, perturb,
+                             state.job.max_decisions)
+
+
+def collect_transitions(factories: Mapping[str, PolicyFactory] | Path, runs_per_option: int,
                         seed: int, out: Path, max_decisions: int = 30,
-                        progress: bool = True) -> dict[str, Any]:
+                        progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
     """Collect ``runs_per_option`` runs of every option in ``factories``; write the
-    dataset folder ``out``; return a summary (runs, transitions per option)."""
-    unknown = set(factories) - set(OPTION_NAMES)
-    if unknown:
-        raise DynoplanError(f"unknown options {sorted(unknown)}; expected {OPTION_NAMES}")
+    dataset folder ``out``; return a summary (runs, transitions per option).
+
+    ``factories`` is either the option policies' factories or a models folder (every
+    option, built by :func:`~dynoplan.envs.gear.options.catalog.policy_factories`); runs
+    on several ``workers`` need the folder (workers rebuild the policies from files). The
+    runs are written in the same order, so the dataset is the same for one worker or many.
+    """
+    if isinstance(factories, Path):
+        models: Path | None = factories
+        names: tuple[str, ...] = OPTION_NAMES
+        given = None
+    else:
+        unknown = set(factories) - set(OPTION_NAMES)
+        if unknown:
+            raise DynoplanError(f"unknown options {sorted(unknown)}; expected {OPTION_NAMES}")
+        if workers.parallel:
+            raise DynoplanError("collection on several workers needs the models folder, "
+                                "not policy factories")
+        models, names, given = None, tuple(n for n in OPTION_NAMES if n in factories), factories
     if runs_per_option < 1 or max_decisions < 1:
         raise DynoplanError("--runs and --max-decisions must be >= 1")
-    env = GearAssemblyEnv()
+    if models is not None:
+        policy_factories(models)  # a missing or broken network: one error here, not per run
+    job = CollectJob(models, names, seed, max_decisions, given)
+    runs = [(name, run) for name in names for run in range(runs_per_option)]
     episodes: list[Episode] = []
     modes: list[str] = []
-    runs = 0
-    try:
-        jobs = [(name, run) for name in OPTION_NAMES if name in factories
-                for run in range(runs_per_option)]
-        policies = {name: factories[name](env) for name in factories}
-        for name, run in track(jobs, "collect option runs", total=len(jobs),
-                               enabled=progress):
-            rng = np.random.default_rng([seed, OPTION_NAMES.index(name), run])
-            mode = HUMAN_MODES[int(rng.integers(len(HUMAN_MODES)))]
-            perturb = bool(rng.random() < PERTURBED_FRACTION)
-            run_episodes = collect_run(env, policies[name], name, rng, mode, perturb,
-                                       max_decisions)
-            episodes += run_episodes
-            modes += [mode] * len(run_episodes)
-            runs += 1
-    finally:
-        env.close()
+    for mode, run_episodes in parallel_map(build_collection, collect_option_run, job, runs,
+                                           workers, "collect option runs", progress):
+        episodes += run_episodes
+        modes += [mode] * len(run_episodes)
+    env = GearAssemblyEnv()
     obs_space = env.observation_space
+    env.close()
     assert isinstance(obs_space, gym.spaces.Box)
     metadata = DatasetMetadata(
         dataset_id=DATASET_ID, env_id=GEAR_ASSEMBLY_ID, option_names=list(OPTION_NAMES),
@@ -119,7 +178,7 @@ def collect_transitions(factories: Mapping[str, PolicyFactory], runs_per_option:
     counts: Counter[str] = Counter()
     for e in episodes:
         counts[OPTION_NAMES[int(e.actions[0])]] += len(e)
-    return {"dataset": str(out), "runs": runs, "episodes": len(episodes),
+    return {"dataset": str(out), "runs": len(runs), "episodes": len(episodes),
             "transitions": dict(counts),
             "human_modes": dict(Counter(modes))}
 
@@ -138,4 +197,5 @@ def _perturb(env: GearAssemblyEnv, rng: Generator,
     return obs, info
 
 
-__all__ = ["DATASET_ID", "collect_run", "collect_transitions"]
+__all__ = ["DATASET_ID", "CollectJob", "CollectState", "build_collection", "collect_option_run",
+           "collect_run", "collect_transitions"]

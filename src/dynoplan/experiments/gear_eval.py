@@ -12,7 +12,10 @@ Controllers (rows of ``results.csv``):
 - ``flat_ppo``: one PPO network from observation to action (:mod:`dynoplan.baselines`).
 
 Every controller runs on the same episodes: episode ``i`` resets the env with the same
-seed (gear pose and human schedule: none, crossing or blocking).
+seed (gear pose and human schedule: none, crossing or blocking). An episode depends on
+its :class:`~dynoplan.experiments.episodes.EpisodeSeed` alone, not on the episodes run
+before it, so a run split over workers (:mod:`dynoplan.experiments.gear_jobs`) gives the
+same metrics.
 """
 
 import time
@@ -26,6 +29,7 @@ import numpy as np
 from dynoplan.control import Controller
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
+from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.experiments.episodes import EpisodeSeed, quantile_or_none
 from dynoplan.options.initiation import RegionModel
 from dynoplan.progress import track
@@ -81,42 +85,53 @@ def trace_metrics(trace: EpisodeTrace, env: GearAssemblyEnv, seed: int,
         options=tuple(d.option or "hold" for d in trace.decisions))
 
 
+def controller_episode(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv,
+                       controller: Controller, seed: EpisodeSeed,
+                       regions: RegionModel | None = None) -> EpisodeMetrics:
+    """One seeded episode of ``controller`` on ``env`` (``gear_env`` itself or a wrapper
+    of it, for example a fault); out-of-region starts are counted against ``regions``
+    when given (see :func:`trace_metrics`). OMPL is reseeded from the episode's seed
+    first, so the episode does not depend on what this process planned before."""
+    reseed_ompl(seed.env_seed)
+    trace = controller.run(env, seed.rng(), seed=seed.env_seed)
+    return trace_metrics(trace, gear_env, seed.env_seed, regions)
+
+
 def run_controller(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv, controller: Controller,
                    seeds: Sequence[EpisodeSeed], name: str, progress: bool = True,
                    regions: RegionModel | None = None) -> list[EpisodeMetrics]:
-    """Run ``controller`` on every seeded episode of ``env`` (``gear_env`` itself or a
-    wrapper of it, for example a fault); out-of-region starts are counted against
-    ``regions`` when given (see :func:`trace_metrics`)."""
-    out = []
-    for s in track(seeds, name, total=len(seeds), enabled=progress):
-        trace = controller.run(env, s.rng(), seed=s.env_seed)
-        out.append(trace_metrics(trace, gear_env, s.env_seed, regions))
-    return out
+    """:func:`controller_episode` on every seed, in order, in this process."""
+    return [controller_episode(env, gear_env, controller, s, regions)
+            for s in track(seeds, name, total=len(seeds), enabled=progress)]
+
+
+def policy_episode(env: GearAssemblyEnv, act: Callable[[FloatArray], FloatArray],
+                   seed: EpisodeSeed) -> EpisodeMetrics:
+    """One seeded episode of a flat policy ``act(observation) -> action``; its "decision
+    latency" is the time of one ``act`` call."""
+    obs, info = env.reset(seed=seed.env_seed)
+    contacts, min_d, ms = 0, float(info["min_human_distance"]), []
+    steps, done, success = 0, False, False
+    while not done:
+        t0 = time.perf_counter()
+        action = act(obs)
+        ms.append(1e3 * (time.perf_counter() - t0))
+        obs, _, terminated, truncated, info = env.step(action)
+        steps += 1
+        contacts += int(info["human_contacts"])
+        min_d = min(min_d, float(info["min_human_distance"]))
+        success = bool(info["is_success"])
+        done = terminated or truncated
+    return EpisodeMetrics(seed.env_seed, env.schedule.mode, success, steps * CONTROL_DT,
+                          contacts, min_d, 0, 0, 0, tuple(ms), ())
 
 
 def run_policy(env: GearAssemblyEnv, act: Callable[[FloatArray], FloatArray],
                seeds: Sequence[EpisodeSeed], name: str,
                progress: bool = True) -> list[EpisodeMetrics]:
-    """Run a flat policy ``act(observation) -> action`` on every seeded episode; its
-    "decision latency" is the time of one ``act`` call."""
-    out = []
-    for s in track(seeds, name, total=len(seeds), enabled=progress):
-        obs, info = env.reset(seed=s.env_seed)
-        contacts, min_d, ms = 0, float(info["min_human_distance"]), []
-        steps, done, success = 0, False, False
-        while not done:
-            t0 = time.perf_counter()
-            action = act(obs)
-            ms.append(1e3 * (time.perf_counter() - t0))
-            obs, _, terminated, truncated, info = env.step(action)
-            steps += 1
-            contacts += int(info["human_contacts"])
-            min_d = min(min_d, float(info["min_human_distance"]))
-            success = bool(info["is_success"])
-            done = terminated or truncated
-        out.append(EpisodeMetrics(s.env_seed, env.schedule.mode, success, steps * CONTROL_DT,
-                                  contacts, min_d, 0, 0, 0, tuple(ms), ()))
-    return out
+    """:func:`policy_episode` on every seed, in order, in this process."""
+    return [policy_episode(env, act, s)
+            for s in track(seeds, name, total=len(seeds), enabled=progress)]
 
 
 def summarise(name: str, episodes: Sequence[EpisodeMetrics]) -> dict[str, Any]:
@@ -147,5 +162,5 @@ def summarise(name: str, episodes: Sequence[EpisodeMetrics]) -> dict[str, Any]:
     return row
 
 
-__all__ = ["RESULT_COLUMNS", "EpisodeMetrics",
+__all__ = ["RESULT_COLUMNS", "EpisodeMetrics", "controller_episode", "policy_episode",
            "run_controller", "run_policy", "summarise", "trace_metrics"]

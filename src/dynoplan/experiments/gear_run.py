@@ -28,7 +28,6 @@ import gymnasium as gym
 
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
 from dynoplan.envs.gear.features import RELATIVE
 from dynoplan.envs.gear.options.catalog import NEURAL_FILES, policy_factories
 from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
@@ -37,15 +36,11 @@ from dynoplan.experiments.gear_controllers import (
     PlannerSettings,
     make_gear_controller,
 )
-from dynoplan.experiments.gear_eval import (
-    RESULT_COLUMNS,
-    EpisodeMetrics,
-    run_controller,
-    run_policy,
-    summarise,
-)
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
+from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, evaluate
 from dynoplan.experiments.gear_models import HELDOUT_SEED_OFFSET
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.reports.tables import markdown_table
 
 EVAL_SEED_OFFSET = 7
@@ -97,9 +92,18 @@ QUICK_RUN = GearRunSettings(
 
 
 def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = GearRunSettings(),
-                      progress: bool = True,
-                      log: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
-    """Run every stage (module docstring) into ``out``; return ``summary.json``'s content."""
+                      progress: bool = True, log: Callable[[str], None] = lambda _: None,
+                      workers: Workers = SERIAL) -> dict[str, Any]:
+    """Run every stage (module docstring) into ``out``; return ``summary.json``'s content.
+
+    Collection, evaluation and faults run their episodes on ``workers`` (one Ray runtime
+    for the whole run); the results are the same on one worker or many."""
+    with ray_session(workers):
+        return _run_stages(out, seed, settings, progress, log, workers)
+
+
+def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
+                log: Callable[[str], None], workers: Workers) -> dict[str, Any]:
     import torch
 
     from dynoplan.baselines.flat_policy import train_flat_policy
@@ -118,7 +122,8 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     ensure_writable_dir(out)
     models_dir = out / "models"
     stages: dict[str, float] = {}
-    summary: dict[str, Any] = {"seed": seed, "settings": asdict(settings), "stages_s": stages}
+    summary: dict[str, Any] = {"seed": seed, "settings": asdict(settings), "stages_s": stages,
+                               "workers": asdict(workers)}
 
     def stage(name: str, fn: Callable[[], Any]) -> Any:
         log(f"[{name}]")
@@ -138,10 +143,9 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
                      models=models_dir),
         record_demos(settings.demos, seed + HELDOUT_SEED_OFFSET, out / "heldout", progress,
                      demonstrator="options", models=models_dir)])
-    factories = policy_factories(models_dir)
     summary["collect"] = stage("collect", lambda: collect_transitions(
-        factories, settings.collect_runs, seed, out / "transitions",
-        max_decisions=settings.collect_max_decisions, progress=progress))
+        models_dir, settings.collect_runs, seed, out / "transitions",
+        max_decisions=settings.collect_max_decisions, progress=progress, workers=workers))
     base = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
     metrics = stage("train", lambda: train_gear_models(
         out / "demos", out / "transitions", models_dir, seed, out / "heldout", quick,
@@ -153,79 +157,65 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     summary["flat_ppo"] = stage("flat_ppo", lambda: train_flat_policy(
         settings.ppo_steps, seed, out / "flat_ppo"))
 
-    models = load_gear_models(models_dir)
+    models = load_gear_models(models_dir)  # checked here once: workers load it again
     seeds = episode_seeds(seed + EVAL_SEED_OFFSET, settings.episodes)
     rows, episodes = stage("evaluate", lambda: evaluate_controllers(
-        models, factories, seeds, settings, out / "flat_ppo", progress))
+        models_dir, seeds, settings, out / "flat_ppo", progress, workers))
     summary["results"] = rows
     write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
     write_json(out / "episodes.json", {k: [asdict(e) for e in v] for k, v in episodes.items()})
 
     faults = stage("faults", lambda: evaluate_faults(
-        models, factories, seeds[:settings.fault_episodes], settings, progress))
+        models_dir, seeds[:settings.fault_episodes], settings, progress, workers))
     summary["faults"] = faults
     if settings.video:
         summary["video"] = stage("video", lambda: record_video(
-            models, factories, seeds, episodes["dynoplan"], settings, out / "episode.mp4"))
+            models, policy_factories(models_dir), seeds, episodes["dynoplan"], settings,
+            out / "episode.mp4"))
     write_text(out / "results.md", results_markdown(summary))
     write_json(out / "summary.json", summary)
     return summary
 
 
-def evaluate_controllers(models: Any, factories: dict[str, Any], seeds: Sequence[EpisodeSeed],
+def evaluate_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          settings: GearRunSettings, flat_folder: Path | None,
-                         progress: bool) -> tuple[list[dict[str, Any]],
-                                                  dict[str, list[EpisodeMetrics]]]:
-    """Every controller of :data:`CONTROLLERS` (and the flat policy, if ``flat_folder``)
-    on ``seeds``; the oracle on the first ``settings.oracle_episodes`` of them."""
+                         progress: bool, workers: Workers = SERIAL,
+                         names: Sequence[str] = CONTROLLERS,
+                         ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeMetrics]]]:
+    """The controllers ``names`` (of :data:`CONTROLLERS`), and the flat policy if
+    ``flat_folder``, on ``seeds``; the oracle on the first ``settings.oracle_episodes``
+    of them. Episodes run on ``workers``, each rebuilding the controllers from
+    ``models_dir``."""
     rows, episodes = [], {}
-    for name in CONTROLLERS:
-        env = GearAssemblyEnv()
-        try:
-            controller = make_gear_controller(name, env, models, factories, settings.planner)
-            n = settings.oracle_episodes if name == "oracle" else len(seeds)
-            eps = run_controller(env, env, controller, seeds[:n], name, progress,
-                                 regions=models.regions)
-        finally:
-            env.close()
+    for name in names:
+        n = settings.oracle_episodes if name == "oracle" else len(seeds)
+        eps = evaluate(EvalJob(models_dir, name, settings.planner), seeds[:n], workers,
+                       name, progress)
         episodes[name] = eps
         rows.append(summarise(name, eps))
     if flat_folder is not None:
-        from dynoplan.baselines.flat_policy import FlatPolicy
-
-        env = GearAssemblyEnv()
-        try:
-            eps = run_policy(env, FlatPolicy(flat_folder, env).act, seeds, "flat_ppo", progress)
-        finally:
-            env.close()
-        episodes["flat_ppo"] = eps
-        row = summarise("flat_ppo", eps)
+        eps = evaluate(EvalJob(models_dir, FLAT_POLICY, flat_folder=flat_folder), seeds,
+                       workers, FLAT_POLICY, progress)
+        episodes[FLAT_POLICY] = eps
+        row = summarise(FLAT_POLICY, eps)
         row["out_of_region_starts"] = row["switches"] = row["holds"] = None  # no options
         rows.append(row)
     return rows, episodes
 
 
-def evaluate_faults(models: Any, factories: dict[str, Any], seeds: Sequence[EpisodeSeed],
-                    settings: GearRunSettings, progress: bool) -> list[dict[str, Any]]:
+def evaluate_faults(models_dir: Path, seeds: Sequence[EpisodeSeed], settings: GearRunSettings,
+                    progress: bool, workers: Workers = SERIAL) -> list[dict[str, Any]]:
     """DynoPlan with each fault on ``seeds`` (rows like ``results.csv`` plus ``fault``)."""
-    faults: list[tuple[str, Callable[[GearAssemblyEnv], gym.Env[Any, Any]], PlannerSettings]] = [
-        ("dynamics_noise", lambda e: e,
-         replace(settings.planner, dynamics_noise=settings.dynamics_noise)),
-        ("observation_noise", lambda e: ObservationNoise(e, settings.observation_noise),
-         settings.planner),
-        ("grasp_slip", GraspSlip, settings.planner),
-    ]
-    rows = []
-    for fault, wrap, planner in faults:
-        env = GearAssemblyEnv()
-        try:
-            controller = make_gear_controller("dynoplan", env, models, factories, planner)
-            eps = run_controller(wrap(env), env, controller, seeds, f"fault {fault}", progress,
-                                 regions=models.regions)
-        finally:
-            env.close()
-        rows.append({"fault": fault, **summarise("dynoplan", eps)})
-    return rows
+    jobs = {
+        "dynamics_noise": EvalJob(models_dir, "dynoplan", replace(
+            settings.planner, dynamics_noise=settings.dynamics_noise)),
+        "observation_noise": EvalJob(models_dir, "dynoplan", settings.planner,
+                                     fault="observation_noise",
+                                     observation_noise=settings.observation_noise),
+        "grasp_slip": EvalJob(models_dir, "dynoplan", settings.planner, fault="grasp_slip"),
+    }
+    return [{"fault": fault, **summarise("dynoplan", evaluate(
+        job, seeds, workers, f"fault {fault}", progress))} for fault, job in jobs.items()]
 
 
 def record_video(models: Any, factories: dict[str, Any], seeds: Sequence[EpisodeSeed],

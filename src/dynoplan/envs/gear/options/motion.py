@@ -7,13 +7,17 @@ the gear unless it is held) and an optional extra test passes (for example a cle
 from the human). So the planner and the simulator agree on what a collision is.
 
 OMPL's random generator is seeded once per process (:func:`seed_ompl`); plans are then
-repeatable for the same sequence of planning calls. See ``docs/gear-options.md``.
+repeatable for the same sequence of planning calls. Independent episodes reseed it at
+their start (:func:`reseed_ompl`), so an episode's plans do not depend on the episodes run
+before it in the same process (serial and parallel runs agree). See
+``docs/gear-options.md``.
 """
 
 import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -23,6 +27,12 @@ from dynoplan.errors import DynoplanError
 from dynoplan.types import FloatArray
 
 PLANNERS = ("RRTConnect", "RRTstar", "PRM", "KPIECE1", "BITstar")
+CHECKS_PER_SECOND = 7000
+"""Validity checks per second of search budget (this machine, unloaded: 145-170 us a
+check). OMPL stops on a count of checks, not on a clock, so a plan is the same on a
+loaded machine, in any worker."""
+SIMPLIFY_SECONDS = 0.2
+"""Path simplification budget, in seconds at :data:`CHECKS_PER_SECOND`."""
 _seeded: list[int] = []
 
 
@@ -36,6 +46,23 @@ def seed_ompl(seed: int) -> None:
         # error lines would only clutter the command line's output
         ou.setLogLevel(ou.LOG_NONE)
         ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
+        _seeded.append(seed)
+
+
+def reseed_ompl(seed: int) -> None:
+    """Seed OMPL's seed generator again: every planner created afterwards draws from
+    ``seed`` alone, whatever was planned before in this process. Call it at the start of
+    an independent episode. (OMPL logs that reseeding after sampling started is not
+    deterministic; that holds only for generators that already exist, and planners here
+    are created per plan, so the message is silenced.)"""
+    from ompl import util as ou
+
+    ou.setLogLevel(ou.LOG_NONE)
+    try:
+        ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
+    finally:
+        ou.setLogLevel(ou.LOG_ERROR)
+    if not _seeded:
         _seeded.append(seed)
 
 
@@ -55,7 +82,8 @@ class LeftArmPlanner:
     Args:
         env: the environment whose model and live state (gear, human) are used.
         planner: an OMPL geometric planner name from :data:`PLANNERS`.
-        time_limit: seconds OMPL may search per plan.
+        time_limit: search budget per plan, in seconds at :data:`CHECKS_PER_SECOND`
+            (counted in validity checks, not measured on a clock).
         resolution: motion-checking step as a fraction of the joint box's extent.
         margin: penetration (m) tolerated before a contact counts as a collision.
     """
@@ -74,6 +102,7 @@ class LeftArmPlanner:
         self.limits = env.joint_limits[:6].copy()
         self._right = env.arm_qpos[6:]
         self._extra: Callable[[FloatArray], bool] | None = None
+        self._checks = 0
 
     # -------------------------------------------------------------- validity
     def sync(self, carry_gear: bool) -> None:
@@ -87,6 +116,7 @@ class LeftArmPlanner:
 
     def is_valid(self, q_left: FloatArray) -> bool:
         """The validity test OMPL uses, on (6,) left-arm joints."""
+        self._checks += 1
         q = np.asarray(q_left, dtype=np.float64)
         if np.any(q < self.limits[:, 0]) or np.any(q > self.limits[:, 1]):
             return False
@@ -147,15 +177,23 @@ class LeftArmPlanner:
             g_state[i] = float(goal[i])
         setup.setStartAndGoalStates(s_state, g_state)
         setup.setPlanner(getattr(og, self.planner_name)(info))
-        status = setup.solve(self.time_limit)
+        status = setup.solve(self._budget(self.time_limit))
         if not bool(status) or not setup.haveExactSolutionPath():
             return MotionPlan(np.zeros((0, 6)), False, 1e3 * (time.perf_counter() - t0))
-        setup.simplifySolution(0.2)
+        setup.simplifySolution(self._budget(SIMPLIFY_SECONDS))
         path = setup.getSolutionPath()
         waypoints = np.array([[path.getState(k)[i] for i in range(6)]
                               for k in range(path.getStateCount())])
         waypoints[0], waypoints[-1] = start, goal
         return MotionPlan(waypoints, True, 1e3 * (time.perf_counter() - t0))
 
+    def _budget(self, seconds: float) -> Any:
+        """An OMPL termination condition: ``seconds`` worth of validity checks from now."""
+        from ompl import base as ob
 
-__all__ = ["PLANNERS", "LeftArmPlanner", "MotionPlan", "seed_ompl"]
+        stop = self._checks + max(1, round(seconds * CHECKS_PER_SECOND))
+        return ob.PlannerTerminationCondition(lambda: self._checks >= stop)
+
+
+__all__ = ["CHECKS_PER_SECOND", "PLANNERS", "SIMPLIFY_SECONDS", "LeftArmPlanner", "MotionPlan",
+           "reseed_ompl", "seed_ompl"]

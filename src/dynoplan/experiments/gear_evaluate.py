@@ -1,0 +1,75 @@
+"""``dynoplan gear evaluate``: controllers on trained models only, timed.
+
+The same seeded episodes as ``dynoplan gear run`` for the same seed (its evaluation
+stage without the training stages), so a run on several workers can be compared with a
+run on one: the metrics agree, the wall time (``summary.json``'s ``wall_s``) does not.
+"""
+
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from dynoplan.errors import DynoplanError
+from dynoplan.experiments.episodes import episode_seeds
+from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS
+from dynoplan.experiments.gear_jobs import FLAT_POLICY
+from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET, GearRunSettings, evaluate_controllers
+from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.parallel import SERIAL, Workers, ray_session
+from dynoplan.reports.tables import markdown_table
+
+
+def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], episodes: int,
+                        seed: int = 0, planner: PlannerSettings = PlannerSettings(),
+                        flat_folder: Path | None = None, workers: Workers = SERIAL,
+                        progress: bool = True) -> dict[str, Any]:
+    """Evaluate ``controllers`` (of :data:`CONTROLLERS` and ``flat_ppo``) on ``episodes``
+    seeded episodes each; write ``results.csv``, ``results.md``, ``episodes.json`` and
+    ``summary.json`` (with ``wall_s``, Ray's start included) into ``out``; return the
+    summary.
+
+    Raises:
+        DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
+    """
+    from dynoplan.experiments.gear_models import load_gear_models
+
+    known = (*CONTROLLERS, FLAT_POLICY)
+    unknown = [c for c in controllers if c not in known]
+    if unknown or not controllers:
+        raise DynoplanError(f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
+                            f"expected some of {', '.join(known)}")
+    if episodes < 1:
+        raise DynoplanError(f"--episodes must be >= 1, got {episodes}")
+    if planner.horizon < 1 or planner.samples < 1:
+        raise DynoplanError("--horizon and --samples must be >= 1")
+    ensure_writable_dir(out)
+    load_gear_models(models)  # one clear error here rather than one per worker
+    settings = GearRunSettings(episodes=episodes, oracle_episodes=episodes, planner=planner)
+    seeds = episode_seeds(seed + EVAL_SEED_OFFSET, episodes)
+    names = [c for c in controllers if c != FLAT_POLICY]
+    flat = flat_folder if FLAT_POLICY in controllers else None
+    t0 = time.perf_counter()
+    with ray_session(workers):
+        rows, per_episode = evaluate_controllers(models, seeds, settings, flat, progress,
+                                                 workers, names)
+    wall = time.perf_counter() - t0
+    summary = {"models": str(models), "seed": seed, "episodes": episodes,
+               "planner": asdict(planner), "workers": asdict(workers),
+               "wall_s": round(wall, 2), "results": rows}
+    write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
+    write_json(out / "episodes.json", {k: [asdict(e) for e in v]
+                                       for k, v in per_episode.items()})
+    write_text(out / "results.md", "\n".join([
+        "# Gear assembly: evaluation", "",
+        f"Models {models}; seed {seed}; {episodes} episodes per controller; planner "
+        f"horizon {planner.horizon}, samples {planner.samples}; {workers.count} worker(s)"
+        f"{'' if workers.address is None else ' on ' + workers.address}; "
+        f"{wall:.1f} s wall.", "", markdown_table(rows, RESULT_COLUMNS)]))
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+__all__ = ["run_gear_evaluation"]

@@ -1,0 +1,208 @@
+"""Map a job over independent items (episodes, collection runs), here or on Ray workers.
+
+A job is two plain functions and one small, picklable context (paths, frozen settings):
+``setup(context) -> state`` builds what a worker holds (an environment, models, a
+controller) and ``run(state, item) -> result`` does one item (one seeded episode). The
+map returns one result per item, in the items' order, wherever they ran:
+
+- :data:`SERIAL` (the default, one worker, no address): a loop in this process; Ray is
+  not imported, let alone started;
+- ``Workers(count=N)`` with ``N > 1``: a local Ray runtime with ``N`` CPUs, one Ray task
+  per item; each worker process runs ``setup`` once per context and keeps the state for
+  the items that follow (what an actor holding one environment would do, without pinning
+  items to actors);
+- ``Workers(address=...)``: the same tasks on an existing Ray cluster (``"auto"``,
+  ``"ray://head:10001"``); every node needs this package and the context's paths.
+
+A worker process that dies mid-item (killed, out of memory, a crash in native code) makes
+Ray run that item again on another worker, up to ``Workers.retries`` times; the item's
+first, unfinished attempt returns nothing, so no item is lost or counted twice. Items
+must therefore be pure: results come back to the caller, which alone writes files. An
+exception raised by ``run`` is not retried (it would fail again): the map re-raises it.
+"""
+
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from dynoplan.errors import DynoplanError
+from dynoplan.progress import track
+
+C = TypeVar("C", bound=Hashable)
+S = TypeVar("S")
+T = TypeVar("T")
+R = TypeVar("R")
+
+WORKER_STATES = 4
+"""Contexts whose state one worker process keeps at most (least recently used dropped)."""
+
+
+@dataclass(frozen=True)
+class Workers:
+    """Where a map runs.
+
+    Attributes:
+        count: worker processes; 1 (and no ``address``) runs in this process without Ray.
+            With ``address``, the cluster's own CPUs set the parallelism and ``count``
+            only needs to be >= 1.
+        address: an existing Ray cluster to run on (``"auto"`` or ``"ray://host:port"``);
+            None starts a local Ray runtime of ``count`` CPUs when ``count > 1``.
+        retries: times Ray runs an item again after its worker died.
+    """
+
+    count: int = 1
+    address: str | None = None
+    retries: int = 3
+
+    def __post_init__(self) -> None:
+        if self.count < 1:
+            raise DynoplanError(f"--workers must be >= 1, got {self.count}")
+        if self.address is not None and not self.address.strip():
+            raise DynoplanError("--ray-address must not be empty")
+        if self.retries < 0:
+            raise DynoplanError(f"retries must be >= 0, got {self.retries}")
+
+    @property
+    def parallel(self) -> bool:
+        """True when the items run as Ray tasks."""
+        return self.count > 1 or self.address is not None
+
+
+SERIAL = Workers()
+"""One worker: a plain loop in this process, no Ray."""
+
+
+def parallel_map(setup: Callable[[C], S], run: Callable[[S, T], R], context: C,
+                 items: Sequence[T], workers: Workers = SERIAL, description: str = "",
+                 progress: bool = False) -> list[R]:
+    """``[run(setup(context), item) for item in items]``, on ``workers`` (module docstring).
+
+    ``setup`` and ``run`` must be importable module-level functions (Ray ships them by
+    name) and ``context`` and the items small and picklable; ``setup`` runs once per
+    process and context, so ``run`` must leave the state fit for the next item.
+    """
+    results: list[Any] = [None] * len(items)
+    for i, result in imap_unordered(setup, run, [(context, item) for item in items], workers,
+                                    description, progress):
+        results[i] = result
+    return results
+
+
+def imap_unordered(setup: Callable[[C], S], run: Callable[[S, T], R],
+                   tasks: Sequence[tuple[C, T]], workers: Workers = SERIAL,
+                   description: str = "", progress: bool = False) -> Iterator[tuple[int, R]]:
+    """``(index, run(setup(context), item))`` of every ``(context, item)`` task as it
+    finishes: in order when serial, in any order on Ray; each index exactly once. Tasks
+    may differ in context (the cells of a sweep); grouping tasks of one context together
+    saves set-ups. See :func:`parallel_map`."""
+    if not workers.parallel:
+        state: Any = None
+        current: Any = None
+        for i, (context, item) in enumerate(track(tasks, description, total=len(tasks),
+                                                  enabled=progress)):
+            if i == 0 or context != current:
+                state, current = None, context  # drop the old state before building anew
+                state = setup(context)
+            yield i, run(state, item)
+        return
+    if not tasks:
+        return
+    with ray_session(workers):
+        yield from _ray_map(setup, run, tasks, workers, description, progress)
+
+
+@contextmanager
+def ray_session(workers: Workers) -> Iterator[None]:
+    """Ray running for ``workers`` for the duration: a runtime already initialised (by the
+    caller, a test, ``ray.init`` on a cluster node) is used and left running; otherwise one
+    is started (local with ``workers.count`` CPUs, or connected to ``workers.address``) and
+    shut down on exit. Nothing happens for serial ``workers``.
+
+    Raises:
+        DynoplanError: Ray is not installed, or the cluster cannot be reached.
+    """
+    if not workers.parallel:
+        yield
+        return
+    ray = _import_ray()
+    if ray.is_initialized():
+        yield
+        return
+    import logging
+
+    try:
+        if workers.address is not None:
+            ray.init(address=workers.address, logging_level=logging.WARNING,
+                     log_to_driver=False)
+        else:
+            # a runtime of our own: its start-up notices are not the user's business
+            ray.init(num_cpus=workers.count, include_dashboard=False,
+                     logging_level=logging.ERROR, log_to_driver=False)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        where = workers.address or f"a local runtime of {workers.count} CPUs"
+        raise DynoplanError(f"cannot start Ray on {where}: {exc}") from None
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise DynoplanError("--workers > 1 and --ray-address need Ray: pip install "
+                            "'dynoplan[ray]' (or run with --workers 1)") from None
+    return ray
+
+
+def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], tasks: Sequence[tuple[C, T]],
+             workers: Workers, description: str, progress: bool) -> Iterator[tuple[int, R]]:
+    ray = _import_ray()
+    from ray.exceptions import RayTaskError
+
+    remote = ray.remote(max_retries=workers.retries, retry_exceptions=False)(_run_item)
+    refs: dict[Any, Any] = {}  # one copy of each context in the object store
+    pending = {}
+    for i, (context, item) in enumerate(tasks):
+        if context not in refs:
+            refs[context] = ray.put(context)
+        pending[remote.remote(setup, run, refs[context], item)] = i
+
+    def finished() -> Iterator[tuple[int, Any]]:
+        waiting = list(pending)
+        try:
+            while waiting:
+                done, waiting = ray.wait(waiting, num_returns=1)
+                for ref in done:
+                    try:
+                        yield pending[ref], ray.get(ref)
+                    except RayTaskError as exc:  # the item's own exception, not a crash
+                        cause = exc.cause
+                        raise (cause if isinstance(cause, DynoplanError) else exc) from None
+        finally:
+            for ref in waiting:  # an error or an interrupt: do not leave work behind
+                ray.cancel(ref, force=True)
+
+    yield from track(finished(), description, total=len(tasks), enabled=progress)
+
+
+_states: "OrderedDict[tuple[Any, Hashable], Any]" = OrderedDict()
+
+
+def _run_item(setup: Callable[[C], S], run: Callable[[S, T], R], context: C, item: T) -> R:
+    """A Ray task: ``run`` on the state this worker process keeps for ``context``."""
+    key = (setup, context)
+    if key in _states:
+        _states.move_to_end(key)
+    else:
+        _states[key] = setup(context)
+        while len(_states) > WORKER_STATES:
+            _states.popitem(last=False)
+    return run(_states[key], item)
+
+
+__all__ = ["SERIAL", "WORKER_STATES", "Workers", "imap_unordered", "parallel_map",
+           "ray_session"]

@@ -1,0 +1,109 @@
+"""The gear evaluation, collection and sweep on two Ray workers give exactly what one
+worker gives, and an episode whose worker dies is run again, once, on another."""
+
+import csv
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import pytest
+from typer.testing import CliRunner
+
+from dynoplan.cli.main import app
+from dynoplan.experiments.episodes import episode_seeds
+from dynoplan.experiments.gear_collect import collect_transitions
+from dynoplan.experiments.gear_controllers import PlannerSettings
+from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate, evaluate_episode
+from dynoplan.parallel import SERIAL, Workers, parallel_map
+
+pytestmark = pytest.mark.slow
+
+QUICK_PLANNER = PlannerSettings(horizon=6, samples=32)
+EPISODES = 4
+
+
+def _comparable(metrics: Any) -> dict[str, Any]:
+    """Everything but the wall-clock decision latencies."""
+    d = dataclasses.asdict(metrics)
+    d.pop("decision_ms")
+    return d
+
+
+@pytest.fixture(scope="module")
+def job(quick_gear_run: Path) -> EvalJob:
+    return EvalJob(quick_gear_run / "models", "dynoplan", QUICK_PLANNER)
+
+
+@pytest.fixture(scope="module")
+def serial(job: EvalJob) -> list[Any]:
+    return evaluate(job, episode_seeds(7, EPISODES), SERIAL)
+
+
+def test_gear_evaluation_is_identical_on_one_and_two_workers(ray_runtime, job, serial):
+    parallel = evaluate(job, episode_seeds(7, EPISODES), Workers(2))
+    assert [_comparable(m) for m in parallel] == [_comparable(m) for m in serial]
+    assert [m.seed for m in parallel] == [s.env_seed for s in episode_seeds(7, EPISODES)]
+
+
+def test_a_worker_dying_mid_episode_is_retried_without_losing_or_repeating_one(
+        ray_runtime, job, serial, tmp_path: Path):
+    marker, log = tmp_path / "died-once", tmp_path / "completed"
+
+    class DiesAtStep30(gym.Wrapper):
+        def __init__(self, env: gym.Env) -> None:
+            super().__init__(env)
+            self.steps = 0
+
+        def step(self, action):
+            self.steps += 1
+            if self.steps == 30:
+                os._exit(1)  # the worker process dies in the middle of the episode
+            return self.env.step(action)
+
+    def dies_once(state, seed):
+        if seed.index == 1 and not marker.exists():
+            marker.touch()
+            state = dataclasses.replace(state, env=DiesAtStep30(state.env))
+        metrics = evaluate_episode(state, seed)
+        with log.open("a") as f:
+            f.write(f"{seed.index}\n")
+        return metrics
+
+    parallel = parallel_map(build_evaluation, dies_once, job, episode_seeds(7, EPISODES),
+                            Workers(2))
+    assert marker.exists()
+    assert sorted(int(i) for i in log.read_text().split()) == list(range(EPISODES))
+    assert [_comparable(m) for m in parallel] == [_comparable(m) for m in serial]
+
+
+def test_collection_writes_the_same_dataset_on_two_workers(ray_runtime, quick_gear_run,
+                                                           tmp_path: Path):
+    models = quick_gear_run / "models"
+    one = collect_transitions(models, 1, 3, tmp_path / "one", max_decisions=3, progress=False)
+    two = collect_transitions(models, 1, 3, tmp_path / "two", max_decisions=3, progress=False,
+                              workers=Workers(2))
+    assert {k: v for k, v in one.items() if k != "dataset"} == \
+        {k: v for k, v in two.items() if k != "dataset"}
+    files = sorted(p.relative_to(tmp_path / "one") for p in (tmp_path / "one").rglob("*")
+                   if p.is_file())
+    assert files
+    for f in files:
+        assert (tmp_path / "one" / f).read_bytes() == (tmp_path / "two" / f).read_bytes(), f
+
+
+def test_sweep_command_on_two_workers_then_resumed(ray_runtime, quick_gear_run,
+                                                   tmp_path: Path):
+    config = tmp_path / "grid.toml"
+    config.write_text(f'models = "{quick_gear_run / "models"}"\nepisodes = 1\n'
+                      '[grid]\nhorizon = [3, 6]\nsamples = [16]\n')
+    out = tmp_path / "out"
+    args = ["sweep", str(config), "--out", str(out), "--workers", "2", "--quiet"]
+    first = CliRunner().invoke(app, args)
+    assert first.exit_code == 0, first.output
+    assert "2 cells (2 run, 0 already finished)" in first.output
+    with (out / "results.csv").open() as f:
+        assert [r["horizon"] for r in csv.DictReader(f)] == ["3", "6"]
+    again = CliRunner().invoke(app, args)
+    assert again.exit_code == 0 and "(0 run, 2 already finished)" in again.output
