@@ -24,7 +24,8 @@ once running, a move goes on while it is
 in its region with the gear held (its continuation set) and ends at its goal when its
 policy reports the arm has settled there (an insertion started while the arm still
 moves misses the peg); the pick has nothing to do once the gear is carried
-(:func:`not_carried`), so its region is intersected with that.
+(:func:`not_carried`), and it ignores the human, so its region is intersected with those
+states where the hand is clear of the tool (:func:`hand_clear_of_tool`).
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -43,7 +44,12 @@ from dynoplan.envs.gear.options.catalog import PolicyFactory
 from dynoplan.envs.gear.options.moves import PreInsertionBeta
 from dynoplan.envs.gear.oracle import SimulatorOracle
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
-from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
+from dynoplan.envs.gear.state import (
+    DECISION_STEPS,
+    STATE_SLICES,
+    PlannerState,
+    tool_human_distance,
+)
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_models import GearModels
 from dynoplan.models.corruption import NoisyDynamics
@@ -111,6 +117,19 @@ def not_carried(states: FloatArray) -> BoolArray:
     s = np.atleast_2d(states)
     high = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + CARRIED_GEAR_HEIGHT
     out: BoolArray = ~(holding_gear(s) & high)
+    return out
+
+
+PICK_CLEARANCE = 0.3
+"""m: the pick (which plans and moves without regard to the human) runs only while the
+human's hand is at least this far from the tool point; nearer, the robot holds still
+until the hand has gone (the operator's rule for the insertion,
+:data:`~dynoplan.envs.gear.operator.INSERT_CLEAR`)."""
+
+
+def hand_clear_of_tool(states: FloatArray, distance: float = PICK_CLEARANCE) -> BoolArray:
+    """(N, 22) planner states -> (N,): the hand at least ``distance`` (m) from the tool."""
+    out: BoolArray = tool_human_distance(np.atleast_2d(states)) >= distance
     return out
 
 
@@ -182,7 +201,8 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
             continuation = AllOf(initiation, InitiationFromCallable(holding_gear))
             initiation = AllOf(continuation, FarFromGoal())
         elif regions and name == "pick":
-            initiation = AllOf(initiation, InitiationFromCallable(not_carried))
+            initiation = AllOf(initiation, InitiationFromCallable(not_carried),
+                               InitiationFromCallable(hand_clear_of_tool))
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
@@ -236,10 +256,12 @@ __all__ = [
     "MAX_EPISODE_SECONDS",
     "MOVES",
     "MOVE_START_DISTANCE",
+    "PICK_CLEARANCE",
     "AllOf",
     "FarFromGoal",
     "PlannerSettings",
     "gear_options",
+    "hand_clear_of_tool",
     "hold_still",
     "holding_gear",
     "make_gear_controller",
