@@ -9,6 +9,8 @@ One attempt is a sequence of phases, each a time-parameterised joint path
    ``GRASP_TCP_HEIGHT + pregrasp_height`` above the perceived gear bottom, pointing
    down, with the roll about the approach axis left free (the gear is round);
 2. ``approach``: straight down to the grasp pose (IK at a few heights, collision-checked);
+   a start already on that line (within ``resume_radius``, as after an interrupted
+   pick) begins here, since a plan cannot start with the fingers touching the gear;
 3. ``close``: the gripper closes for ``close_time``;
 4. ``lift``: straight up until the tool point is ``lift_height`` above the grasp height;
 5. ``verify``: the neural grasp recogniser
@@ -74,6 +76,7 @@ class PickConfig:
     max_attempts: int = 3
     plan_time_limit: float = 1.0  # s of OMPL search per plan
     upright_tilt: float = np.deg2rad(10.0)  # rad, the gear counts as standing below this
+    resume_radius: float = 0.02  # m: a start this near the approach line skips the plan
 
 
 def _up(height: float) -> FloatArray:
@@ -207,6 +210,17 @@ class PickPolicy(GearOptionPolicy):
         self.attempts += 1
         q = obs[OBS_SLICES["arm_qpos"]].copy()
         self._grasp_target = gear + _up(GRASP_TCP_HEIGHT)
+        tcp = self.kin.tool_pose(q)[0]
+        offset = tcp - self._grasp_target
+        if (np.hypot(offset[0], offset[1]) < cfg.resume_radius
+                and -cfg.resume_radius < offset[2] < cfg.pregrasp_height + cfg.resume_radius):
+            # started (again) with the open fingers around the gear, as when a controller
+            # stopped an earlier pick there: no plan (the start touches the gear), only
+            # the straight approach from here
+            self._q_cmd = q
+            waypoints = self._straight(q, tcp, self._grasp_target)
+            self._begin("approach", waypoints, GRIPPER_OPEN, cfg.fine_joint_speed)
+            return
         pregrasp = self._ik(q, self._grasp_target + _up(cfg.pregrasp_height))
         plan = self.planner.plan(q, pregrasp[:6], carry_gear=False)
         self.plan_ms.append(plan.plan_ms)
