@@ -1,18 +1,24 @@
 """Scale-out: the gear evaluation on one worker against N Ray workers, in one run.
 
 The same seeded episodes of one controller run twice with the library's map
-(:func:`dynoplan.parallel.imap_unordered`): first in this process (one worker, no Ray),
-then as Ray tasks on a local runtime of ``--workers`` CPUs. Reported:
+(:func:`dynoplan.parallel.imap_unordered`): in this process (one worker, no Ray) and as
+Ray tasks on a local runtime of ``--workers`` CPUs. The episodes are split into
+``--rounds`` consecutive chunks; each chunk runs both ways, back to back, the order
+alternating between rounds, so that both see the same (shared, noisy) machine.
+Reported:
 
-- ``serial_s``, ``parallel_s`` (Ray's start and stop included) and ``parallel_map_s``
-  (the map alone), ``speedup = serial_s / parallel_s`` and ``speedup_map``;
+- ``serial_s`` and ``parallel_map_s`` (summed over the rounds), ``ray_start_s`` (the
+  local runtime's start), ``speedup_map = serial_s / parallel_map_s`` and ``speedup =
+  serial_s / (parallel_map_s + ray_start_s)``;
 - ``identical``: every episode's metrics equal, all but the wall-clock decision
   latencies (``EpisodeMetrics`` minus ``decision_ms``);
 - per-episode wall times of the serial run (p50, p90, max, mean; the first includes the
   set-up), for estimating larger runs;
 - bytes a task sends (its job and seed, pickled) and returns (its metrics), and the
   models folder's size (what every node needs once);
-- the 1-minute load average before and after each run (the machine is shared).
+- the 1-minute load average at the start of each map, and the share of a CPU each
+  episode got while it ran (CPU seconds over wall seconds, in the process that ran it):
+  the machine is shared, and 2 workers on 2 cores only help if both cores are free.
 
 Run ``python benchmarks/scale_out.py --models DIR`` for a table, ``--json`` for one
 JSON object (``--out FILE`` also writes it).
@@ -39,16 +45,28 @@ from dynoplan.io import write_json
 from dynoplan.parallel import SERIAL, Workers, imap_unordered, ray_session
 
 
-def timed_map(job: EvalJob, seeds: list[Any], workers: Workers) -> tuple[list[Any], list[float]]:
-    """Results in seed order and the wall time from the start to each result."""
+def timed_episode(state: Any, seed: Any) -> tuple[Any, float, float]:
+    """:func:`evaluate_episode` with its wall and CPU seconds (in the process running it)."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    metrics = evaluate_episode(state, seed)
+    return metrics, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def timed_map(job: EvalJob, seeds: list[Any],
+              workers: Workers) -> tuple[list[Any], list[float], float, float]:
+    """Results in seed order, the wall time from the start to each result, and the
+    episodes' summed wall and CPU seconds."""
     t0 = time.perf_counter()
     results: list[Any] = [None] * len(seeds)
-    marks = []
+    marks, walls, cpus = [], [], []
     tasks = [(job, s) for s in seeds]
-    for i, metrics in imap_unordered(build_evaluation, evaluate_episode, tasks, workers):
+    for i, (metrics, wall, cpu) in imap_unordered(build_evaluation, timed_episode, tasks,
+                                                  workers):
         results[i] = metrics
         marks.append(time.perf_counter() - t0)
-    return results, marks
+        walls.append(wall)
+        cpus.append(cpu)
+    return results, marks, sum(walls), sum(cpus)
 
 
 def comparable(metrics: Any) -> dict[str, Any]:
@@ -64,6 +82,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0, help="as gear run / gear evaluate")
+    parser.add_argument("--rounds", type=int, default=4, help="alternating chunks")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--out", type=Path, help="also write the JSON object here")
     args = parser.parse_args()
@@ -75,17 +94,32 @@ def main() -> None:
     job = EvalJob(args.models, args.controller, PlannerSettings())
     seeds = episode_seeds(args.seed + EVAL_SEED_OFFSET, args.episodes)
 
-    load = {"before_serial": os.getloadavg()[0]}
-    serial, marks = timed_map(job, seeds, SERIAL)
-    serial_s = marks[-1]
-    load["after_serial"] = os.getloadavg()[0]
-    t0 = time.perf_counter()
     workers = Workers(args.workers)
+    serial: list[Any] = []
+    parallel: list[Any] = []
+    marks: list[float] = []
+    serial_s = parallel_s = 0.0
+    wall = {"serial": 0.0, "parallel": 0.0}
+    cpu = {"serial": 0.0, "parallel": 0.0}
+    load = []
+    t0 = time.perf_counter()
     with ray_session(workers):
         ready = time.perf_counter() - t0
-        parallel, pmarks = timed_map(job, seeds, workers)
-        load["after_parallel"] = os.getloadavg()[0]
-    parallel_s = time.perf_counter() - t0
+        for r, chunk in enumerate(np.array_split(np.arange(len(seeds)), args.rounds)):
+            part = [seeds[i] for i in chunk]
+            for way in (("serial", "parallel") if r % 2 == 0 else ("parallel", "serial")):
+                load.append(os.getloadavg()[0])
+                results, ends, w, c = timed_map(job, part, SERIAL if way == "serial"
+                                                else workers)
+                wall[way] += w
+                cpu[way] += c
+                if way == "serial":
+                    serial += results
+                    marks += [serial_s + e for e in ends]
+                    serial_s += ends[-1]
+                else:
+                    parallel += results
+                    parallel_s += ends[-1]
 
     per_episode = np.diff([0.0, *marks])
     mismatched = [i for i, (a, b) in enumerate(zip(serial, parallel, strict=True))
@@ -95,10 +129,11 @@ def main() -> None:
         "command": " ".join([Path(sys.executable).name, *sys.argv]),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
         "controller": args.controller, "episodes": args.episodes, "workers": args.workers,
-        "serial_s": round(serial_s, 1), "parallel_s": round(parallel_s, 1),
-        "parallel_map_s": round(pmarks[-1], 1), "ray_start_s": round(ready, 1),
-        "speedup": round(serial_s / parallel_s, 2),
-        "speedup_map": round(serial_s / pmarks[-1], 2),
+        "rounds": args.rounds,
+        "serial_s": round(serial_s, 1), "parallel_map_s": round(parallel_s, 1),
+        "ray_start_s": round(ready, 1),
+        "speedup_map": round(serial_s / parallel_s, 2),
+        "speedup": round(serial_s / (parallel_s + ready), 2),
         "identical": not mismatched, "mismatched_episodes": mismatched,
         "success_rate": float(np.mean([m.success for m in serial])),
         "episode_s": {"p50": round(float(np.median(per_episode)), 2),
@@ -109,7 +144,11 @@ def main() -> None:
         "task_in_bytes": len(pickle.dumps((job, seeds[0]))),
         "task_out_bytes": int(np.mean([len(pickle.dumps(m)) for m in serial])),
         "models_bytes": models_bytes,
-        "load_1min": {k: round(v, 2) for k, v in load.items()},
+        "load_1min_at_each_start": [round(v, 2) for v in load],
+        # the share of a CPU an episode got while it ran (1.0: a core of its own)
+        "cpu_share_serial": round(cpu["serial"] / wall["serial"], 2),
+        "cpu_share_parallel": round(cpu["parallel"] / wall["parallel"], 2),
+        "episodes_cpu_s": {k: round(v, 1) for k, v in cpu.items()},
     }
     if args.out:
         write_json(args.out, result)

@@ -21,6 +21,7 @@ must therefore be pure: results come back to the caller, which alone writes file
 exception raised by ``run`` is not retried (it would fail again): the map re-raises it.
 """
 
+import itertools
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator, Sequence
 from contextlib import contextmanager
@@ -37,6 +38,8 @@ R = TypeVar("R")
 
 WORKER_STATES = 4
 """Contexts whose state one worker process keeps at most (least recently used dropped)."""
+IN_FLIGHT_PER_CPU = 2
+"""Ray tasks submitted ahead per CPU of the runtime (the rest wait in the driver)."""
 
 
 @dataclass(frozen=True)
@@ -137,9 +140,12 @@ def ray_session(workers: Workers) -> Iterator[None]:
             ray.init(address=workers.address, logging_level=logging.WARNING,
                      log_to_driver=False)
         else:
-            # a runtime of our own: its start-up notices are not the user's business
+            # A runtime of our own: its start-up notices are not the user's business, and
+            # its workers run at the command's own priority, as the serial loop would
+            # (Ray's default, nice 15, yields the CPU to every other process).
             ray.init(num_cpus=workers.count, include_dashboard=False,
-                     logging_level=logging.ERROR, log_to_driver=False)
+                     logging_level=logging.ERROR, log_to_driver=False,
+                     _system_config={"worker_niceness": 0})
     except (ConnectionError, RuntimeError, ValueError) as exc:
         where = workers.address or f"a local runtime of {workers.count} CPUs"
         raise DynoplanError(f"cannot start Ray on {where}: {exc}") from None
@@ -160,30 +166,40 @@ def _import_ray() -> Any:
 
 def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], tasks: Sequence[tuple[C, T]],
              workers: Workers, description: str, progress: bool) -> Iterator[tuple[int, R]]:
+    """Tasks in flight at most :data:`IN_FLIGHT_PER_CPU` per cluster CPU (so the driver's
+    bookkeeping stays small with 10^5 tasks), the rest submitted as results come in."""
     ray = _import_ray()
     from ray.exceptions import RayTaskError
 
     remote = ray.remote(max_retries=workers.retries, retry_exceptions=False)(_run_item)
+    cpus = int(ray.cluster_resources().get("CPU", workers.count))
+    window = max(2, IN_FLIGHT_PER_CPU * cpus)
     refs: dict[Any, Any] = {}  # one copy of each context in the object store
-    pending = {}
-    for i, (context, item) in enumerate(tasks):
-        if context not in refs:
-            refs[context] = ray.put(context)
-        pending[remote.remote(setup, run, refs[context], item)] = i
+    queue = iter(enumerate(tasks))
+    pending: dict[Any, int] = {}
+
+    def submit(n: int) -> None:
+        for i, (context, item) in itertools.islice(queue, n):
+            if context not in refs:
+                refs[context] = ray.put(context)
+            pending[remote.remote(setup, run, refs[context], item)] = i
 
     def finished() -> Iterator[tuple[int, Any]]:
-        waiting = list(pending)
+        submit(window)
         try:
-            while waiting:
-                done, waiting = ray.wait(waiting, num_returns=1)
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
+                    i = pending.pop(ref)
                     try:
-                        yield pending[ref], ray.get(ref)
+                        result = ray.get(ref)
                     except RayTaskError as exc:  # the item's own exception, not a crash
                         cause = exc.cause
                         raise (cause if isinstance(cause, DynoplanError) else exc) from None
+                    submit(1)
+                    yield i, result
         finally:
-            for ref in waiting:  # an error or an interrupt: do not leave work behind
+            for ref in pending:  # an error or an interrupt: do not leave work behind
                 ray.cancel(ref, force=True)
 
     yield from track(finished(), description, total=len(tasks), enabled=progress)
@@ -204,5 +220,5 @@ def _run_item(setup: Callable[[C], S], run: Callable[[S, T], R], context: C, ite
     return run(_states[key], item)
 
 
-__all__ = ["SERIAL", "WORKER_STATES", "Workers", "imap_unordered", "parallel_map",
-           "ray_session"]
+__all__ = ["IN_FLIGHT_PER_CPU", "SERIAL", "WORKER_STATES", "Workers", "imap_unordered",
+           "parallel_map", "ray_session"]
