@@ -102,17 +102,21 @@ def main() -> None:
     wall = {"serial": 0.0, "parallel": 0.0}
     cpu = {"serial": 0.0, "parallel": 0.0}
     load = []
+    per_round: list[dict[str, float]] = []
     t0 = time.perf_counter()
     with ray_session(workers):
         ready = time.perf_counter() - t0
         for r, chunk in enumerate(np.array_split(np.arange(len(seeds)), args.rounds)):
             part = [seeds[i] for i in chunk]
+            per_round.append({})
             for way in (("serial", "parallel") if r % 2 == 0 else ("parallel", "serial")):
                 load.append(os.getloadavg()[0])
                 results, ends, w, c = timed_map(job, part, SERIAL if way == "serial"
                                                 else workers)
                 wall[way] += w
                 cpu[way] += c
+                per_round[-1][f"{way}_s"] = round(ends[-1], 1)
+                per_round[-1][f"{way}_cpu_share"] = round(c / w, 2)
                 if way == "serial":
                     serial += results
                     marks += [serial_s + e for e in ends]
@@ -145,6 +149,7 @@ def main() -> None:
         "task_out_bytes": int(np.mean([len(pickle.dumps(m)) for m in serial])),
         "models_bytes": models_bytes,
         "load_1min_at_each_start": [round(v, 2) for v in load],
+        "per_round": per_round,
         # the share of a CPU an episode got while it ran (1.0: a core of its own)
         "cpu_share_serial": round(cpu["serial"] / wall["serial"], 2),
         "cpu_share_parallel": round(cpu["parallel"] / wall["parallel"], 2),

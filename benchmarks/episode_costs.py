@@ -1,0 +1,85 @@
+"""Cost of one task of each kind the scale-out runs: an evaluation episode per
+controller and a collection run, timed serially in this process.
+
+For each controller (the default planner settings, and ``dynoplan`` with horizon 20 and
+128 samples), ``--episodes`` seeded episodes (the oracle: ``--oracle-episodes``) run
+with :func:`dynoplan.experiments.gear_jobs.evaluate_episode` on one built state; then
+``--runs`` collection runs of every option. Reported per kind: the mean CPU and wall
+seconds of a task, the longest wall time, the mean simulated seconds, and for collection
+the bytes a run returns (pickled). These are the inputs of the 1000-core estimate in
+``docs/scale-out.md``.
+
+Run ``python benchmarks/episode_costs.py --models DIR [--flat DIR]``; ``--json`` for one
+JSON object.
+"""
+
+import argparse
+import json
+import os
+import pickle
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dynoplan.envs.gear.task import OPTION_NAMES
+from dynoplan.experiments.episodes import episode_seeds
+from dynoplan.experiments.gear_collect import CollectJob, build_collection, collect_option_run
+from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation, evaluate_episode
+
+
+def timed(fn: Any, *args: Any) -> tuple[Any, float, float]:
+    wall, cpu = time.perf_counter(), time.process_time()
+    out = fn(*args)
+    return out, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--models", type=Path, required=True, help="gear models folder")
+    parser.add_argument("--flat", type=Path, help="flat policy folder (default: "
+                        "MODELS/../flat_ppo)")
+    parser.add_argument("--episodes", type=int, default=8)
+    parser.add_argument("--oracle-episodes", type=int, default=3)
+    parser.add_argument("--runs", type=int, default=3, help="collection runs per option")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args()
+
+    import torch
+
+    torch.set_num_threads(1)
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    flat = args.flat or args.models.parent / "flat_ppo"
+    jobs = {name: EvalJob(args.models, name) for name in CONTROLLERS}
+    jobs["dynoplan_h20_s128"] = EvalJob(args.models, "dynoplan",
+                                        PlannerSettings(horizon=20, samples=128))
+    if (flat / "flat_policy.json").is_file():
+        jobs[FLAT_POLICY] = EvalJob(args.models, FLAT_POLICY, flat_folder=flat)
+    result: dict[str, Any] = {}
+    for name, job in jobs.items():
+        n = args.oracle_episodes if name == "oracle" else args.episodes
+        state = build_evaluation(job)
+        rows = [timed(evaluate_episode, state, s) for s in episode_seeds(7, n)]
+        result[name] = {"tasks": n, "cpu_s_mean": round(float(np.mean([r[2] for r in rows])), 2),
+                        "wall_s_mean": round(float(np.mean([r[1] for r in rows])), 2),
+                        "wall_s_max": round(float(np.max([r[1] for r in rows])), 2),
+                        "simulated_s_mean": round(float(np.mean([r[0].seconds for r in rows])), 1)}
+    state = build_collection(CollectJob(args.models, OPTION_NAMES, 0, 30))
+    rows = [timed(collect_option_run, state, (name, r)) for name in OPTION_NAMES
+            for r in range(args.runs)]
+    result["collect_run"] = {"tasks": len(rows),
+                             "cpu_s_mean": round(float(np.mean([r[2] for r in rows])), 2),
+                             "wall_s_mean": round(float(np.mean([r[1] for r in rows])), 2),
+                             "wall_s_max": round(float(np.max([r[1] for r in rows])), 2),
+                             "bytes_mean": int(np.mean([len(pickle.dumps(r[0])) for r in rows]))}
+    if args.json:
+        print(json.dumps(result))
+        return
+    for name, row in result.items():
+        print(f"{name:>18}: " + ", ".join(f"{k} {v}" for k, v in row.items()))
+
+
+if __name__ == "__main__":
+    main()
