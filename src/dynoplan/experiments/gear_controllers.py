@@ -15,17 +15,17 @@ random        uniform among admissible options      regions      ``beta_w``
 fixed_script  pick, fast move, insert               everywhere   policy finished
 ============  ====================================  ===========  ====================
 
-Two preconditions of the options themselves are intersected with the learned regions,
+Preconditions of the options themselves are intersected with the learned regions,
 because 10 demonstrations cannot teach a mixture where the task's phases begin and end:
 the two moves carry the gear, so their initiation set is their region intersected with
 :func:`holding_gear` (the gear lifted in a closed gripper) and with the states where
 the gear is still :data:`MOVE_START_DISTANCE` from their goal (:class:`FarFromGoal`);
-once running, a move goes on while it is
-in its region with the gear held (its continuation set) and ends at its goal when its
-policy reports the arm has settled there (an insertion started while the arm still
-moves misses the peg); the pick has nothing to do once the gear is carried
-(:func:`not_carried`), and it ignores the human, so its region is intersected with those
-states where the hand is clear of the tool (:func:`hand_clear_of_tool`).
+once running, a move goes on while it is in its region with the gear held (its
+continuation set) and ends at its goal when its policy reports the arm has settled
+there (an insertion started while the arm still moves misses the peg); the pick has
+nothing to do once the gear is carried (:func:`not_carried`), and it ignores the human,
+so its region is intersected with those states where the hand is clear of the tool
+(:func:`hand_clear_of_tool`).
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -190,6 +190,7 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
     options = []
+    far_from_goal = FarFromGoal()  # one forward-kinematics model for both moves
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
@@ -199,7 +200,7 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
         continuation: Initiation | None = None
         if regions and name in MOVES:
             continuation = AllOf(initiation, InitiationFromCallable(holding_gear))
-            initiation = AllOf(continuation, FarFromGoal())
+            initiation = AllOf(continuation, far_from_goal)
         elif regions and name == "pick":
             initiation = AllOf(initiation, InitiationFromCallable(not_carried),
                                InitiationFromCallable(hand_clear_of_tool))
