@@ -57,11 +57,8 @@ def reseed_ompl(seed: int) -> None:
     are created per plan, so the message is silenced.)"""
     from ompl import util as ou
 
-    ou.setLogLevel(ou.LOG_NONE)
-    try:
-        ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
-    finally:
-        ou.setLogLevel(ou.LOG_ERROR)
+    ou.setLogLevel(ou.LOG_NONE)  # as seed_ompl: failed plans show in the options' status
+    ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)
     if not _seeded:
         _seeded.append(seed)
 
