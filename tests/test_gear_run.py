@@ -17,12 +17,11 @@ from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import (
     CARRIED_GEAR_HEIGHT,
-    AllOf,
     holding_gear,
     not_carried,
 )
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
-from dynoplan.options import ConstantTermination, FunctionPolicy, Option
+from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
 
 REQUIRED = ("controller", "success_rate", "contacts", "min_human_distance",

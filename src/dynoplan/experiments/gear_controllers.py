@@ -42,6 +42,7 @@ from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSeque
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.catalog import PolicyFactory
 from dynoplan.envs.gear.options.moves import PreInsertionBeta
+from dynoplan.envs.gear.operator import INSERT_CLEAR, INSERT_NEAR
 from dynoplan.envs.gear.oracle import SimulatorOracle
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
 from dynoplan.envs.gear.state import (
@@ -55,6 +56,8 @@ from dynoplan.experiments.gear_models import GearModels
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.options.initiation import (
+    AllOf,
+    AnyOf,
     Everywhere,
     Initiation,
     InitiationFromCallable,
@@ -133,6 +136,12 @@ def hand_clear_of_tool(states: FloatArray, distance: float = PICK_CLEARANCE) -> 
     return out
 
 
+def hand_near_tool(states: FloatArray, distance: float = INSERT_CLEAR) -> BoolArray:
+    """(N, 22) planner states -> (N,): the hand nearer than ``distance`` (m) to the tool."""
+    out: BoolArray = ~hand_clear_of_tool(states, distance)
+    return out
+
+
 def holding_gear(states: FloatArray) -> BoolArray:
     """(N, 22) planner states -> (N,): the gripper closed and the gear lifted."""
     s = np.atleast_2d(states)
@@ -140,19 +149,6 @@ def holding_gear(states: FloatArray) -> BoolArray:
     lifted = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + HELD_GEAR_HEIGHT
     out: BoolArray = closed & lifted
     return out
-
-
-class AllOf:
-    """The intersection of initiation sets."""
-
-    def __init__(self, *parts: Initiation) -> None:
-        self.parts = parts
-
-    def contains(self, states: FloatArray) -> BoolArray:
-        out = np.ones(np.atleast_2d(states).shape[0], dtype=bool)
-        for part in self.parts:
-            out &= part.contains(states)
-        return out
 
 
 MOVE_START_DISTANCE = 0.05
@@ -200,7 +196,15 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
         continuation: Initiation | None = None
         if regions and name in MOVES:
             continuation = AllOf(initiation, InitiationFromCallable(holding_gear))
-            initiation = AllOf(continuation, far_from_goal)
+            start_where: Initiation = far_from_goal
+            if name == "cautious_move":  # it also stands guard at the goal
+                start_where = AnyOf(far_from_goal, InitiationFromCallable(hand_near_tool))
+            initiation = AllOf(continuation, start_where)
+        elif regions and name == "insert":
+            continuation = AllOf(initiation, InitiationFromCallable(
+                lambda s: hand_clear_of_tool(s, INSERT_NEAR)))
+            initiation = AllOf(initiation, InitiationFromCallable(
+                lambda s: hand_clear_of_tool(s, INSERT_CLEAR)))
         elif regions and name == "pick":
             initiation = AllOf(initiation, InitiationFromCallable(not_carried),
                                InitiationFromCallable(hand_clear_of_tool))
@@ -258,11 +262,11 @@ __all__ = [
     "MOVES",
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
-    "AllOf",
     "FarFromGoal",
     "PlannerSettings",
     "gear_options",
     "hand_clear_of_tool",
+    "hand_near_tool",
     "hold_still",
     "holding_gear",
     "make_gear_controller",

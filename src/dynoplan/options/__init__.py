@@ -1,6 +1,13 @@
 """Options ``o_w = (pi_w, I_w, beta_w, D_w)`` and their parts."""
 
-from dynoplan.options.initiation import Everywhere, Initiation, InitiationFromCallable, InRegion
+from dynoplan.options.initiation import (
+    AllOf,
+    AnyOf,
+    Everywhere,
+    Initiation,
+    InitiationFromCallable,
+    InRegion,
+)
 from dynoplan.options.option import FunctionPolicy, Option, OptionPolicy
 from dynoplan.options.termination import (
     ConstantTermination,
@@ -11,6 +18,8 @@ from dynoplan.options.termination import (
 )
 
 __all__ = [
+    "AllOf",
+    "AnyOf",
     "ConstantTermination",
     "Everywhere",
     "FunctionPolicy",

@@ -32,6 +32,36 @@ class InitiationFromCallable:
         return np.asarray(self.fn(states), dtype=bool)
 
 
+class AllOf:
+    """The intersection of initiation sets: a state is in it when every part contains it."""
+
+    def __init__(self, *parts: Initiation) -> None:
+        if not parts:
+            raise ValueError("AllOf needs at least one initiation set")
+        self.parts = parts
+
+    def contains(self, states: FloatArray) -> BoolArray:
+        out = np.asarray(self.parts[0].contains(states), dtype=bool).copy()
+        for part in self.parts[1:]:
+            out &= part.contains(states)
+        return out
+
+
+class AnyOf:
+    """The union of initiation sets: a state is in it when some part contains it."""
+
+    def __init__(self, *parts: Initiation) -> None:
+        if not parts:
+            raise ValueError("AnyOf needs at least one initiation set")
+        self.parts = parts
+
+    def contains(self, states: FloatArray) -> BoolArray:
+        out = np.asarray(self.parts[0].contains(states), dtype=bool).copy()
+        for part in self.parts[1:]:
+            out |= part.contains(states)
+        return out
+
+
 class RegionModel(Protocol):
     """What :class:`InRegion` needs of a region model (for example
     :class:`~dynoplan.models.regions.SafetyRegions`)."""
