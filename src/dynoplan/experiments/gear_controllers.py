@@ -40,9 +40,9 @@ import numpy as np
 from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.operator import NEAR
 from dynoplan.envs.gear.options.catalog import PolicyFactory
 from dynoplan.envs.gear.options.moves import PreInsertionBeta
-from dynoplan.envs.gear.operator import INSERT_CLEAR, INSERT_NEAR
 from dynoplan.envs.gear.oracle import SimulatorOracle
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
 from dynoplan.envs.gear.state import (
@@ -136,7 +136,16 @@ def hand_clear_of_tool(states: FloatArray, distance: float = PICK_CLEARANCE) -> 
     return out
 
 
-def hand_near_tool(states: FloatArray, distance: float = INSERT_CLEAR) -> BoolArray:
+INSERT_START_CLEARANCE = NEAR
+"""m: the insertion (which ignores the human) starts only with the hand at least this far
+from the tool (where the operator turns cautious); nearer, the cautious move stands guard
+at the goal and backs away if the hand comes on."""
+INSERT_KEEP_CLEARANCE = NEAR - 0.05
+"""m: a running insertion goes on while the hand is at least this far from the tool
+(5 cm of hysteresis, so the two do not take turns at the threshold)."""
+
+
+def hand_near_tool(states: FloatArray, distance: float = INSERT_START_CLEARANCE) -> BoolArray:
     """(N, 22) planner states -> (N,): the hand nearer than ``distance`` (m) to the tool."""
     out: BoolArray = ~hand_clear_of_tool(states, distance)
     return out
@@ -202,9 +211,9 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
             initiation = AllOf(continuation, start_where)
         elif regions and name == "insert":
             continuation = AllOf(initiation, InitiationFromCallable(
-                lambda s: hand_clear_of_tool(s, INSERT_NEAR)))
+                lambda s: hand_clear_of_tool(s, INSERT_KEEP_CLEARANCE)))
             initiation = AllOf(initiation, InitiationFromCallable(
-                lambda s: hand_clear_of_tool(s, INSERT_CLEAR)))
+                lambda s: hand_clear_of_tool(s, INSERT_START_CLEARANCE)))
         elif regions and name == "pick":
             initiation = AllOf(initiation, InitiationFromCallable(not_carried),
                                InitiationFromCallable(hand_clear_of_tool))
@@ -242,16 +251,24 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: GearModels,
     return Controller(options, chooser, state_fn=PlannerState(), max_decisions=max_steps,
                       max_option_steps=max_steps,
                       replan_every=None if scripted else DECISION_STEPS,
-                      margin=settings.margin, hold_action=hold_still, record_infos=True,
+                      margin=settings.margin, hold_action=HoldStill(env), record_infos=True,
                       termination_every=1 if scripted else DECISION_STEPS)
 
 
-def hold_still(observation: FloatArray) -> FloatArray:
-    """Every arm joint at its current angle and the gripper as it is: the safe action
-    when no option is admissible."""
-    obs = np.asarray(observation, dtype=np.float64)
-    closed = float(obs[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
-    return np.concatenate([obs[OBS_SLICES["arm_qpos"]], [1.0 if closed else 0.0]])
+class HoldStill:
+    """The safe action when no option is admissible: both arms held at their last
+    commanded joint targets and the gripper as it is (observation (50,) -> action (13,)).
+
+    Holding the *measured* angles instead lets the arms sag under gravity, every step a
+    little more (the peg module dropped 9 cm onto the table in a 5 s hold)."""
+
+    def __init__(self, env: GearAssemblyEnv) -> None:
+        self.env = env
+
+    def __call__(self, observation: FloatArray) -> FloatArray:
+        obs = np.asarray(observation, dtype=np.float64)
+        closed = float(obs[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
+        return np.concatenate([self.env.arm_targets, [1.0 if closed else 0.0]])
 
 
 __all__ = [
@@ -263,11 +280,11 @@ __all__ = [
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
     "FarFromGoal",
+    "HoldStill",
     "PlannerSettings",
     "gear_options",
     "hand_clear_of_tool",
     "hand_near_tool",
-    "hold_still",
     "holding_gear",
     "make_gear_controller",
     "not_carried",

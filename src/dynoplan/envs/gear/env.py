@@ -271,6 +271,13 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
         """(12,) current arm joint angles (the planner's state)."""
         return self.data.qpos[self.arm_qpos_ids].copy()
 
+    @property
+    def arm_targets(self) -> FloatArray:
+        """(12,) the arms' last commanded joint targets (both arms' position actuators):
+        where the robot is holding them, which under gravity is a few mrad above where
+        the joints are measured."""
+        return self.data.ctrl[self.arm_actuator_ids].copy()
+
     def collision_checker(self) -> CollisionChecker:
         """A new checker on a scratch ``MjData`` of this model (see :class:`CollisionChecker`)."""
         return CollisionChecker(self.model)

@@ -9,9 +9,12 @@ env themselves.
 
 from typing import Any
 
-from dynoplan.envs.gear.env import GearAssemblyEnv
+import numpy as np
+
+from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
 from dynoplan.options import OptionPolicy
 from dynoplan.options.termination import Termination
+from dynoplan.types import FloatArray
 
 
 class GearOptionPolicy(OptionPolicy):
@@ -45,4 +48,15 @@ class GearOptionPolicy(OptionPolicy):
         raise NotImplementedError
 
 
-__all__ = ["GearOptionPolicy"]
+def start_joints(env: GearAssemblyEnv, observation: Any) -> FloatArray:
+    """(12,) the joints an option starts from: the left arm as measured in
+    ``observation`` (50,), the right arm (which holds the peg module and never moves in
+    the task) at its last commanded targets. Its measured angles sag under gravity below
+    its targets, so an option commanding them would lower the peg a little at every
+    start (7 cm over an episode of 50 decisions before this rule)."""
+    obs = np.asarray(observation, dtype=np.float64)
+    out: FloatArray = np.concatenate([obs[OBS_SLICES["arm_qpos"]][:6], env.arm_targets[6:]])
+    return out
+
+
+__all__ = ["GearOptionPolicy", "start_joints"]

@@ -350,7 +350,7 @@ class InsertPolicy(GearOptionPolicy):
 
     def reset(self, observation: FloatArray, rng: Generator) -> None:
         obs = _as_observations(observation)[0]
-        self._q_right = obs[OBS_SLICES["arm_qpos"]][6:12].copy()
+        self._q_right = self.env.arm_targets[6:12]  # held, not the sagging measurement
         self.plan_ms = []
         self.steps = 0
         self.status = "running"

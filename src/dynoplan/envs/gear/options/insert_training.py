@@ -181,7 +181,7 @@ def collect_demonstrations(env: GearAssemblyEnv, episodes: int, seed: int,
         start = reach_start(env, "insert", rng)
         sigma = noise_std * rng.uniform()
         obs, info = start.observation, start.info
-        q_right = obs[OBS_SLICES["arm_qpos"]][6:12].copy()
+        q_right = env.arm_targets[6:12]  # held where commanded (measured angles sag)
         for _ in range(max_steps):
             action = teacher.act(obs)
             feats.append(insertion_features(obs)[0])

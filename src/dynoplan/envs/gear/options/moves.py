@@ -32,7 +32,7 @@ import numpy as np
 from dynoplan.envs.gear.env import CONTROL_DT, GRIPPER_CLOSED, HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.grasp import ik_gear_at, quat_to_mat
 from dynoplan.envs.gear.kinematics import ArmKinematics
-from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
 from dynoplan.envs.gear.options.motion import LeftArmPlanner
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
@@ -188,7 +188,7 @@ class _CarryMove(GearOptionPolicy):
         self.status = "running"
         self.time = 0.0
         self._settle = 0.0
-        self.q_cmd = obs[OBS_SLICES["arm_qpos"]].copy()
+        self.q_cmd = start_joints(self.env, obs)
         self.path = None
         self.goal, self.target = self._goal(obs)
 

@@ -43,7 +43,7 @@ from dynoplan.envs.gear.env import (
 )
 from dynoplan.envs.gear.expert import GRASP_TCP_HEIGHT
 from dynoplan.envs.gear.kinematics import ArmKinematics, downward_tool_rotation
-from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
 from dynoplan.envs.gear.options.motion import LeftArmPlanner
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.envs.gear.state import proximity_beta
@@ -142,7 +142,7 @@ class PickPolicy(GearOptionPolicy):
         self.attempts = 0
         self.status = "running"
         self.grasp_probability = float("nan")
-        self._q_cmd = obs[OBS_SLICES["arm_qpos"]].copy()
+        self._q_cmd = start_joints(self.env, obs)
         self._grip = GRIPPER_OPEN
         if self.recognizer is not None and self._recognize(obs) > 0.5:
             self._grip = GRIPPER_CLOSED  # already holding it: only lift and confirm
@@ -208,7 +208,7 @@ class PickPolicy(GearOptionPolicy):
             self._finish("failed")
             return
         self.attempts += 1
-        q = obs[OBS_SLICES["arm_qpos"]].copy()
+        q = start_joints(self.env, obs)
         self._grasp_target = gear + _up(GRASP_TCP_HEIGHT)
         tcp = self.kin.tool_pose(q)[0]
         offset = tcp - self._grasp_target
@@ -232,7 +232,7 @@ class PickPolicy(GearOptionPolicy):
 
     def _begin_approach(self, obs: FloatArray) -> None:
         """Straight down from the pre-grasp pose to the grasp pose (open gripper)."""
-        q = obs[OBS_SLICES["arm_qpos"]].copy()
+        q = start_joints(self.env, obs)
         top = self.kin.tool_pose(self._q_cmd)[0]
         waypoints = self._straight(self._q_cmd, top, self._grasp_target)
         self.planner.sync(carry_gear=False)
@@ -243,7 +243,7 @@ class PickPolicy(GearOptionPolicy):
 
     def _begin_lift(self, obs: FloatArray) -> None:
         """Straight up (keeping the tool's orientation) with the gripper closed."""
-        q = obs[OBS_SLICES["arm_qpos"]].copy()
+        q = start_joints(self.env, obs)
         tcp = self.kin.tool_pose(q)[0]
         top = np.array([tcp[0], tcp[1], TABLE_TOP_Z + GRASP_TCP_HEIGHT + self.cfg.lift_height])
         waypoints = self._straight(q, tcp, top)
