@@ -2,10 +2,18 @@
 
 import gymnasium as gym
 import numpy as np
+import pytest
 from gymnasium import spaces
 
 from dynoplan.control import Controller, FixedChoice
-from dynoplan.options import ConstantTermination, FunctionPolicy, InitiationFromCallable, Option
+from dynoplan.options import (
+    AllOf,
+    AnyOf,
+    ConstantTermination,
+    FunctionPolicy,
+    InitiationFromCallable,
+    Option,
+)
 from dynoplan.planning import Plan
 
 
@@ -118,3 +126,13 @@ def test_switch_count():
         Line(), np.random.default_rng(0))
     assert trace.switches == 2
 
+
+
+def test_initiation_sets_compose_as_intersection_and_union():
+    left = InitiationFromCallable(lambda s: s[:, 0] < 0.0)
+    small = InitiationFromCallable(lambda s: np.abs(s[:, 0]) < 1.0)
+    states = np.array([[-2.0], [-0.5], [0.5], [2.0]])
+    assert AllOf(left, small).contains(states).tolist() == [False, True, False, False]
+    assert AnyOf(left, small).contains(states).tolist() == [True, True, True, False]
+    with pytest.raises(ValueError, match="at least one"):
+        AnyOf()

@@ -11,7 +11,9 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
 from dynoplan.control import Controller, FixedChoice
+from dynoplan.envs.gear.env import HOME_Q, RIGHT_HOLD
 from dynoplan.envs.gear.features import HUMAN_DISTANCE_CAP, RELATIVE, feature_map
+from dynoplan.envs.gear.options.moves import PreInsertionBeta
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
@@ -19,6 +21,7 @@ from dynoplan.experiments.gear_controllers import (
     CARRIED_GEAR_HEIGHT,
     holding_gear,
     not_carried,
+    preconditions,
 )
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
 from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option
@@ -131,3 +134,29 @@ def test_gear_run_rejects_bad_episode_counts(tmp_path: Path):
                                       "--episodes", "0"])
     assert result.exit_code != 0
     assert not (tmp_path / "x" / "results.csv").exists()
+
+
+def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
+    """At the pre-insertion pose with the gear held, the insertion may start only with the
+    hand 0.45 m clear of the tool (and goes on to 0.4 m); nearer, the cautious move may
+    start instead (it stands guard); far from the goal only the moves start."""
+    goal = PreInsertionBeta()
+    s = np.zeros((4, STATE_DIM))
+    s[:, STATE_SLICES["arm_qpos"]] = HOME_Q
+    s[:, STATE_SLICES["gripper"]] = 0.2 * FINGER_TRAVEL
+    s[:, STATE_SLICES["gear_pos"]] = goal.target(RIGHT_HOLD)
+    s[:, STATE_SLICES["tool_pos"]] = goal.target(RIGHT_HOLD) + np.array([0.0, 0.0, 0.03])
+    tool = s[0, STATE_SLICES["tool_pos"]]
+    for row, hand_distance in enumerate((0.6, 0.42, 0.3)):
+        s[row, STATE_SLICES["human_pos"]] = tool + np.array([hand_distance, 0.0, 0.0])
+    s[3] = s[0]
+    s[3, STATE_SLICES["gear_pos"]] += [0.0, 0.2, 0.0]  # 20 cm from the goal, hand far
+    sets = {name: preconditions(name, Everywhere()) for name in ("fast_move", "cautious_move",
+                                                                  "insert")}
+    start = {name: sets[name][0].contains(s).tolist() for name in sets}
+    go_on = {name: (sets[name][1] or sets[name][0]).contains(s).tolist() for name in sets}
+    assert start["insert"] == [True, False, False, True]
+    assert go_on["insert"] == [True, True, False, True]
+    assert start["cautious_move"] == [False, True, True, True]
+    assert start["fast_move"] == [False, False, False, True]
+    assert go_on["fast_move"] == [True, True, True, True]  # ends at its goal by itself

@@ -23,9 +23,12 @@ the gear is still :data:`MOVE_START_DISTANCE` from their goal (:class:`FarFromGo
 once running, a move goes on while it is in its region with the gear held (its
 continuation set) and ends at its goal when its policy reports the arm has settled
 there (an insertion started while the arm still moves misses the peg); the pick has
-nothing to do once the gear is carried (:func:`not_carried`), and it ignores the human,
-so its region is intersected with those states where the hand is clear of the tool
-(:func:`hand_clear_of_tool`).
+nothing to do once the gear is carried (:func:`not_carried`). The pick and the
+insertion ignore the human, so they start only with the hand clear of the tool
+(:func:`hand_clear_of_tool`); near the goal with the hand nearer, the cautious move may
+start instead and stands guard, backing away if the hand comes on (the operator's rule in
+the demonstrations, :mod:`~dynoplan.envs.gear.operator`). :func:`preconditions` composes
+them all.
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -180,6 +183,37 @@ class FarFromGoal:
         return out
 
 
+def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | None = None
+                  ) -> tuple[Initiation, Initiation | None]:
+    """Option ``name``'s initiation and continuation sets (``None``: the same as its
+    initiation) given its learned ``region`` (module docstring):
+
+    - moves: region, gear held, and more than :data:`MOVE_START_DISTANCE` from the goal to
+      start; the cautious move may also start nearer with the hand within
+      :data:`INSERT_START_CLEARANCE` of the tool (it stands guard at the goal, backing
+      away if the hand comes on); both go on while in the region with the gear held;
+    - insert: region and the hand at least :data:`INSERT_START_CLEARANCE` from the tool
+      to start, :data:`INSERT_KEEP_CLEARANCE` to go on (it ignores the human);
+    - pick: region, gear not carried and the hand :data:`PICK_CLEARANCE` clear.
+    """
+    far = far_from_goal or FarFromGoal()
+    if name in MOVES:
+        continuation = AllOf(region, InitiationFromCallable(holding_gear))
+        start_where: Initiation = far
+        if name == "cautious_move":
+            start_where = AnyOf(far, InitiationFromCallable(hand_near_tool))
+        return AllOf(continuation, start_where), continuation
+    if name == "insert":
+        return (AllOf(region, InitiationFromCallable(
+                    lambda s: hand_clear_of_tool(s, INSERT_START_CLEARANCE))),
+                AllOf(region, InitiationFromCallable(
+                    lambda s: hand_clear_of_tool(s, INSERT_KEEP_CLEARANCE))))
+    if name == "pick":
+        return AllOf(region, InitiationFromCallable(not_carried),
+                     InitiationFromCallable(hand_clear_of_tool)), None
+    return region, None
+
+
 def gear_options(env: GearAssemblyEnv, models: GearModels,
                  factories: Mapping[str, PolicyFactory], regions: bool = True,
                  terminations: bool = True, dynamics_noise: float = 0.0) -> list[Option]:
@@ -195,28 +229,17 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
     options = []
-    far_from_goal = FarFromGoal()  # one forward-kinematics model for both moves
+    far_from_goal = FarFromGoal()  # one forward-kinematics model for all options
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
         if dynamics_noise > 0:
             dynamics = NoisyDynamics(dynamics, dynamics_noise)
-        initiation: Initiation = InRegion(models.regions, name) if regions else Everywhere()
-        continuation: Initiation | None = None
-        if regions and name in MOVES:
-            continuation = AllOf(initiation, InitiationFromCallable(holding_gear))
-            start_where: Initiation = far_from_goal
-            if name == "cautious_move":  # it also stands guard at the goal
-                start_where = AnyOf(far_from_goal, InitiationFromCallable(hand_near_tool))
-            initiation = AllOf(continuation, start_where)
-        elif regions and name == "insert":
-            continuation = AllOf(initiation, InitiationFromCallable(
-                lambda s: hand_clear_of_tool(s, INSERT_KEEP_CLEARANCE)))
-            initiation = AllOf(initiation, InitiationFromCallable(
-                lambda s: hand_clear_of_tool(s, INSERT_START_CLEARANCE)))
-        elif regions and name == "pick":
-            initiation = AllOf(initiation, InitiationFromCallable(not_carried),
-                               InitiationFromCallable(hand_clear_of_tool))
+        if regions:
+            initiation, continuation = preconditions(
+                name, InRegion(models.regions, name), far_from_goal)
+        else:
+            initiation, continuation = Everywhere(), None
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
@@ -275,6 +298,8 @@ __all__ = [
     "CARRIED_GEAR_HEIGHT",
     "CONTROLLERS",
     "FIXED_SCRIPT",
+    "INSERT_KEEP_CLEARANCE",
+    "INSERT_START_CLEARANCE",
     "MAX_EPISODE_SECONDS",
     "MOVES",
     "MOVE_START_DISTANCE",
@@ -288,5 +313,6 @@ __all__ = [
     "holding_gear",
     "make_gear_controller",
     "not_carried",
+    "preconditions",
 ]
 

@@ -521,10 +521,13 @@ class CautiousMovePolicy(_CarryMove):
             self._retreat_goals = self._retreat_candidates(q0)
             self._retreat_since = self.time
         best, best_d = None, -np.inf
+        # a start already touching something (the carried gear resting on the peg) must
+        # not rule out every way back: then the gear's own contacts are not counted
+        scraping = self.checker.in_collision(q0)
         for goal in self._retreat_goals:
             path = JointPath([q0, goal], cfg.retreat_speed, cfg.accel_time)
             qs = np.array([path.preview(t, 1.0) for t in self._taus])
-            if any(self.checker.in_collision(q) for q in qs[::3]):
+            if any(self.checker.in_collision(q, ignore_gear=scraping) for q in qs[3::3]):
                 continue
             d = self._clearance(qs)
             if d > best_d:
