@@ -35,7 +35,7 @@ from dynoplan.envs.gear.options.catalog import policy_factories
 from dynoplan.envs.gear.oracle import SimulatorOracle
 from dynoplan.experiments.episodes import episode_seeds
 from dynoplan.experiments.gear_controllers import PlannerSettings, make_gear_controller
-from dynoplan.experiments.gear_models import load_gear_models
+from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.planning import OptionPlanner
 
 

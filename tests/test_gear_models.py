@@ -17,18 +17,20 @@ from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_demos import record_demos
-from dynoplan.experiments.gear_models import (
+from dynoplan.experiments.gear_model_data import (
+    demonstration_transitions,
+    write_demonstration_transitions,
+)
+from dynoplan.experiments.gear_model_files import (
     GOAL_FILE,
     MANIFEST_FILE,
     METRICS_FILE,
     REGIONS_FILE,
-    demonstration_transitions,
     dynamics_file,
-    fit_regions_cross_validated,
     load_gear_models,
-    train_gear_models,
-    write_demonstration_transitions,
 )
+from dynoplan.experiments.gear_model_metrics import fit_regions_cross_validated
+from dynoplan.experiments.gear_models import train_gear_models
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.reports.gear_figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures

@@ -55,7 +55,7 @@ from dynoplan.envs.gear.state import (
     tool_human_distance,
 )
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_models import GearModels
+from dynoplan.experiments.gear_model_files import GearModels
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.options.initiation import (

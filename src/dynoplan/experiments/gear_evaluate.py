@@ -34,7 +34,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     Raises:
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
     """
-    from dynoplan.experiments.gear_models import load_gear_models
+    from dynoplan.experiments.gear_model_files import load_gear_models
 
     known = (*CONTROLLERS, FLAT_POLICY)
     unknown = [c for c in controllers if c not in known]

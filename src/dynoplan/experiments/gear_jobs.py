@@ -100,7 +100,7 @@ def build_evaluation(job: EvalJob) -> EvalState:
         return EvalState(env, gear_env, None, FlatPolicy(job.flat_folder, gear_env).act, None)
     from dynoplan.envs.gear.options.catalog import policy_factories
     from dynoplan.experiments.gear_controllers import make_gear_controller
-    from dynoplan.experiments.gear_models import load_gear_models
+    from dynoplan.experiments.gear_model_files import load_gear_models
 
     models = load_gear_models(job.models)
     controller = make_gear_controller(job.controller, gear_env, models,

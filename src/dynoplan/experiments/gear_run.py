@@ -38,7 +38,7 @@ from dynoplan.experiments.gear_controllers import (
 )
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
 from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, evaluate
-from dynoplan.experiments.gear_models import HELDOUT_SEED_OFFSET
+from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.reports.tables import markdown_table
@@ -110,12 +110,9 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     from dynoplan.envs.gear.options.catalog import train_option_networks
     from dynoplan.experiments.gear_collect import collect_transitions
     from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.experiments.gear_models import (
-        DEFAULT_SETTINGS,
-        QUICK_SETTINGS,
-        load_gear_models,
-        train_gear_models,
-    )
+    from dynoplan.experiments.gear_model_files import load_gear_models
+    from dynoplan.experiments.gear_model_settings import DEFAULT_SETTINGS, QUICK_SETTINGS
+    from dynoplan.experiments.gear_models import train_gear_models
     from dynoplan.reports.gear_figures import make_gear_figures
 
     torch.set_num_threads(1)

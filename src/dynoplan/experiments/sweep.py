@@ -28,7 +28,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
-from dynoplan.experiments.gear_models import MANIFEST_FILE
+from dynoplan.experiments.gear_model_files import MANIFEST_FILE
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.experiments.sweep_config import Cell, SweepConfig, load_sweep_config
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text

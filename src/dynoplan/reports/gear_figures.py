@@ -27,8 +27,8 @@ from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.envs.gear.state import PlannerState
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_models import (
-    CAUTIOUS,
+from dynoplan.experiments.gear_model_data import CAUTIOUS
+from dynoplan.experiments.gear_model_files import (
     HELDOUT_DIR,
     GoalOnFeatures,
     RegionsOnFeatures,

@@ -1,0 +1,191 @@
+"""The gear models' data: datasets read and checked, cut into arrays and split.
+
+- :func:`read_demos` / :func:`read_labelled`: datasets of the gear assembly with option
+  labels (``infos["option"]``) and, for demonstrations, ``infos["progress"]``;
+  :func:`record_heldout` records held-out expert trials from
+  ``seed + HELDOUT_SEED_OFFSET`` and :func:`check_disjoint` rejects shared seeds.
+- :func:`demo_arrays`: per demonstration, planner states ``(T+1, 22)``, progress
+  ``(T+1,)`` and option labels ``(T,)``.
+- :func:`demonstration_transitions`: option transitions at the decision rate cut from
+  demonstrations (a stand-in for ``dynoplan gear collect``);
+  :func:`split_episodes` holds out whole runs, :func:`option_trajectories` gives the
+  planner states of one option's runs.
+"""
+
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan.data import (
+    Dataset,
+    DatasetMetadata,
+    Episode,
+    read_dataset,
+    write_dataset,
+)
+from dynoplan.envs.gear.env import OBS_DIM
+from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
+from dynoplan.envs.gear.task import OPTION_NAMES
+from dynoplan.errors import DynoplanError
+from dynoplan.types import FloatArray, Generator, IntArray
+
+HELDOUT_SEED_OFFSET = 1000
+"""Held-out trials are recorded from ``seed + HELDOUT_SEED_OFFSET`` (disjoint episodes)."""
+CAUTIOUS = OPTION_NAMES.index("cautious_move")
+TRANSITIONS_ID = "dynoplan/gear-assembly/demo-transitions-v0"
+
+
+def demonstration_transitions(demos: Iterable[Episode],
+                              decision_steps: int = DECISION_STEPS) -> list[Episode]:
+    """A stand-in for collected option transitions, cut from expert demonstrations.
+
+    Every maximal run of one option label in a demonstration becomes ``decision_steps``
+    episodes, one per offset ``o``: its observations ``o, o + k, o + 2k, ...`` (``k =
+    decision_steps``) up to the run's last observation, so each step is one decision of
+    that option. ``actions`` and ``infos["option"]`` are the option index; rewards are 0.
+    Runs shorter than ``k`` steps give nothing.
+    """
+    out: list[Episode] = []
+    for index, episode in enumerate(demos):
+        labels = episode.options
+        if labels is None:
+            raise DynoplanError(f"demonstration {index} has no infos['option'] labels")
+        starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
+        ends = np.r_[starts[1:], len(labels)]
+        for a, b in zip(starts, ends, strict=True):
+            k = int(labels[a])
+            for offset in range(decision_steps):
+                idx = np.arange(a + offset, b + 1, decision_steps)
+                if len(idx) < 2:
+                    continue
+                steps = len(idx) - 1
+                out.append(Episode(
+                    observations=episode.observations[idx],
+                    actions=np.full(steps, k, dtype=np.int64),
+                    rewards=np.zeros(steps),
+                    terminations=np.zeros(steps, dtype=bool),
+                    truncations=np.r_[np.zeros(steps - 1, dtype=bool), True],
+                    infos={"option": np.full(steps, k, dtype=np.int64)},
+                    seed=episode.seed,
+                ))
+    return out
+
+
+def write_demonstration_transitions(demos: Path, out: Path,
+                                    decision_steps: int = DECISION_STEPS) -> Path:
+    """Write :func:`demonstration_transitions` of the dataset ``demos`` as a dataset."""
+    source = read_dataset(demos)
+    episodes = demonstration_transitions(source, decision_steps)
+    if not episodes:
+        raise DynoplanError(f"{demos}: no option run lasts {decision_steps} steps")
+    meta = source.metadata
+    metadata = DatasetMetadata(
+        dataset_id=TRANSITIONS_ID, env_id=meta.env_id, env_spec=meta.env_spec,
+        option_names=list(meta.option_names), seed=meta.seed,
+        extra={"decision_steps": decision_steps, "source": str(demos),
+               "note": "expert demonstrations subsampled every decision_steps steps, one "
+                       "episode per option run and offset (stand-in for collected "
+                       "option transitions)"},
+        observation_space=meta.observation_space,
+        action_space=gym.spaces.Discrete(len(meta.option_names)))
+    return write_dataset(out, episodes, metadata)
+
+
+def read_labelled(path: Path, what: str) -> Dataset:
+    dataset = read_dataset(path)
+    names = list(dataset.metadata.option_names)
+    if names != list(OPTION_NAMES):
+        raise DynoplanError(f"{path}: {what} name options {names}, expected {list(OPTION_NAMES)}")
+    for i, episode in enumerate(dataset):
+        if episode.options is None:
+            raise DynoplanError(f"{path}: {what} episode {i} has no infos['option'] labels")
+        if episode.observations.shape[1:] != (OBS_DIM,):
+            raise DynoplanError(f"{path}: {what} episode {i} has observations of shape "
+                                f"{episode.observations.shape[1:]}, expected ({OBS_DIM},) "
+                                "(the gear assembly's)")
+    return dataset
+
+
+def read_demos(path: Path, what: str) -> Dataset:
+    dataset = read_labelled(path, what)
+    for i, episode in enumerate(dataset):
+        if "progress" not in episode.infos:
+            raise DynoplanError(f"{path}: {what} episode {i} has no infos['progress']")
+    return dataset
+
+
+def demo_arrays(dataset: Dataset, planner: PlannerState
+                 ) -> list[tuple[FloatArray, FloatArray, IntArray]]:
+    """Per episode: planner states ``(T+1, 22)``, progress ``(T+1,)`` (0 at the reset) and
+    the option label of each step ``(T,)``."""
+    out = []
+    for episode in dataset:
+        states = planner(episode.observations)
+        truth = np.r_[0.0, episode.infos["progress"]]
+        labels = episode.options
+        assert labels is not None
+        out.append((states, truth, labels))
+    return out
+
+
+def record_heldout(n: int, seed: int, out: Path, progress: bool) -> Path:
+    """``n`` expert trials from ``seed + HELDOUT_SEED_OFFSET`` in ``out`` (kept if there)."""
+    from dynoplan.experiments.gear_demos import record_demos
+
+    held_seed = seed + HELDOUT_SEED_OFFSET
+    if (out / "data").is_dir():
+        try:
+            existing = read_dataset(out)
+            if existing.metadata.seed == held_seed and len(existing) == n:
+                return out
+        except DynoplanError:
+            pass  # unreadable: record again
+    record_demos(n, held_seed, out, progress=progress)
+    return out
+
+
+def check_disjoint(train: Dataset, held: Dataset, where: Path) -> None:
+    shared = {e.seed for e in train if e.seed is not None} & {
+        e.seed for e in held if e.seed is not None}
+    if shared:
+        raise DynoplanError(f"{where}: held-out trials share episode seeds {sorted(shared)} "
+                            "with the training demonstrations; use disjoint seeds")
+
+
+def split_episodes(episodes: Sequence[Episode], fraction: float,
+                    rng: Generator) -> tuple[list[Episode], list[Episode]]:
+    """Hold out ``fraction`` of each option's episodes (at least one when it has two).
+
+    Episodes of one option that share an ``env`` seed (runs cut from one demonstration,
+    or started from one reset) go to the same side, so that near-copies of a training
+    run never count as held out.
+    """
+    train: list[Episode] = []
+    held: list[Episode] = []
+    groups: dict[int, dict[object, list[Episode]]] = {}
+    for index, episode in enumerate(episodes):
+        labels = episode.options
+        assert labels is not None
+        key = episode.seed if episode.seed is not None else ("episode", index)
+        groups.setdefault(int(labels[0]), {}).setdefault(key, []).append(episode)
+    for k in sorted(groups):
+        runs = list(groups[k].values())
+        order = rng.permutation(len(runs))
+        n_held = min(max(1, round(fraction * len(runs))), len(runs) - 1)
+        held += [e for i in order[:n_held] for e in runs[i]]
+        train += [e for i in order[n_held:] for e in runs[i]]
+    return train, held
+
+
+def option_trajectories(episodes: Sequence[Episode], planner: PlannerState,
+                        k: int) -> list[FloatArray]:
+    """Planner states of the held-out episodes run by option ``k`` only."""
+    out = []
+    for episode in episodes:
+        labels = episode.options
+        if labels is not None and (labels == k).all():
+            out.append(planner(episode.observations))
+    return out
+
