@@ -139,9 +139,10 @@ def test_gear_run_rejects_bad_episode_counts(tmp_path: Path):
 def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
     """At the pre-insertion pose with the gear held, the insertion may start only with the
     hand 0.45 m clear of the tool (and goes on to 0.4 m); nearer, the cautious move may
-    start instead (it stands guard); far from the goal only the moves start."""
+    start instead (it stands guard). The moves start only outside the insertion corridor
+    above the peg (not with the gear on its way down it)."""
     goal = PreInsertionBeta()
-    s = np.zeros((4, STATE_DIM))
+    s = np.zeros((3, STATE_DIM))
     s[:, STATE_SLICES["arm_qpos"]] = HOME_Q
     s[:, STATE_SLICES["gripper"]] = 0.2 * FINGER_TRAVEL
     s[:, STATE_SLICES["gear_pos"]] = goal.target(RIGHT_HOLD)
@@ -149,14 +150,16 @@ def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
     tool = s[0, STATE_SLICES["tool_pos"]]
     for row, hand_distance in enumerate((0.6, 0.42, 0.3)):
         s[row, STATE_SLICES["human_pos"]] = tool + np.array([hand_distance, 0.0, 0.0])
-    s[3] = s[0]
+    s = np.concatenate([s, np.repeat(s[:1], 3, axis=0)])  # 3 more rows, hand far
     s[3, STATE_SLICES["gear_pos"]] += [0.0, 0.2, 0.0]  # 20 cm from the goal, hand far
+    s[4, STATE_SLICES["gear_pos"]] += [0.0, 0.0, -0.07]  # on its way down the peg
+    s[5, STATE_SLICES["gear_pos"]] += [0.0, 0.0, 0.07]  # above the corridor
     sets = {name: preconditions(name, Everywhere()) for name in ("fast_move", "cautious_move",
                                                                   "insert")}
     start = {name: sets[name][0].contains(s).tolist() for name in sets}
     go_on = {name: (sets[name][1] or sets[name][0]).contains(s).tolist() for name in sets}
-    assert start["insert"] == [True, False, False, True]
-    assert go_on["insert"] == [True, True, False, True]
-    assert start["cautious_move"] == [False, True, True, True]
-    assert start["fast_move"] == [False, False, False, True]
-    assert go_on["fast_move"] == [True, True, True, True]  # ends at its goal by itself
+    assert start["insert"] == [True, False, False, True, True, True]
+    assert go_on["insert"] == [True, True, False, True, True, True]
+    assert start["cautious_move"] == [False, True, True, True, False, True]
+    assert start["fast_move"] == [False, False, False, True, False, True]
+    assert all(go_on["fast_move"])  # once running, a move ends at its goal by itself

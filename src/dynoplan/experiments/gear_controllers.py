@@ -19,7 +19,7 @@ Preconditions of the options themselves are intersected with the learned regions
 because 10 demonstrations cannot teach a mixture where the task's phases begin and end:
 the two moves carry the gear, so their initiation set is their region intersected with
 :func:`holding_gear` (the gear lifted in a closed gripper) and with the states where
-the gear is still :data:`MOVE_START_DISTANCE` from their goal (:class:`FarFromGoal`);
+the gear is outside the insertion corridor above the peg (:class:`FarFromGoal`);
 once running, a move goes on while it is in its region with the gear held (its
 continuation set) and ends at its goal when its policy reports the arm has settled
 there (an insertion started while the arm still moves misses the peg); the pick has
@@ -164,22 +164,26 @@ def holding_gear(states: FloatArray) -> BoolArray:
 
 
 MOVE_START_DISTANCE = 0.05
-"""m: a move may start only with the gear farther than this from the pre-insertion pose.
-Nearer, the insertion takes over: the insertion network first lifts the gear a few
-centimetres to its own approach height, and a move started there would carry it back
-down (the goal heuristic cannot tell that lift from a move's approach)."""
+"""m: a move may start only with the gear outside the insertion corridor: farther than
+this from the pre-insertion pose sideways, or higher than this above it. Within it (and
+anywhere below the pose, down onto the peg) the insertion has the gear; a move started
+there would pull it back up off the peg (the goal heuristic scores the pre-insertion
+pose above a half-done insertion, so the planner would choose that)."""
 
 
 class FarFromGoal:
-    """Initiation of the moves: the gear more than ``distance`` (m) from the pre-insertion
-    pose, ``(N, 22) -> (N,)``."""
+    """Initiation of the moves: the gear outside the insertion corridor (more than
+    ``distance`` (m) from the pre-insertion pose sideways, or more than ``distance``
+    above it), ``(N, 22) -> (N,)``."""
 
     def __init__(self, distance: float = MOVE_START_DISTANCE) -> None:
         self.distance = distance
         self._goal = PreInsertionBeta()
 
     def contains(self, states: FloatArray) -> BoolArray:
-        out: BoolArray = self._goal.distance(states) > self.distance
+        offset = self._goal.offset(states)
+        sideways = np.hypot(offset[:, 0], offset[:, 1])
+        out: BoolArray = (sideways > self.distance) | (offset[:, 2] > self.distance)
         return out
 
 
@@ -188,8 +192,8 @@ def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | No
     """Option ``name``'s initiation and continuation sets (``None``: the same as its
     initiation) given its learned ``region`` (module docstring):
 
-    - moves: region, gear held, and more than :data:`MOVE_START_DISTANCE` from the goal to
-      start; the cautious move may also start nearer with the hand within
+    - moves: region, gear held, and outside the insertion corridor (:class:`FarFromGoal`)
+      to start; the cautious move may also start nearer with the hand within
       :data:`INSERT_START_CLEARANCE` of the tool (it stands guard at the goal, backing
       away if the hand comes on); both go on while in the region with the gear held;
     - insert: region and the hand at least :data:`INSERT_START_CLEARANCE` from the tool

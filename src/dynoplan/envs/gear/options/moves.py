@@ -121,8 +121,8 @@ class PreInsertionBeta:
             self._cache[k] = hit
         return hit
 
-    def distance(self, states: FloatArray) -> FloatArray:
-        """(N,) distance (m) of the gear's bottom from its target in states (N, 22).
+    def offset(self, states: FloatArray) -> FloatArray:
+        """(N, 3) the gear's bottom minus its target (m) in states (N, 22).
 
         The right arm holds the peg still, so a batch's right-arm joints stay within a few
         mrad of each other: the target is linearised about the first row's joints rounded
@@ -133,7 +133,12 @@ class PreInsertionBeta:
         q0 = np.round(q[0], 2)
         target0, jacobian = self._linearised(q0)
         targets = target0 + (q - q0) @ jacobian.T
-        d: FloatArray = np.linalg.norm(s[:, STATE_SLICES["gear_pos"]] - targets, axis=1)
+        out: FloatArray = s[:, STATE_SLICES["gear_pos"]] - targets
+        return out
+
+    def distance(self, states: FloatArray) -> FloatArray:
+        """(N,) distance (m) of the gear's bottom from its target in states (N, 22)."""
+        d: FloatArray = np.linalg.norm(self.offset(states), axis=1)
         return d
 
     def _linearised(self, q0: FloatArray) -> tuple[FloatArray, FloatArray]:
