@@ -79,10 +79,13 @@ class FlatGearTask(gym.Wrapper[Any, Any, Any, Any]):
 
 def train_flat_policy(steps: int, seed: int, out: Path, progress: bool = False) -> dict[str, Any]:
     """Train PPO for ``steps`` environment steps; save ``out/flat_policy.safetensors`` and
-    ``.json``; return the report (budget, wall seconds, last mean episode reward)."""
+    ``.json`` and the training log ``out/progress.csv`` (Stable-Baselines3's rollout and
+    loss statistics per update); return the report (budget, wall seconds, last mean
+    episode reward)."""
     import torch
     from safetensors.torch import save_file
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
 
     if steps < 64:
         raise DynoplanError(f"--flat-steps must be >= 64, got {steps}")
@@ -92,6 +95,8 @@ def train_flat_policy(steps: int, seed: int, out: Path, progress: bool = False) 
     n_steps = min(512, steps)
     model = PPO("MlpPolicy", env, n_steps=n_steps, batch_size=min(64, n_steps), seed=seed,
                 device="cpu", verbose=0, policy_kwargs={"net_arch": list(NET_ARCH)})
+    # an explicit logger: left alone, SB3 makes a new SB3-<time> folder in /tmp per run
+    model.set_logger(configure(str(out), ["csv"]))
     t0 = time.perf_counter()
     model.learn(total_timesteps=steps, progress_bar=progress)
     seconds = time.perf_counter() - t0
