@@ -138,7 +138,7 @@ def test_gear_run_rejects_bad_episode_counts(tmp_path: Path):
 
 def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
     """At the pre-insertion pose with the gear held, the insertion may start only with the
-    hand 0.45 m clear of the tool (and goes on to 0.4 m); nearer, the cautious move may
+    hand 0.55 m clear of the tool (and goes on to 0.5 m); nearer, the cautious move may
     start instead (it stands guard). The moves start only outside the insertion corridor
     above the peg (not with the gear on its way down it)."""
     goal = PreInsertionBeta()
@@ -148,7 +148,7 @@ def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
     s[:, STATE_SLICES["gear_pos"]] = goal.target(RIGHT_HOLD)
     s[:, STATE_SLICES["tool_pos"]] = goal.target(RIGHT_HOLD) + np.array([0.0, 0.0, 0.03])
     tool = s[0, STATE_SLICES["tool_pos"]]
-    for row, hand_distance in enumerate((0.6, 0.42, 0.3)):
+    for row, hand_distance in enumerate((0.7, 0.52, 0.3)):
         s[row, STATE_SLICES["human_pos"]] = tool + np.array([hand_distance, 0.0, 0.0])
     s = np.concatenate([s, np.repeat(s[:1], 3, axis=0)])  # 3 more rows, hand far
     s[3, STATE_SLICES["gear_pos"]] += [0.0, 0.2, 0.0]  # 20 cm from the goal, hand far

@@ -43,7 +43,6 @@ import numpy as np
 from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.operator import NEAR
 from dynoplan.envs.gear.options.catalog import PolicyFactory
 from dynoplan.envs.gear.options.moves import PreInsertionBeta
 from dynoplan.envs.gear.oracle import SimulatorOracle
@@ -139,11 +138,12 @@ def hand_clear_of_tool(states: FloatArray, distance: float = PICK_CLEARANCE) -> 
     return out
 
 
-INSERT_START_CLEARANCE = NEAR
+INSERT_START_CLEARANCE = 0.55
 """m: the insertion (which ignores the human) starts only with the hand at least this far
-from the tool (where the operator turns cautious); nearer, the cautious move stands guard
-at the goal and backs away if the hand comes on."""
-INSERT_KEEP_CLEARANCE = NEAR - 0.05
+from the tool; nearer, the cautious move stands guard at the goal and backs away if the
+hand comes on. The tool point is a poor proxy of the arm: a hand crossing at the arm's
+height touched the wrist with the tool point still 0.38 m away."""
+INSERT_KEEP_CLEARANCE = INSERT_START_CLEARANCE - 0.05
 """m: a running insertion goes on while the hand is at least this far from the tool
 (5 cm of hysteresis, so the two do not take turns at the threshold)."""
 

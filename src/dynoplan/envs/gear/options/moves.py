@@ -515,11 +515,11 @@ class CautiousMovePolicy(_CarryMove):
 
     def _retreat(self) -> None:
         """Back away along the candidate motion with the largest predicted clearance:
-        towards home, the tool up, back towards the torso, away from the hand, or back
-        to where the path started. The candidates' end poses are solved when a retreat
-        begins and again every ``retreat_refresh`` s (from where the arm is then). The
-        path is dropped (the arm replans from where
-        it ends up)."""
+        towards home, the tool up, back towards the torso (level, up or down), away from
+        the hand (up or down), or back to where the path started. The candidates' end
+        poses are solved when a retreat begins and again every ``retreat_refresh`` s
+        (from where the arm is then). The path is dropped (the arm replans from where it
+        ends up)."""
         cfg = self.cfg
         q0 = self.q_cmd.copy()
         if self.mode != "retreat" or self.time - self._retreat_since >= cfg.retreat_refresh:
@@ -551,7 +551,8 @@ class CautiousMovePolicy(_CarryMove):
         away = 0.12 * away / max(float(np.linalg.norm(away)), 1e-6)
         goals = [np.concatenate([HOME_Q[:6], q0[6:]])]
         for shift in (np.array([0.0, 0.0, 0.1]), np.array([-0.15, 0.0, 0.0]),
-                      np.array([-0.1, 0.0, 0.08]), away + np.array([0.0, 0.0, 0.05])):
+                      np.array([-0.1, 0.0, 0.08]), np.array([-0.15, 0.0, -0.06]),
+                      away + np.array([0.0, 0.0, 0.05]), away - np.array([0.0, 0.0, 0.05])):
             goals.append(self.kin.solve(q0, tcp + shift, rot, iterations=80).q)
         if self.path is not None and self.path.s > 0:
             goals.append(self.path.at(0.0))
