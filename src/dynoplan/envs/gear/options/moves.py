@@ -515,8 +515,8 @@ class CautiousMovePolicy(_CarryMove):
 
     def _retreat(self) -> None:
         """Back away along the candidate motion with the largest predicted clearance:
-        towards home, the tool up, back towards the torso (level, up or down), away from
-        the hand (up or down), or back to where the path started. The candidates' end
+        towards home, the tool up or down, back towards the torso (level, up or down),
+        away from the hand (up or down), or back to where the path started. The candidates' end
         poses are solved when a retreat begins and again every ``retreat_refresh`` s
         (from where the arm is then). The path is dropped (the arm replans from where it
         ends up)."""
@@ -552,6 +552,7 @@ class CautiousMovePolicy(_CarryMove):
         goals = [np.concatenate([HOME_Q[:6], q0[6:]])]
         for shift in (np.array([0.0, 0.0, 0.1]), np.array([-0.15, 0.0, 0.0]),
                       np.array([-0.1, 0.0, 0.08]), np.array([-0.15, 0.0, -0.06]),
+                      np.array([0.0, 0.0, -0.06]),
                       away + np.array([0.0, 0.0, 0.05]), away - np.array([0.0, 0.0, 0.05])):
             goals.append(self.kin.solve(q0, tcp + shift, rot, iterations=80).q)
         if self.path is not None and self.path.s > 0:
