@@ -107,3 +107,24 @@ def test_sweep_command_on_two_workers_then_resumed(ray_runtime, quick_gear_run,
         assert [r["horizon"] for r in csv.DictReader(f)] == ["3", "6"]
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0 and "(0 run, 2 already finished)" in again.output
+
+
+def test_option_network_data_is_the_same_on_two_workers_in_any_order(ray_runtime):
+    import numpy as np
+
+    from dynoplan.envs.gear.options.catalog import (
+        NetworkData,
+        build_network_data,
+        network_data_episode,
+    )
+
+    for option in ("pick", "insert"):
+        job = NetworkData(option, 3)
+        serial = parallel_map(build_network_data, network_data_episode, job, [0, 1, 2])
+        backwards = parallel_map(build_network_data, network_data_episode, job, [2, 1, 0])
+        parallel = parallel_map(build_network_data, network_data_episode, job, [0, 1, 2],
+                                Workers(2))
+        for a, b, c in zip(serial, backwards[::-1], parallel, strict=True):
+            for field in dataclasses.fields(a):
+                x, y, z = (getattr(e, field.name) for e in (a, b, c))
+                assert np.array_equal(x, y) and np.array_equal(x, z), (option, field.name)
