@@ -109,6 +109,23 @@ def test_sweep_command_on_two_workers_then_resumed(ray_runtime, quick_gear_run,
     assert again.exit_code == 0 and "(0 run, 2 already finished)" in again.output
 
 
+def test_demonstrations_are_the_same_dataset_on_two_workers(ray_runtime, quick_gear_run,
+                                                            tmp_path: Path):
+    from dynoplan.experiments.gear_demos import record_demos
+
+    models = quick_gear_run / "models"
+    one = record_demos(3, 5, tmp_path / "one", False, demonstrator="options", models=models)
+    two = record_demos(3, 5, tmp_path / "two", False, demonstrator="options", models=models,
+                       workers=Workers(2))
+    assert {k: v for k, v in one.items() if k != "dataset"} == \
+        {k: v for k, v in two.items() if k != "dataset"}
+    files = sorted(p.relative_to(tmp_path / "one") for p in (tmp_path / "one").rglob("*")
+                   if p.is_file())
+    assert files
+    for f in files:
+        assert (tmp_path / "one" / f).read_bytes() == (tmp_path / "two" / f).read_bytes(), f
+
+
 def test_option_network_data_is_the_same_on_two_workers_in_any_order(ray_runtime):
     import numpy as np
 
