@@ -145,3 +145,14 @@ def test_option_network_data_is_the_same_on_two_workers_in_any_order(ray_runtime
             for field in dataclasses.fields(a):
                 x, y, z = (getattr(e, field.name) for e in (a, b, c))
                 assert np.array_equal(x, y) and np.array_equal(x, z), (option, field.name)
+
+
+def test_one_map_of_several_jobs_gives_each_job_its_own_results(ray_runtime, job, serial):
+    from dynoplan.experiments.gear_jobs import evaluate_many
+
+    seeds = episode_seeds(7, EPISODES)
+    script = EvalJob(job.models, "fixed_script", QUICK_PLANNER)
+    both = evaluate_many([(script, seeds[:2]), (job, seeds)], Workers(2))
+    assert [_comparable(m) for m in both[1]] == [_comparable(m) for m in serial]
+    assert [_comparable(m) for m in both[0]] == \
+        [_comparable(m) for m in evaluate(script, seeds[:2])]
