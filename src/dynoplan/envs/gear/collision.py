@@ -86,9 +86,11 @@ def _min_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms_a: IntArray,
     # np.linalg.norm(diff, axis=-1) computes exactly this (for real arrays), with more
     # overhead; the bounds, hence the pairs visited, are the same to the last bit
     lower = np.sqrt(np.add.reduce(diff * diff, axis=-1)) - bound_a - bound_b
+    best = distmax
+    if lower.min() >= best:  # no pair can be closer than the cap (a frequent answer)
+        return float(best)
     order = np.argsort(lower, axis=None)
     flat_lower = lower.ravel()
-    best = distmax
     nb = len(geoms_b)
     for flat in order:
         if flat_lower[flat] >= best:
