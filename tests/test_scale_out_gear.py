@@ -31,6 +31,16 @@ def _comparable(metrics: Any) -> dict[str, Any]:
     return d
 
 
+def _assert_same_dataset(one: dict[str, Any], two: dict[str, Any], a: Path, b: Path) -> None:
+    """Two runs' summaries agree (but for the folder) and their folders byte for byte."""
+    assert {k: v for k, v in one.items() if k != "dataset"} == \
+        {k: v for k, v in two.items() if k != "dataset"}
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert files
+    for f in files:
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f
+
+
 @pytest.fixture(scope="module")
 def job(quick_gear_run: Path) -> EvalJob:
     return EvalJob(quick_gear_run / "models", "dynoplan", QUICK_PLANNER)
@@ -84,13 +94,7 @@ def test_collection_writes_the_same_dataset_on_two_workers(ray_runtime, quick_ge
     one = collect_transitions(models, 1, 3, tmp_path / "one", max_decisions=3, progress=False)
     two = collect_transitions(models, 1, 3, tmp_path / "two", max_decisions=3, progress=False,
                               workers=Workers(2))
-    assert {k: v for k, v in one.items() if k != "dataset"} == \
-        {k: v for k, v in two.items() if k != "dataset"}
-    files = sorted(p.relative_to(tmp_path / "one") for p in (tmp_path / "one").rglob("*")
-                   if p.is_file())
-    assert files
-    for f in files:
-        assert (tmp_path / "one" / f).read_bytes() == (tmp_path / "two" / f).read_bytes(), f
+    _assert_same_dataset(one, two, tmp_path / "one", tmp_path / "two")
 
 
 def test_sweep_command_on_two_workers_then_resumed(ray_runtime, quick_gear_run,
@@ -117,13 +121,7 @@ def test_demonstrations_are_the_same_dataset_on_two_workers(ray_runtime, quick_g
     one = record_demos(3, 5, tmp_path / "one", False, demonstrator="options", models=models)
     two = record_demos(3, 5, tmp_path / "two", False, demonstrator="options", models=models,
                        workers=Workers(2))
-    assert {k: v for k, v in one.items() if k != "dataset"} == \
-        {k: v for k, v in two.items() if k != "dataset"}
-    files = sorted(p.relative_to(tmp_path / "one") for p in (tmp_path / "one").rglob("*")
-                   if p.is_file())
-    assert files
-    for f in files:
-        assert (tmp_path / "one" / f).read_bytes() == (tmp_path / "two" / f).read_bytes(), f
+    _assert_same_dataset(one, two, tmp_path / "one", tmp_path / "two")
 
 
 def test_option_network_data_is_the_same_on_two_workers_in_any_order(ray_runtime):
