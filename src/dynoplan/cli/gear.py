@@ -202,8 +202,8 @@ def figures(
 def run(
     out: Path = typer.Option(Path("results/gear"), help="Output folder (everything goes here)."),
     seed: int = typer.Option(0, help="Seed of every stage."),
-    quick: bool = typer.Option(False, "--quick", help="Small settings of every stage (about "
-                               "3 minutes)."),
+    quick: bool = typer.Option(False, "--quick", help="Small settings of every stage (under "
+                               "2 minutes on two free cores; the defaults: under 10)."),
     episodes: int | None = typer.Option(None, help="Evaluation episodes per controller "
                                         "(default 100; --quick 6)."),
     oracle_episodes: int | None = typer.Option(None, help="Episodes of the simulator "

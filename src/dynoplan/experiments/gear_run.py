@@ -167,8 +167,9 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
             if workers.parallel else None)
     quick = settings.quick_models
     missing = tuple(n for n, f in NEURAL_FILES.items() if not (models_dir / f).is_file())
-    # the option networks always train on full settings (about 35 s): quick ones fail
-    # too often for ten successful demonstrations
+    # the option networks always train on full settings (160 data episodes, about 35 s
+    # on one core, and 10 s of fits): quick ones fail too often for ten successful
+    # demonstrations
     summary["networks"] = stage("networks", lambda: train_option_networks(
         models_dir, seed, quick=False, only=missing, workers=workers) if missing else {})
     summary["demos"] = stage("demos", lambda: [
