@@ -145,6 +145,36 @@ def test_collision_checker_answers_like_the_env(env):
     np.testing.assert_allclose(env.arm_qpos, HOME_Q)
 
 
+def test_collision_checker_queries_at_the_same_joints_answer_as_posed_afresh(env):
+    """The checker skips posing the arm (and the carried gear) again for a query at the
+    previous query's joints; every answer equals a checker that poses everything anew."""
+    env.reset(seed=4, options={"human_mode": "away"})
+    fast, fresh = env.collision_checker(), env.collision_checker()
+    rng = np.random.default_rng(0)
+    for carry in (False, True):
+        fast.sync(env.data, carry_gear=carry)
+        q = HOME_Q.copy()
+        for k in range(60):
+            if k % 3 == 0:  # a new state, then queries at the same joints
+                q = HOME_Q + rng.normal(0.0, 0.3, size=12)
+            hand = np.array([0.55, 0.0, TABLE_TOP_Z + 0.15]) + rng.normal(0.0, 0.1, size=3)
+            quat = rng.normal(size=4)
+            quat /= np.linalg.norm(quat)
+            fast.set_human(hand, quat)
+
+            def afresh(hand=hand, quat=quat, carry=carry):
+                fresh.sync(env.data, carry_gear=carry)
+                fresh.set_human(hand, quat)
+                return fresh
+
+            cap = float(rng.uniform(0.05, 1.0))
+            assert fast.human_distance(q, distmax=cap) == afresh().human_distance(q, cap)
+            assert fast.in_collision(q, margin=0.002) == afresh().in_collision(q, margin=0.002)
+            assert fast.in_collision(q, ignore_gear=True) == afresh().in_collision(
+                q, ignore_gear=True)
+            np.testing.assert_array_equal(fast.data.geom_xpos, fresh.data.geom_xpos)
+
+
 def test_human_schedules_keep_clear_of_the_static_robot(env):
     """The operator never walks into the right arm (which holds the peg and never moves)
     nor into the left arm waiting at the expert's retreat pose."""

@@ -34,7 +34,7 @@ def env():
 
 @pytest.fixture(scope="module")
 def data(env):
-    return generate_grasp_data(env, 16, np.random.default_rng([3, 0]))
+    return generate_grasp_data(env, 16, seed=3)
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,8 @@ from dynoplan.experiments.gear_controllers import (
     not_carried,
     preconditions,
 )
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics
+from dynoplan.experiments.gear_run import video_episode
 from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
 
@@ -117,6 +118,9 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
         assert 0.0 <= float(row["success_rate"]) <= 1.0
         assert int(row["contacts"]) >= 0
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["wall_s"] > 0 and summary["workers"]["count"] >= 1  # --workers auto
+    assert set(summary["stages_s"]) == {"networks", "demos", "collect", "train", "figures",
+                                        "flat_ppo", "evaluate", "faults"}  # --no-video
     assert {f["fault"] for f in summary["faults"]} == {"dynamics_noise", "observation_noise",
                                                       "grasp_slip"}
     assert summary["results"][0]["episodes"] == 3 and summary["results"][1]["episodes"] == 1
@@ -127,6 +131,19 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
                  "demos", "heldout", "transitions"):
         assert (out / name).exists(), name
     assert "| dynoplan |" in (out / "results.md").read_text()
+
+
+def test_the_video_shows_the_shortest_successful_switch_to_the_cautious_move():
+    def episode(options, mode="cross", success=True, seconds=10.0):
+        return EpisodeMetrics(0, mode, success, seconds, 0, 1.0, 0, 0, 0, (), options)
+
+    fast, cautious = ("pick", "fast_move", "insert"), ("pick", "cautious_move", "insert")
+    episodes = [episode(fast), episode(cautious, success=False, seconds=5.0),
+                episode(cautious, seconds=20.0), episode(cautious, seconds=12.0),
+                episode(cautious, mode="away", seconds=1.0)]
+    assert video_episode(episodes) == 3
+    assert video_episode([episode(fast, "away"), episode(fast), episode(fast)]) == 1
+    assert video_episode([episode(fast, "away", seconds=3.0)]) == 0
 
 
 def test_gear_run_rejects_bad_episode_counts(tmp_path: Path):

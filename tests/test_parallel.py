@@ -10,7 +10,15 @@ from pathlib import Path
 import pytest
 
 from dynoplan.errors import DynoplanError
-from dynoplan.parallel import SERIAL, Workers, imap_unordered, parallel_map
+from dynoplan.parallel import (
+    SERIAL,
+    Workers,
+    cpu_count,
+    imap_unordered,
+    parallel_map,
+    parse_workers,
+    run_in_background,
+)
 
 
 def _setup(context: int) -> dict[str, int]:
@@ -58,6 +66,41 @@ def test_bad_workers_and_missing_ray_are_one_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # "not installed"
     with pytest.raises(DynoplanError, match=r"need Ray: pip install 'dynoplan\[ray\]'"):
         parallel_map(_setup, _square, 0, [1, 2], Workers(2))
+
+
+def test_workers_auto_is_one_per_cpu_with_ray_and_serial_without(monkeypatch):
+    assert parse_workers("1") == SERIAL and parse_workers(3, "auto") == Workers(3, "auto")
+    with pytest.raises(DynoplanError, match="--workers must be 'auto' or a number >= 1"):
+        parse_workers("two")
+    with pytest.raises(DynoplanError, match="--workers must be >= 1"):
+        parse_workers("0")
+    monkeypatch.setattr("dynoplan.parallel.ray_available", lambda: True)
+    assert parse_workers("auto") == parse_workers(" AUTO ") == Workers(cpu_count())
+    monkeypatch.undo()
+    monkeypatch.setitem(sys.modules, "ray", None)  # "not installed"
+    assert parse_workers("auto") == SERIAL  # no error: serial, and Ray is not needed
+
+
+def test_gear_run_defaults_to_serial_without_ray_and_never_imports_it():
+    code = textwrap.dedent("""
+        import sys
+        sys.modules["ray"] = None  # "not installed"
+        import dynoplan.experiments.gear_run as gear_run
+        seen = []
+        gear_run.run_gear_pipeline = lambda *a, workers, **k: seen.append(workers) or {
+            "results": []}
+        from dynoplan.cli.main import main
+        sys.argv = ["dynoplan", "gear", "run", "--out", "unused", "--quiet"]
+        try:
+            main()
+        except SystemExit as exc:
+            assert exc.code == 0, exc.code
+        from dynoplan.parallel import SERIAL
+        assert seen == [SERIAL], seen
+    """)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
 
 
 def test_cli_without_ray_prints_one_error_line(tmp_path: Path):
@@ -111,3 +154,28 @@ def test_ray_map_reraises_a_task_error_without_retrying(ray_runtime, tmp_path: P
     with pytest.raises(DynoplanError, match="item 0 is bad"):
         parallel_map(lambda c: c, fails, 0, [0], Workers(2))
     assert attempts.read_text() == "x"
+
+
+def test_a_background_task_runs_at_once_when_serial():
+    ran = []
+    wait = run_in_background(lambda x: ran.append(x) or x + 1, (1,), SERIAL)
+    assert ran == [1] and wait() == 2
+
+
+@pytest.mark.slow
+def test_a_background_task_runs_beside_a_map_on_ray(ray_runtime, tmp_path: Path):
+    def slow_square(x: int) -> int:
+        import time
+
+        time.sleep(1.0)
+        return x * x
+
+    def fails(x: int) -> int:
+        raise DynoplanError(f"{x} is bad")
+
+    wait = run_in_background(slow_square, (7,), Workers(2))
+    assert parallel_map(lambda c: c, lambda c, x: x + c, 1, [1, 2, 3], Workers(2)) == [2, 3, 4]
+    assert wait() == 49
+    failed = run_in_background(fails, (3,), Workers(2))
+    with pytest.raises(DynoplanError, match="3 is bad"):
+        failed()

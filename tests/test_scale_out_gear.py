@@ -31,6 +31,16 @@ def _comparable(metrics: Any) -> dict[str, Any]:
     return d
 
 
+def _assert_same_dataset(one: dict[str, Any], two: dict[str, Any], a: Path, b: Path) -> None:
+    """Two runs' summaries agree (but for the folder) and their folders byte for byte."""
+    assert {k: v for k, v in one.items() if k != "dataset"} == \
+        {k: v for k, v in two.items() if k != "dataset"}
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert files
+    for f in files:
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f
+
+
 @pytest.fixture(scope="module")
 def job(quick_gear_run: Path) -> EvalJob:
     return EvalJob(quick_gear_run / "models", "dynoplan", QUICK_PLANNER)
@@ -84,13 +94,7 @@ def test_collection_writes_the_same_dataset_on_two_workers(ray_runtime, quick_ge
     one = collect_transitions(models, 1, 3, tmp_path / "one", max_decisions=3, progress=False)
     two = collect_transitions(models, 1, 3, tmp_path / "two", max_decisions=3, progress=False,
                               workers=Workers(2))
-    assert {k: v for k, v in one.items() if k != "dataset"} == \
-        {k: v for k, v in two.items() if k != "dataset"}
-    files = sorted(p.relative_to(tmp_path / "one") for p in (tmp_path / "one").rglob("*")
-                   if p.is_file())
-    assert files
-    for f in files:
-        assert (tmp_path / "one" / f).read_bytes() == (tmp_path / "two" / f).read_bytes(), f
+    _assert_same_dataset(one, two, tmp_path / "one", tmp_path / "two")
 
 
 def test_sweep_command_on_two_workers_then_resumed(ray_runtime, quick_gear_run,
@@ -107,3 +111,46 @@ def test_sweep_command_on_two_workers_then_resumed(ray_runtime, quick_gear_run,
         assert [r["horizon"] for r in csv.DictReader(f)] == ["3", "6"]
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0 and "(0 run, 2 already finished)" in again.output
+
+
+def test_demonstrations_are_the_same_dataset_on_two_workers(ray_runtime, quick_gear_run,
+                                                            tmp_path: Path):
+    from dynoplan.experiments.gear_demos import record_demos
+
+    models = quick_gear_run / "models"
+    one = record_demos(3, 5, tmp_path / "one", False, demonstrator="options", models=models)
+    two = record_demos(3, 5, tmp_path / "two", False, demonstrator="options", models=models,
+                       workers=Workers(2))
+    _assert_same_dataset(one, two, tmp_path / "one", tmp_path / "two")
+
+
+def test_option_network_data_is_the_same_on_two_workers_in_any_order(ray_runtime):
+    import numpy as np
+
+    from dynoplan.envs.gear.options.catalog import (
+        NetworkData,
+        build_network_data,
+        network_data_episode,
+    )
+
+    for option in ("pick", "insert"):
+        job = NetworkData(option, 3)
+        serial = parallel_map(build_network_data, network_data_episode, job, [0, 1, 2])
+        backwards = parallel_map(build_network_data, network_data_episode, job, [2, 1, 0])
+        parallel = parallel_map(build_network_data, network_data_episode, job, [0, 1, 2],
+                                Workers(2))
+        for a, b, c in zip(serial, backwards[::-1], parallel, strict=True):
+            for field in dataclasses.fields(a):
+                x, y, z = (getattr(e, field.name) for e in (a, b, c))
+                assert np.array_equal(x, y) and np.array_equal(x, z), (option, field.name)
+
+
+def test_one_map_of_several_jobs_gives_each_job_its_own_results(ray_runtime, job, serial):
+    from dynoplan.experiments.gear_jobs import evaluate_many
+
+    seeds = episode_seeds(7, EPISODES)
+    script = EvalJob(job.models, "fixed_script", QUICK_PLANNER)
+    both = evaluate_many([(script, seeds[:2]), (job, seeds)], Workers(2))
+    assert [_comparable(m) for m in both[1]] == [_comparable(m) for m in serial]
+    assert [_comparable(m) for m in both[0]] == \
+        [_comparable(m) for m in evaluate(script, seeds[:2])]

@@ -5,8 +5,8 @@ A job is two plain functions and one small, picklable context (paths, frozen set
 controller) and ``run(state, item) -> result`` does one item (one seeded episode). The
 map returns one result per item, in the items' order, wherever they ran:
 
-- :data:`SERIAL` (the default, one worker, no address): a loop in this process; Ray is
-  not imported, let alone started;
+- :data:`SERIAL` (one worker, no address): a loop in this process; Ray is not imported,
+  let alone started;
 - ``Workers(count=N)`` with ``N > 1``: a local Ray runtime with ``N`` CPUs, one Ray task
   per item; each worker process runs ``setup`` once per context and keeps the state for
   the items that follow (what an actor holding one environment would do, without pinning
@@ -21,7 +21,9 @@ must therefore be pure: results come back to the caller, which alone writes file
 exception raised by ``run`` is not retried (it would fail again): the map re-raises it.
 """
 
+import importlib.util
 import itertools
+import os
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator, Sequence
 from contextlib import contextmanager
@@ -76,6 +78,51 @@ class Workers:
 SERIAL = Workers()
 """One worker: a plain loop in this process, no Ray."""
 
+AUTO = "auto"
+"""The ``--workers`` value that picks the count from the machine (:func:`auto_workers`)."""
+
+
+def ray_available() -> bool:
+    """Whether Ray can be imported, found without importing it (importing costs seconds)."""
+    try:
+        return importlib.util.find_spec("ray") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def cpu_count() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # no affinity masks (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
+def auto_workers() -> int:
+    """The ``auto`` worker count: :func:`cpu_count` when Ray is importable, else 1 (serial,
+    no error: Ray is an optional extra)."""
+    return cpu_count() if ray_available() else 1
+
+
+def parse_workers(value: str | int, address: str | None = None) -> Workers:
+    """``--workers`` (``"auto"`` or a count >= 1) and ``--ray-address`` as :class:`Workers`.
+
+    ``"auto"`` is :func:`auto_workers`; an explicit ``1`` (and no address) is always
+    serial, whether Ray is installed or not.
+
+    Raises:
+        DynoplanError: ``value`` is neither ``auto`` nor an integer >= 1.
+    """
+    text = str(value).strip().lower()
+    if text == AUTO:
+        return Workers(auto_workers(), address)
+    try:
+        count = int(text)
+    except ValueError:
+        raise DynoplanError(f"--workers must be 'auto' or a number >= 1, got "
+                            f"{value!r}") from None
+    return Workers(count, address)
+
 
 def parallel_map(setup: Callable[[C], S], run: Callable[[S, T], R], context: C,
                  items: Sequence[T], workers: Workers = SERIAL, description: str = "",
@@ -114,6 +161,28 @@ def imap_unordered(setup: Callable[[C], S], run: Callable[[S, T], R],
         return
     with ray_session(workers):
         yield from _ray_map(setup, run, tasks, workers, description, progress)
+
+
+def run_in_background(fn: Callable[..., R], args: tuple[Any, ...],
+                      workers: Workers = SERIAL) -> Callable[[], R]:
+    """Start ``fn(*args)`` and return a function that waits for it and returns its result
+    (or raises its error).
+
+    On parallel ``workers`` it is one Ray task, holding one CPU of the runtime (so the
+    maps started meanwhile share the others), retried like a map's items if its worker
+    dies; it must therefore be pure like them: a module-level function of small,
+    picklable arguments whose result comes back to the caller, which writes the files.
+    It needs a running Ray session (:func:`ray_session`) until the result is fetched.
+    Serially, ``fn`` runs at once, in this process, before this function returns.
+    """
+    if not workers.parallel:
+        result = fn(*args)
+        return lambda: result
+    ray = _import_ray()
+    if not ray.is_initialized():
+        raise DynoplanError("run_in_background needs a running Ray session (ray_session)")
+    ref = ray.remote(max_retries=workers.retries, retry_exceptions=False)(fn).remote(*args)
+    return lambda: _fetch(ref)
 
 
 @contextmanager
@@ -169,8 +238,6 @@ def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], tasks: Sequence[
     """Tasks in flight at most :data:`IN_FLIGHT_PER_CPU` per cluster CPU (so the driver's
     bookkeeping stays small with 10^5 tasks), the rest submitted as results come in."""
     ray = _import_ray()
-    from ray.exceptions import RayTaskError
-
     remote = ray.remote(max_retries=workers.retries, retry_exceptions=False)(_run_item)
     cpus = int(ray.cluster_resources().get("CPU", workers.count))
     window = max(2, IN_FLIGHT_PER_CPU * cpus)
@@ -191,11 +258,7 @@ def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], tasks: Sequence[
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
                     i = pending.pop(ref)
-                    try:
-                        result = ray.get(ref)
-                    except RayTaskError as exc:  # the item's own exception, not a crash
-                        cause = exc.cause
-                        raise (cause if isinstance(cause, DynoplanError) else exc) from None
+                    result = _fetch(ref)
                     submit(1)
                     yield i, result
         finally:
@@ -203,6 +266,19 @@ def _ray_map(setup: Callable[[C], S], run: Callable[[S, T], R], tasks: Sequence[
                 ray.cancel(ref, force=True)
 
     yield from track(finished(), description, total=len(tasks), enabled=progress)
+
+
+def _fetch(ref: Any) -> Any:
+    """``ray.get(ref)``; a task's own exception (not a crash) is re-raised, a
+    :class:`DynoplanError` as itself (one line for the user), others wrapped by Ray with
+    the worker's traceback."""
+    from ray.exceptions import RayTaskError
+
+    try:
+        return _import_ray().get(ref)
+    except RayTaskError as exc:
+        cause = exc.cause
+        raise (cause if isinstance(cause, DynoplanError) else exc) from None
 
 
 _states: "OrderedDict[tuple[Any, Hashable], Any]" = OrderedDict()
@@ -220,5 +296,6 @@ def _run_item(setup: Callable[[C], S], run: Callable[[S, T], R], context: C, ite
     return run(_states[key], item)
 
 
-__all__ = ["IN_FLIGHT_PER_CPU", "SERIAL", "WORKER_STATES", "Workers", "imap_unordered",
-           "parallel_map", "ray_session"]
+__all__ = ["AUTO", "IN_FLIGHT_PER_CPU", "SERIAL", "WORKER_STATES", "Workers", "auto_workers",
+           "cpu_count", "imap_unordered", "parallel_map", "parse_workers", "ray_available",
+           "ray_session", "run_in_background"]

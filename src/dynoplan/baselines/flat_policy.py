@@ -79,36 +79,52 @@ class FlatGearTask(gym.Wrapper[Any, Any, Any, Any]):
 
 def train_flat_policy(steps: int, seed: int, out: Path, progress: bool = False) -> dict[str, Any]:
     """Train PPO for ``steps`` environment steps; save ``out/flat_policy.safetensors`` and
-    ``.json`` and the training log ``out/progress.csv`` (Stable-Baselines3's rollout and
-    loss statistics per update); return the report (budget, wall seconds, last mean
-    episode reward)."""
+    ``.json``; return the report (budget, wall seconds, last mean episode reward)."""
+    return save_flat_policy(fit_flat_policy(steps, seed, progress), out)
+
+
+def fit_flat_policy(steps: int, seed: int,
+                    progress: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Train PPO for ``steps`` environment steps on one torch thread, writing nothing:
+    the policy's ``state_dict`` (CPU tensors) and the report of
+    :func:`train_flat_policy`. Depends on ``steps`` and ``seed`` alone, so it can run in
+    any process (a Ray task, while other work goes on) and give the same weights."""
     import torch
-    from safetensors.torch import save_file
     from stable_baselines3 import PPO
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.logger import Logger
 
     if steps < 64:
         raise DynoplanError(f"--flat-steps must be >= 64, got {steps}")
-    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(1)
     env = FlatGearTask()
     env.reset(seed=seed)
     n_steps = min(512, steps)
     model = PPO("MlpPolicy", env, n_steps=n_steps, batch_size=min(64, n_steps), seed=seed,
                 device="cpu", verbose=0, policy_kwargs={"net_arch": list(NET_ARCH)})
-    # an explicit logger: left alone, SB3 makes a new SB3-<time> folder in /tmp per run
-    model.set_logger(configure(str(out), ["csv"]))
+    # a logger that writes nothing: left alone, SB3 makes an SB3-<time> folder in /tmp
+    model.set_logger(Logger(folder=None, output_formats=[]))
     t0 = time.perf_counter()
     model.learn(total_timesteps=steps, progress_bar=progress)
     seconds = time.perf_counter() - t0
     rewards = [float(e["r"]) for e in model.ep_info_buffer] if model.ep_info_buffer else []
     state = {k: v.detach().contiguous() for k, v in model.policy.state_dict().items()}
-    write_with(out / "flat_policy.safetensors", lambda p: save_file(state, str(p)))
     report = {"format_version": FORMAT_VERSION, "algorithm": "PPO", "env_steps": int(steps),
               "net_arch": list(NET_ARCH), "n_steps": n_steps, "seed": seed,
               "train_seconds": seconds, "torch": torch.__version__,
               "episode_reward_mean_last": float(np.mean(rewards[-20:])) if rewards else None}
-    write_json(out / "flat_policy.json", report)
     env.close()
+    return state, report
+
+
+def save_flat_policy(fitted: tuple[dict[str, Any], dict[str, Any]], out: Path) -> dict[str, Any]:
+    """Write :func:`fit_flat_policy`'s result into ``out`` (``flat_policy.safetensors``
+    and ``flat_policy.json``, which :class:`FlatPolicy` reads); return the report."""
+    from safetensors.torch import save_file
+
+    state, report = fitted
+    out.mkdir(parents=True, exist_ok=True)
+    write_with(out / "flat_policy.safetensors", lambda p: save_file(state, str(p)))
+    write_json(out / "flat_policy.json", report)
     return report
 
 
@@ -150,4 +166,5 @@ class FlatPolicy:
         return np.concatenate([np.clip(q, lim[:, 0], lim[:, 1]), [(a[6] + 1.0) / 2.0]])
 
 
-__all__ = ["FlatGearTask", "FlatPolicy", "train_flat_policy"]
+__all__ = ["FlatGearTask", "FlatPolicy", "fit_flat_policy", "save_flat_policy",
+           "train_flat_policy"]

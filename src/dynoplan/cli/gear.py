@@ -132,7 +132,7 @@ def collect(
     models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
     max_decisions: int = typer.Option(30, help="Decisions (0.5 s each) per run at most."),
-    workers: int = workers_option(),
+    workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
@@ -140,9 +140,9 @@ def collect(
     import torch
 
     from dynoplan.experiments.gear_collect import collect_transitions
-    from dynoplan.parallel import Workers
+    from dynoplan.parallel import parse_workers
 
-    pool = Workers(workers, ray_address)
+    pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     for name in ("pick", "insert"):
         _ensure_networks(name, models, seed)
@@ -202,14 +202,14 @@ def figures(
 def run(
     out: Path = typer.Option(Path("results/gear"), help="Output folder (everything goes here)."),
     seed: int = typer.Option(0, help="Seed of every stage."),
-    quick: bool = typer.Option(False, "--quick", help="Small settings of every stage (about "
-                               "3 minutes)."),
+    quick: bool = typer.Option(False, "--quick", help="Small settings of every stage (under "
+                               "2 minutes on two free cores; the defaults: under 10)."),
     episodes: int | None = typer.Option(None, help="Evaluation episodes per controller "
                                         "(default 100; --quick 6)."),
     oracle_episodes: int | None = typer.Option(None, help="Episodes of the simulator "
                                                "oracle (the first of the same list)."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
-    workers: int = workers_option(),
+    workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -220,9 +220,9 @@ def run(
 
     from dynoplan.errors import DynoplanError
     from dynoplan.experiments.gear_run import QUICK_RUN, GearRunSettings, run_gear_pipeline
-    from dynoplan.parallel import Workers
+    from dynoplan.parallel import parse_workers
 
-    pool = Workers(workers, ray_address)
+    pool = parse_workers(workers, ray_address)
 
     settings = QUICK_RUN if quick else GearRunSettings()
     if episodes is not None:
@@ -255,7 +255,7 @@ def evaluate(
                                        "(default 64)."),
     flat: Path | None = typer.Option(None, help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
-    workers: int = workers_option(),
+    workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -264,9 +264,9 @@ def evaluate(
 
     from dynoplan.experiments.gear_controllers import PlannerSettings
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
-    from dynoplan.parallel import Workers
+    from dynoplan.parallel import parse_workers
 
-    pool = Workers(workers, ray_address)
+    pool = parse_workers(workers, ray_address)
     planner = PlannerSettings()
     if horizon is not None:
         planner = replace(planner, horizon=horizon)
@@ -276,7 +276,7 @@ def evaluate(
     summary = run_gear_evaluation(models, out, names, episodes, seed, planner,
                                   flat or models.parent / "flat_ppo", pool, progress=not quiet)
     _echo_results(summary["results"])
-    typer.echo(f"{summary['wall_s']:.1f} s on {workers} worker(s) -> {out}/results.md, "
+    typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
 
 

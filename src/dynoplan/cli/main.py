@@ -59,7 +59,7 @@ def sweep(
     config: Path = typer.Argument(..., help="Sweep configuration (.toml or .json)."),
     out: Path | None = typer.Option(None, help="Output folder (default: results/sweep-"
                                     "CONFIG_NAME). Re-running into it skips finished cells."),
-    workers: int = workers_option(),
+    workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
@@ -68,9 +68,9 @@ def sweep(
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     from dynoplan.experiments.sweep import run_sweep
-    from dynoplan.parallel import Workers
+    from dynoplan.parallel import parse_workers
 
-    pool = Workers(workers, ray_address)
+    pool = parse_workers(workers, ray_address)
     folder = out if out is not None else Path("results") / f"sweep-{config.stem}"
     summary = run_sweep(config, folder, pool, progress=not quiet,
                         log=(lambda _: None) if quiet else typer.echo)

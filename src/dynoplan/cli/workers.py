@@ -7,10 +7,15 @@ import typer
 
 
 def workers_option() -> Any:
-    """``--workers N``: 1 runs in this process without Ray; more start a local Ray
-    runtime of N CPUs."""
-    return typer.Option(1, "--workers", help="Parallel workers: 1 runs here without Ray; "
-                        "N > 1 runs episodes as Ray tasks on N local CPUs.")
+    """``--workers auto|N`` (a string; :func:`dynoplan.parallel.parse_workers` reads it):
+    ``auto``, the default, is every CPU of the machine when Ray is installed and 1
+    otherwise; 1 runs in this process without Ray; more start a local Ray runtime of N
+    CPUs."""
+    return typer.Option("auto", "--workers", metavar="auto|N",
+                        help="Parallel workers. 'auto' (the default): one per CPU when Ray "
+                        "is installed, else 1. 1 runs here without importing Ray; N > 1 "
+                        "runs episodes as Ray tasks on N local CPUs. Results are the same "
+                        "for any N.")
 
 
 def ray_address_option() -> Any:

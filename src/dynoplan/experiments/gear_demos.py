@@ -18,6 +18,7 @@ from dynoplan.envs import GEAR_ASSEMBLY_ID
 from dynoplan.envs.gear.expert import OPTION_NAMES
 from dynoplan.experiments.gear_expert import record_expert_episodes
 from dynoplan.io import ensure_writable_dir
+from dynoplan.parallel import SERIAL, Workers
 
 DATASET_ID = "dynoplan/gear-assembly/expert-v0"
 """Dataset id of demonstrations by either demonstrator (``metadata.extra`` names it)."""
@@ -38,14 +39,15 @@ def to_dataset_episode(raw: dict[str, Any]) -> Episode:
 
 def record_demos(n: int, seed: int, out: Path, progress: bool = True,
                  human_mode: str | None = None, demonstrator: str = "expert",
-                 models: Path | None = None) -> dict[str, Any]:
+                 models: Path | None = None, workers: Workers = SERIAL) -> dict[str, Any]:
     """Record ``n`` demonstrations into the dataset folder ``out``; return a summary.
 
     ``demonstrator``: ``expert`` (the scripted expert) or ``options`` (an operator
-    chaining the option policies, whose networks are read from ``models``)."""
+    chaining the option policies, whose networks are read from ``models``). The episodes
+    run on ``workers``; the dataset is the same on one worker or many."""
     ensure_writable_dir(out.parent if out.parent != Path("") else Path("."))
     raw = record_expert_episodes(n, seed, progress=progress, human_mode=human_mode,
-                                 demonstrator=demonstrator, models=models)
+                                 demonstrator=demonstrator, models=models, workers=workers)
     episodes = [to_dataset_episode(r) for r in raw]
     modes = [str(r["human_mode"]) for r in raw]
     env = gym.make(GEAR_ASSEMBLY_ID)

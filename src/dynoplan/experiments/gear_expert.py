@@ -9,6 +9,7 @@
 import platform
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -21,7 +22,7 @@ from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.episodes import episode_seeds as derive_episode_seeds
 from dynoplan.io import ensure_writable_dir, write_json, write_with
-from dynoplan.progress import track
+from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.reports.video import write_mp4
 from dynoplan.types import FloatArray
 
@@ -49,7 +50,10 @@ def _check(episodes: int, human_mode: str | None) -> None:
 
 class Demonstrator(Protocol):
     """Who demonstrates: the scripted :class:`GearExpert` or the
-    :class:`~dynoplan.envs.gear.operator.OptionOperator`."""
+    :class:`~dynoplan.envs.gear.operator.OptionOperator`. ``reseed(seed)`` makes the next
+    episode depend on ``seed`` alone (independent episodes)."""
+
+    def reseed(self, seed: int) -> None: ...
 
     def reset(self) -> None: ...
 
@@ -149,41 +153,88 @@ def _frame(env: GearAssemblyEnv) -> npt.NDArray[np.uint8]:
     return frame
 
 
+@dataclass(frozen=True)
+class DemoJob:
+    """Demonstrated episodes as a worker rebuilds them (:mod:`dynoplan.parallel`): the
+    demonstrator ``kind`` (:data:`DEMONSTRATORS`), the options' networks read from
+    ``models``."""
+
+    kind: str
+    models: Path | None = None
+
+
+def build_demonstrator(job: DemoJob) -> tuple[GearAssemblyEnv, Demonstrator]:
+    """The environment and the demonstrator on it (once per process)."""
+    import torch
+
+    torch.set_num_threads(1)  # as in the command line: identical predictions everywhere
+    env = GearAssemblyEnv()
+    return env, make_demonstrator(job.kind, env, job.models)
+
+
+def demonstrated_episode(state: tuple[GearAssemblyEnv, Demonstrator],
+                         item: tuple[int, str | None]) -> Episode:
+    """The episode of env seed ``item[0]`` with the human mode ``item[1]`` (None: the
+    seed's own). It depends on them alone (the demonstrator is reseeded from the env
+    seed first), so it is the same on any worker, after any other episode."""
+    env, demonstrator = state
+    seed, mode = item
+    demonstrator.reseed(seed)
+    return run_expert_episode(env, demonstrator, seed, mode)
+
+
 def record_expert_episodes(n: int, seed: int, progress: bool = False,
                            human_mode: str | None = None, demonstrator: str = "expert",
-                           models: Path | None = None) -> list[Episode]:
+                           models: Path | None = None,
+                           workers: Workers = SERIAL) -> list[Episode]:
     """``n`` demonstrated episodes with seeds derived from ``seed`` (see :data:`Episode`);
-    ``demonstrator`` is one of :data:`DEMONSTRATORS`."""
+    ``demonstrator`` is one of :data:`DEMONSTRATORS`. The episodes run on ``workers``;
+    each depends on its own seed and mode alone (:func:`demonstrated_episode`), so the
+    list is the same on one worker or many."""
     _check(n, human_mode)
-    env = GearAssemblyEnv()
-    try:
-        expert = make_demonstrator(demonstrator, env, models, seed)
-        if demonstrator == "expert":
-            seeds = episode_seeds(seed, n)
-            return [run_expert_episode(env, expert, s, human_mode)
-                    for s in track(seeds, "gear expert", total=n, enabled=progress)]
-        return _successful_episodes(env, expert, n, seed, human_mode, progress)
-    finally:
-        env.close()
+    if demonstrator not in DEMONSTRATORS:
+        raise DynoplanError(f"unknown demonstrator {demonstrator!r}; expected one of "
+                            f"{', '.join(DEMONSTRATORS)}")
+    job = DemoJob(demonstrator, models)
+    if demonstrator == "expert":
+        return parallel_map(build_demonstrator, demonstrated_episode, job,
+                            [(s, human_mode) for s in episode_seeds(seed, n)], workers,
+                            "gear expert", progress)
+    if models is not None:
+        from dynoplan.envs.gear.options.catalog import policy_factories
+
+        policy_factories(models)  # a missing or broken network: one error here
+    return _successful_episodes(job, n, seed, human_mode, progress, workers)
 
 
-def _successful_episodes(env: GearAssemblyEnv, demonstrator: Demonstrator, n: int, seed: int,
-                         human_mode: str | None, progress: bool) -> list[Episode]:
-    """The first ``n`` successful episodes over the seeds derived from ``seed`` (a
-    demonstration shows the task done; at most ``3 n`` seeds are tried). Without a
-    ``human_mode``, the modes cycle through :data:`DEMO_MODE_CYCLE`, so that ten
-    demonstrations show the operator every situation (block 4, cross 3, away 3)."""
-    out: list[Episode] = []
+def _successful_episodes(job: DemoJob, n: int, seed: int, human_mode: str | None,
+                         progress: bool, workers: Workers) -> list[Episode]:
+    """``n`` successful episodes (a demonstration shows the task done). Demonstration
+    ``j`` has the human mode ``human_mode``, or without one ``DEMO_MODE_CYCLE[j % 3]``,
+    so that ten demonstrations show every situation (block 4, cross 3, away 3). The
+    seeds derived from ``seed`` are tried in rounds: each round gives the next seeds in
+    order to the demonstrations still without a success, in order; at most ``3 n``
+    seeds are tried in all. The rounds' episodes run on ``workers``."""
     seeds = episode_seeds(seed, 3 * n)
-    for s in track(seeds, "gear demos (options, tries)", total=len(seeds), enabled=progress):
-        mode = human_mode or DEMO_MODE_CYCLE[len(out) % len(DEMO_MODE_CYCLE)]
-        episode = run_expert_episode(env, demonstrator, s, mode)
-        if bool(np.asarray(episode["infos"]["success"])[-1]):
-            out.append(episode)
-        if len(out) == n:
-            return out
-    raise DynoplanError(f"only {len(out)} of {3 * n} option demonstrations succeeded; "
-                        f"{n} were asked for")
+    modes = [human_mode or DEMO_MODE_CYCLE[j % len(DEMO_MODE_CYCLE)] for j in range(n)]
+    found: list[Episode | None] = [None] * n
+    tried = 0
+    while tried < len(seeds):
+        todo = [j for j in range(n) if found[j] is None][:len(seeds) - tried]
+        if not todo:
+            return [e for e in found if e is not None]
+        items = [(seeds[tried + k], modes[j]) for k, j in enumerate(todo)]
+        episodes = parallel_map(build_demonstrator, demonstrated_episode, job, items,
+                                workers, f"gear demos (options, {len(todo)} tries)", progress)
+        tried += len(items)
+        for j, episode in zip(todo, episodes, strict=True):
+            if bool(np.asarray(episode["infos"]["success"])[-1]):
+                found[j] = episode
+    done = [e for e in found if e is not None]
+    if len(done) < n:
+        raise DynoplanError(f"only {len(done)} of {3 * n} option demonstrations succeeded; "
+                            f"{n} were asked for")
+    return done
 
 
 def summarise(episodes: list[Episode], seed: int, wall_seconds: float) -> dict[str, Any]:

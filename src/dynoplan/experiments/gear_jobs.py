@@ -23,7 +23,7 @@ from dynoplan.experiments.episodes import EpisodeSeed
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import EpisodeMetrics, controller_episode, policy_episode
 from dynoplan.options.initiation import RegionModel
-from dynoplan.parallel import SERIAL, Workers, parallel_map
+from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.types import FloatArray
 
 FLAT_POLICY = "flat_ppo"
@@ -120,9 +120,27 @@ def evaluate_episode(state: EvalState, seed: EpisodeSeed) -> EpisodeMetrics:
 def evaluate(job: EvalJob, seeds: Sequence[EpisodeSeed], workers: Workers = SERIAL,
              description: str | None = None, progress: bool = False) -> list[EpisodeMetrics]:
     """``job`` on every seed, on ``workers``; one result per seed, in order."""
-    return parallel_map(build_evaluation, evaluate_episode, job, seeds, workers,
-                        description or job.controller, progress)
+    return evaluate_many([(job, seeds)], workers, description or job.controller, progress)[0]
+
+
+def evaluate_many(batches: Sequence[tuple[EvalJob, Sequence[EpisodeSeed]]],
+                  workers: Workers = SERIAL, description: str = "episodes",
+                  progress: bool = False) -> list[list[EpisodeMetrics]]:
+    """Every ``(job, seeds)`` batch, as one map: per batch, one result per seed, in
+    order. The episodes of all batches share the workers, so none waits for the last
+    episode of another batch (submit the costliest batches first: on Ray the tasks start
+    in the given order). Results are those of :func:`evaluate` on each batch."""
+    tasks = [(job, seed) for job, seeds in batches for seed in seeds]
+    results: list[EpisodeMetrics | None] = [None] * len(tasks)
+    for i, metrics in imap_unordered(build_evaluation, evaluate_episode, tasks, workers,
+                                     description, progress):
+        results[i] = metrics
+    out: list[list[EpisodeMetrics]] = []
+    for _, seeds in batches:
+        done, results = results[:len(seeds)], results[len(seeds):]
+        out.append([m for m in done if m is not None])
+    return out
 
 
 __all__ = ["FAULTS", "FLAT_POLICY", "EvalJob", "EvalState", "build_evaluation", "evaluate",
-           "evaluate_episode"]
+           "evaluate_episode", "evaluate_many"]

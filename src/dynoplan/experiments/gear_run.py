@@ -16,13 +16,22 @@ Stages (each timed in ``summary.json``):
    blocking), ``results.csv`` and ``results.md``;
 8. ``faults``: DynoPlan under corrupted dynamics, observation noise and a grasp slip;
 9. ``video``: one DynoPlan episode with the human interfering (``episode.mp4``).
+
+On one worker the stages run one after another in this process. On several (Ray), the
+stages made of independent episodes (the networks' data, the demonstrations, collection,
+evaluation, faults) spread them over the workers, and two stages run beside the others
+as one Ray task each: the flat PPO training from the start of the run (it needs nothing
+but the seed) and the video beside the faults. Their ``stages_s`` entries are then their
+own durations, which overlap other stages; ``wall_s`` is the whole run's. Every result
+is the same on one worker or many.
 """
 
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import gymnasium as gym
 
@@ -30,6 +39,7 @@ from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.features import RELATIVE
 from dynoplan.envs.gear.options.catalog import NEURAL_FILES, policy_factories
+from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_controllers import (
     CONTROLLERS,
@@ -37,11 +47,14 @@ from dynoplan.experiments.gear_controllers import (
     make_gear_controller,
 )
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
-from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, evaluate
+from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, evaluate_many
 from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
-from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
-from dynoplan.parallel import SERIAL, Workers, ray_session
+from dynoplan.experiments.gear_model_files import load_gear_models
+from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
+from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
 from dynoplan.reports.tables import markdown_table
+
+T = TypeVar("T")
 
 EVAL_SEED_OFFSET = 7
 """Evaluation episodes use seeds derived from ``seed + EVAL_SEED_OFFSET`` (disjoint from
@@ -96,21 +109,26 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
                       workers: Workers = SERIAL) -> dict[str, Any]:
     """Run every stage (module docstring) into ``out``; return ``summary.json``'s content.
 
-    Collection, evaluation and faults run their episodes on ``workers`` (one Ray runtime
-    for the whole run); the results are the same on one worker or many."""
+    The stages made of independent episodes run them on ``workers`` (one Ray runtime for
+    the whole run), and on several workers the flat PPO training and the video run
+    beside the other stages; the results are the same on one worker or many."""
+    t0 = time.perf_counter()
     with ray_session(workers):
-        return _run_stages(out, seed, settings, progress, log, workers)
+        summary = _run_stages(out, seed, settings, progress, log, workers)
+    summary["wall_s"] = round(time.perf_counter() - t0, 2)
+    write_text(out / "results.md", results_markdown(summary))
+    write_json(out / "summary.json", summary)
+    return summary
 
 
 def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
                 log: Callable[[str], None], workers: Workers) -> dict[str, Any]:
     import torch
 
-    from dynoplan.baselines.flat_policy import train_flat_policy
+    from dynoplan.baselines.flat_policy import fit_flat_policy, save_flat_policy
     from dynoplan.envs.gear.options.catalog import train_option_networks
     from dynoplan.experiments.gear_collect import collect_transitions
     from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.experiments.gear_model_files import load_gear_models
     from dynoplan.experiments.gear_model_settings import DEFAULT_SETTINGS, QUICK_SETTINGS
     from dynoplan.experiments.gear_models import train_gear_models
     from dynoplan.reports.gear_figures import make_gear_figures
@@ -122,24 +140,41 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     summary: dict[str, Any] = {"seed": seed, "settings": asdict(settings), "stages_s": stages,
                                "workers": asdict(workers)}
 
-    def stage(name: str, fn: Callable[[], Any]) -> Any:
+    def stage(name: str, fn: Callable[[], T]) -> T:
         log(f"[{name}]")
         t0 = time.perf_counter()
         result = fn()
         stages[name] = round(time.perf_counter() - t0, 2)
         return result
 
+    def start(name: str, fn: Callable[..., T], *args: Any) -> Callable[[], T]:
+        """Stage ``name``, ``fn(*args)``: run now on one worker, started as a Ray task
+        beside the next stages on several; the returned function waits for the result
+        (and records the stage's own duration)."""
+        log(f"[{name}]" + (" (beside the next stages)" if workers.parallel else ""))
+        wait = run_in_background(_timed, (fn, *args), workers)
+
+        def finish() -> T:
+            seconds, result = wait()
+            stages[name] = round(seconds, 2)
+            return result
+
+        return finish
+
+    flat = (start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
+            if workers.parallel else None)
     quick = settings.quick_models
     missing = tuple(n for n, f in NEURAL_FILES.items() if not (models_dir / f).is_file())
-    # the option networks always train on full settings (about 35 s): quick ones fail
-    # too often for ten successful demonstrations
+    # the option networks always train on full settings (160 data episodes, about 35 s
+    # on one core, and 10 s of fits): quick ones fail too often for ten successful
+    # demonstrations
     summary["networks"] = stage("networks", lambda: train_option_networks(
-        models_dir, seed, quick=False, only=missing) if missing else {})
+        models_dir, seed, quick=False, only=missing, workers=workers) if missing else {})
     summary["demos"] = stage("demos", lambda: [
         record_demos(settings.demos, seed, out / "demos", progress, demonstrator="options",
-                     models=models_dir),
+                     models=models_dir, workers=workers),
         record_demos(settings.demos, seed + HELDOUT_SEED_OFFSET, out / "heldout", progress,
-                     demonstrator="options", models=models_dir)])
+                     demonstrator="options", models=models_dir, workers=workers)])
     summary["collect"] = stage("collect", lambda: collect_transitions(
         models_dir, settings.collect_runs, seed, out / "transitions",
         max_decisions=settings.collect_max_decisions, progress=progress, workers=workers))
@@ -151,10 +186,11 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     summary["figures"] = stage("figures", lambda: make_gear_figures(
         models_dir, out / "demos", out / "heldout", out / "figures", seed=seed,
         max_points=400 if quick else 1500))
-    summary["flat_ppo"] = stage("flat_ppo", lambda: train_flat_policy(
-        settings.ppo_steps, seed, out / "flat_ppo"))
+    if flat is None:
+        flat = start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
+    summary["flat_ppo"] = save_flat_policy(flat(), out / "flat_ppo")
 
-    models = load_gear_models(models_dir)  # checked here once: workers load it again
+    load_gear_models(models_dir)  # checked here once: workers load it again
     seeds = episode_seeds(seed + EVAL_SEED_OFFSET, settings.episodes)
     rows, episodes = stage("evaluate", lambda: evaluate_controllers(
         models_dir, seeds, settings, out / "flat_ppo", progress, workers))
@@ -162,16 +198,28 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
     write_json(out / "episodes.json", {k: [asdict(e) for e in v] for k, v in episodes.items()})
 
-    faults = stage("faults", lambda: evaluate_faults(
-        models_dir, seeds[:settings.fault_episodes], settings, progress, workers))
-    summary["faults"] = faults
+    video = None
     if settings.video:
-        summary["video"] = stage("video", lambda: record_video(
-            models, policy_factories(models_dir), seeds, episodes["dynoplan"], settings,
-            out / "episode.mp4"))
-    write_text(out / "results.md", results_markdown(summary))
-    write_json(out / "summary.json", summary)
+        shown = video_episode(episodes["dynoplan"])
+        video = start("video", render_video, models_dir, seeds[shown], settings.planner)
+    summary["faults"] = stage("faults", lambda: evaluate_faults(
+        models_dir, seeds[:settings.fault_episodes], settings, progress, workers))
+    if video is not None:
+        summary["video"] = save_video(video(), episodes["dynoplan"][shown], shown,
+                                      out / "episode.mp4")
     return summary
+
+
+def _timed(fn: Callable[..., T], *args: Any) -> tuple[float, T]:
+    """``(wall seconds, fn(*args))``: a stage run as one task, and how long it took."""
+    t0 = time.perf_counter()
+    result = fn(*args)
+    return time.perf_counter() - t0, result
+
+
+ORACLE_FIRST = ("oracle",)
+"""Controllers whose episodes are submitted first (the oracle's cost ten times the
+others'), so that no long episode is left running alone at the end of the stage."""
 
 
 def evaluate_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
@@ -181,28 +229,32 @@ def evaluate_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeMetrics]]]:
     """The controllers ``names`` (of :data:`CONTROLLERS`), and the flat policy if
     ``flat_folder``, on ``seeds``; the oracle on the first ``settings.oracle_episodes``
-    of them. Episodes run on ``workers``, each rebuilding the controllers from
-    ``models_dir``."""
-    rows, episodes = [], {}
-    for name in names:
-        n = settings.oracle_episodes if name == "oracle" else len(seeds)
-        eps = evaluate(EvalJob(models_dir, name, settings.planner), seeds[:n], workers,
-                       name, progress)
-        episodes[name] = eps
-        rows.append(summarise(name, eps))
+    of them. All their episodes are one map on ``workers`` (the oracle's first), each
+    worker rebuilding the controllers from ``models_dir``; rows and episodes come back in
+    the order of ``names``, then the flat policy."""
+    jobs = {name: (EvalJob(models_dir, name, settings.planner),
+                   seeds[:settings.oracle_episodes] if name == "oracle" else seeds)
+            for name in names}
     if flat_folder is not None:
-        eps = evaluate(EvalJob(models_dir, FLAT_POLICY, flat_folder=flat_folder), seeds,
-                       workers, FLAT_POLICY, progress)
-        episodes[FLAT_POLICY] = eps
-        row = summarise(FLAT_POLICY, eps)
-        row["out_of_region_starts"] = row["switches"] = row["holds"] = None  # no options
+        jobs[FLAT_POLICY] = (EvalJob(models_dir, FLAT_POLICY, flat_folder=flat_folder), seeds)
+    order = sorted(jobs, key=lambda name: name not in ORACLE_FIRST)  # stable
+    done = dict(zip(order, evaluate_many([jobs[name] for name in order], workers,
+                                         f"evaluate ({len(order)} controllers)", progress),
+                    strict=True))
+    rows, episodes = [], {}
+    for name in jobs:
+        episodes[name] = done[name]
+        row = summarise(name, done[name])
+        if name == FLAT_POLICY:
+            row["out_of_region_starts"] = row["switches"] = row["holds"] = None  # no options
         rows.append(row)
     return rows, episodes
 
 
 def evaluate_faults(models_dir: Path, seeds: Sequence[EpisodeSeed], settings: GearRunSettings,
                     progress: bool, workers: Workers = SERIAL) -> list[dict[str, Any]]:
-    """DynoPlan with each fault on ``seeds`` (rows like ``results.csv`` plus ``fault``)."""
+    """DynoPlan with each fault on ``seeds`` (rows like ``results.csv`` plus ``fault``);
+    the episodes of all faults are one map on ``workers``."""
     jobs = {
         "dynamics_noise": EvalJob(models_dir, "dynoplan", replace(
             settings.planner, dynamics_noise=settings.dynamics_noise)),
@@ -211,35 +263,55 @@ def evaluate_faults(models_dir: Path, seeds: Sequence[EpisodeSeed], settings: Ge
                                      observation_noise=settings.observation_noise),
         "grasp_slip": EvalJob(models_dir, "dynoplan", settings.planner, fault="grasp_slip"),
     }
-    return [{"fault": fault, **summarise("dynoplan", evaluate(
-        job, seeds, workers, f"fault {fault}", progress))} for fault, job in jobs.items()]
+    results = evaluate_many([(job, seeds) for job in jobs.values()], workers,
+                            f"faults ({len(jobs)})", progress)
+    return [{"fault": fault, **summarise("dynoplan", eps)}
+            for fault, eps in zip(jobs, results, strict=True)]
 
 
-def record_video(models: Any, factories: dict[str, Any], seeds: Sequence[EpisodeSeed],
-                 episodes: Sequence[EpisodeMetrics], settings: GearRunSettings,
-                 path: Path, tries: int = 5) -> dict[str, Any]:
-    """Render a DynoPlan episode in which the human interferes, preferring one where it
-    switched to the cautious move (tried on up to ``tries`` such seeds)."""
+def video_episode(episodes: Sequence[EpisodeMetrics]) -> int:
+    """Which evaluated DynoPlan episode the video shows (its index in ``episodes``): one
+    in which it switched to the cautious move if any, else one with the human
+    interfering if any; among those, a success if any, and the shortest (the quickest to
+    render), the first of equals."""
+    return min(range(len(episodes)), key=lambda i: (
+        "cautious_move" not in episodes[i].options, episodes[i].human_mode == "away",
+        not episodes[i].success, episodes[i].seconds, i))
+
+
+def render_video(models_dir: Path, seed: EpisodeSeed,
+                 planner: PlannerSettings) -> dict[str, Any]:
+    """DynoPlan's episode ``seed`` rendered offscreen, as the evaluation ran it (OMPL
+    reseeded from the seed first): ``{"mp4": bytes of the H.264 file, "success",
+    "options"}`` (consecutive repeats collapsed). Writes nothing but a temporary file, so
+    it can run as a task on any worker."""
     from dynoplan.reports.video import write_mp4
 
-    ranked = sorted(range(len(episodes)), key=lambda i: (
-        "cautious_move" not in episodes[i].options, episodes[i].human_mode == "away",
-        not episodes[i].success))
-    for i in ranked[:tries]:
-        env = GearAssemblyEnv(render_mode="rgb_array")
-        frames: list[Any] = []
-        try:
-            controller = make_gear_controller("dynoplan", env, models, factories,
-                                              settings.planner)
-            trace = _run_rendered(controller, env, seeds[i], frames)
-        finally:
-            env.close()
-        options = [d.option for d in trace.decisions if d.option is not None]
-        if "cautious_move" in options or i == ranked[min(tries, len(ranked)) - 1]:
-            write_mp4(path, frames, fps=20)
-            return {"file": path.name, "episode": i, "human_mode": episodes[i].human_mode,
-                    "success": trace.success, "options": _runs(options)}
-    return {}
+    env = GearAssemblyEnv(render_mode="rgb_array")
+    frames: list[Any] = []
+    try:
+        controller = make_gear_controller("dynoplan", env, load_gear_models(models_dir),
+                                          policy_factories(models_dir), planner)
+        reseed_ompl(seed.env_seed)
+        trace = _run_rendered(controller, env, seed, frames)
+    finally:
+        env.close()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write_mp4(Path(tmp) / "episode.mp4", frames, fps=20)
+        mp4 = path.read_bytes()
+    options = [d.option for d in trace.decisions if d.option is not None]
+    return {"mp4": mp4, "success": trace.success, "options": _runs(options)}
+
+
+def save_video(video: dict[str, Any], evaluated: EpisodeMetrics, index: int,
+               path: Path) -> dict[str, Any]:
+    """Write :func:`render_video`'s file to ``path``; its entry of ``summary.json``."""
+    def write(tmp: Path) -> None:
+        tmp.write_bytes(video["mp4"])
+
+    write_with(path, write)
+    return {"file": path.name, "episode": index, "human_mode": evaluated.human_mode,
+            "success": video["success"], "options": video["options"]}
 
 
 def _run_rendered(controller: Any, env: GearAssemblyEnv, seed: EpisodeSeed,
@@ -281,6 +353,12 @@ def results_markdown(summary: dict[str, Any]) -> str:
                              ("goal_spearman", "goal_mae", "region_inside_rate",
                               "region_far_outside_rate", "dynamics_coverage_90")),
               "", "## Stages (s)", "", markdown_table([summary["stages_s"]])]
+    if "wall_s" in summary:
+        workers = summary["workers"]
+        on = workers["address"] or f"{workers['count']} worker(s)"
+        lines += ["", f"Whole run: {summary['wall_s']} s on {on}"
+                  + ("; flat_ppo and video ran beside the other stages." if
+                     workers["count"] > 1 or workers["address"] else ".")]
     return "\n".join(lines)
 
 
@@ -290,6 +368,7 @@ def _mode_cell(entry: dict[str, Any] | None) -> str:
     return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
 
 
-__all__ = ["EVAL_SEED_OFFSET", "QUICK_RUN", "GearRunSettings", "evaluate_controllers",
-           "evaluate_faults", "record_video", "results_markdown", "run_gear_pipeline"]
+__all__ = ["EVAL_SEED_OFFSET", "ORACLE_FIRST", "QUICK_RUN", "GearRunSettings",
+           "evaluate_controllers", "evaluate_faults", "render_video", "results_markdown",
+           "run_gear_pipeline", "save_video", "video_episode"]
 

@@ -21,6 +21,7 @@ from matplotlib.patches import Patch
 from scipy import stats
 from sklearn.manifold import TSNE
 from sklearn.neighbors import NearestNeighbors
+from threadpoolctl import threadpool_limits
 
 from dynoplan.data import Dataset, read_dataset
 from dynoplan.envs.gear.env import CONTROL_DT
@@ -104,7 +105,11 @@ def plot_tsne_regions(states: FloatArray, labels: IntArray, interrupted: BoolArr
     z = (x - x.mean(axis=0)) / scale
     perplexity = float(min(30.0, max(2.0, (len(z) - 1) / 3.0)))
     tsne = TSNE(n_components=2, perplexity=perplexity, init="pca", random_state=seed)
-    emb = tsne.fit_transform(z)
+    # One OpenMP thread: t-SNE's 1000 gradient steps each end on a barrier, and with the
+    # cores busy (Ray workers, other jobs) spinning threads made this figure take 30 s
+    # instead of 2; one thread gives the same embedding here.
+    with threadpool_limits(limits=1, user_api="openmp"):
+        emb = tsne.fit_transform(z)
     member = regions.contains_all(states)  # (N, options)
 
     pad = 0.05 * (emb.max(axis=0) - emb.min(axis=0))

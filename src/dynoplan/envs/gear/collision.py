@@ -72,15 +72,28 @@ def min_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms_a: IntArray,
     when that bound exceeds the best distance found, so only a few exact
     ``mj_geomDistance`` calls are made. Needs the geoms' poses (``mj_kinematics``).
     """
-    pa = data.geom_xpos[geoms_a]
-    pb = data.geom_xpos[geoms_b]
-    centre = np.linalg.norm(pa[:, None, :] - pb[None, :, :], axis=-1)
-    lower = centre - model.geom_rbound[geoms_a][:, None] - model.geom_rbound[geoms_b][None, :]
-    order = np.argsort(lower, axis=None)
+    return _min_distance(model, data, geoms_a, geoms_b, model.geom_rbound[geoms_a][:, None],
+                         model.geom_rbound[geoms_b][None, :], distmax)
+
+
+def _min_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms_a: IntArray,
+                  geoms_b: IntArray, bound_a: FloatArray, bound_b: FloatArray,
+                  distmax: float) -> float:
+    """:func:`min_distance` with the bounding radii given, ``(A, 1)`` and ``(1, B)`` (a
+    caller asking often about the same geoms keeps them)."""
+    xpos = data.geom_xpos
+    diff = xpos[geoms_a][:, None, :] - xpos[geoms_b][None, :, :]
+    # np.linalg.norm(diff, axis=-1) computes exactly this (for real arrays), with more
+    # overhead; the bounds, hence the pairs visited, are the same to the last bit
+    lower = np.sqrt(np.add.reduce(diff * diff, axis=-1)) - bound_a - bound_b
     best = distmax
+    if lower.min() >= best:  # no pair can be closer than the cap (a frequent answer)
+        return float(best)
+    order = np.argsort(lower, axis=None)
+    flat_lower = lower.ravel()
     nb = len(geoms_b)
     for flat in order:
-        if lower.flat[flat] >= best:
+        if flat_lower[flat] >= best:
             break
         i, j = divmod(int(flat), nb)
         d = mujoco.mj_geomDistance(model, data, int(geoms_a[i]), int(geoms_b[j]), best, None)
@@ -111,6 +124,11 @@ class CollisionChecker:
     "In collision" means a penetrating contact between a robot geom (arm, gripper, peg
     module) and anything (table, robot, gear, human), except the left finger pads
     against the gear, which is how the gear is held.
+
+    Speed: a query at the joints of the previous one (a planner's validity test asks for
+    the collision and then for the human distance of the same state) does not pose the
+    arm and the carried gear again; only the human's hand, if it moved, is posed anew.
+    The answers are exactly those of posing everything for every query.
     """
 
     def __init__(self, model: mujoco.MjModel) -> None:
@@ -118,9 +136,23 @@ class CollisionChecker:
         self.data = mujoco.MjData(model)
         self.geoms = GeomSets.from_model(model)
         self._qadr = np.array([model.joint(j).qposadr[0] for j in ARM_JOINTS])
+        self._arm_slices = _slices(self._qadr)
         self._gear_qadr = int(model.joint("gear_free").qposadr[0])
         self._palm = model.body("l_gripper_palm_link").id
         self._gear_in_palm: tuple[FloatArray, FloatArray] | None = None
+        # the arm joints the scratch data is posed at (None: unknown) and whether the
+        # hand moved since the last mj_kinematics
+        self._posed: FloatArray | None = None
+        self._hand_moved = False
+        s = self.geoms
+        # counts[g1, g2]: a penetrating contact between geoms g1 and g2 is a collision;
+        # the same without the gear's contacts (ignore_gear)
+        robot = s.is_robot[:, None] | s.is_robot[None, :]
+        grasp = (s.is_pad[:, None] & s.is_gear[None, :]) | (s.is_gear[:, None] & s.is_pad[None, :])
+        self._counts = robot & ~grasp
+        self._counts_no_gear = self._counts & ~(s.is_gear[:, None] | s.is_gear[None, :])
+        self._bound_human = model.geom_rbound[s.human][:, None]
+        self._bound_robot = model.geom_rbound[s.robot][None, :]
         mujoco.mj_kinematics(model, self.data)
 
     def sync(self, data: mujoco.MjData, carry_gear: bool = False) -> None:
@@ -129,6 +161,7 @@ class CollisionChecker:
         self.data.mocap_pos[:] = data.mocap_pos
         self.data.mocap_quat[:] = data.mocap_quat
         mujoco.mj_kinematics(self.model, self.data)
+        self._posed, self._hand_moved = None, False
         self._gear_in_palm = None
         if carry_gear:
             palm_pos = self.data.xpos[self._palm]
@@ -140,13 +173,28 @@ class CollisionChecker:
                                   palm_rot.T @ gear_rot.reshape(3, 3))
 
     def set_human(self, position: FloatArray, quaternion: FloatArray) -> None:
-        """Move the human's hand (3,) / (4,) ``wxyz`` in the scratch data."""
+        """Move the human's hand (3,) / (4,) ``wxyz`` in the scratch data (posed at the
+        next query, or by ``mj_kinematics``)."""
         self.data.mocap_pos[0] = position
         self.data.mocap_quat[0] = quaternion
+        self._hand_moved = True
 
     def set_arm(self, q: FloatArray) -> None:
         """Set the 12 arm joints (and the carried gear) and update the geoms' poses."""
-        self.data.qpos[self._qadr] = q
+        q = np.asarray(q, dtype=np.float64)
+        posed = self._posed
+        if posed is not None and q.shape == posed.shape and bool((q == posed).all()):
+            # the same joints: arm and gear are where they were; pose the moved hand
+            if self._hand_moved:
+                mujoco.mj_kinematics(self.model, self.data)
+                self._hand_moved = False
+            return
+        qpos = self.data.qpos
+        start = 0
+        for block in self._arm_slices:
+            stop = start + block.stop - block.start
+            qpos[block] = q[start:stop]
+            start = stop
         mujoco.mj_kinematics(self.model, self.data)
         if self._gear_in_palm is not None:
             rel_pos, rel_rot = self._gear_in_palm
@@ -155,9 +203,10 @@ class CollisionChecker:
             quat = np.empty(4)
             mujoco.mju_mat2Quat(quat, (palm_rot @ rel_rot).ravel())
             a = self._gear_qadr
-            self.data.qpos[a:a + 3] = palm_pos + palm_rot @ rel_pos
-            self.data.qpos[a + 3:a + 7] = quat
+            qpos[a:a + 3] = palm_pos + palm_rot @ rel_pos
+            qpos[a + 3:a + 7] = quat
             mujoco.mj_kinematics(self.model, self.data)
+        self._posed, self._hand_moved = q.copy(), False
 
     def in_collision(self, q: FloatArray, margin: float = 0.0, ignore_gear: bool = False) -> bool:
         """True if the robot at arm joints ``q`` (12,) penetrates anything by more than
@@ -167,21 +216,16 @@ class CollisionChecker:
         n = self.data.ncon
         if n == 0:
             return False
-        g = self.data.contact.geom[:n]
-        dist = self.data.contact.dist[:n]
-        s = self.geoms
-        robot = s.is_robot[g[:, 0]] | s.is_robot[g[:, 1]]
-        grasp = ((s.is_pad[g[:, 0]] & s.is_gear[g[:, 1]])
-                 | (s.is_pad[g[:, 1]] & s.is_gear[g[:, 0]]))
-        hit = robot & ~grasp & (dist < -margin)
-        if ignore_gear:
-            hit &= ~(s.is_gear[g[:, 0]] | s.is_gear[g[:, 1]])
-        return bool(np.any(hit))
+        contact = self.data.contact
+        g = contact.geom[:n]
+        counts = self._counts_no_gear if ignore_gear else self._counts
+        return bool((counts[g[:, 0], g[:, 1]] & (contact.dist[:n] < -margin)).any())
 
     def human_distance(self, q: FloatArray, distmax: float = _DISTMAX) -> float:
         """Smallest robot-human distance (m) with the arms at ``q`` (12,), capped."""
         self.set_arm(q)
-        return min_distance(self.model, self.data, self.geoms.human, self.geoms.robot, distmax)
+        return _min_distance(self.model, self.data, self.geoms.human, self.geoms.robot,
+                             self._bound_human, self._bound_robot, distmax)
 
     def human_distance_along(self, qs: FloatArray, hand_positions: FloatArray,
                              hand_quaternions: FloatArray, cap: float = _DISTMAX) -> float:
@@ -215,5 +259,18 @@ class CollisionChecker:
             self.set_arm(qs[i])
             self.set_human(hand_positions[i], hand_quaternions[i])
             mujoco.mj_kinematics(self.model, self.data)
-            best = min(best, min_distance(self.model, self.data, human, robot, best))
+            self._hand_moved = False
+            best = min(best, _min_distance(self.model, self.data, human, robot,
+                                           self._bound_human, self._bound_robot, best))
         return float(best)
+
+
+def _slices(indices: IntArray) -> list[slice]:
+    """Consecutive runs of ``indices`` as slices, in order (``[0..5, 8..13]`` -> two)."""
+    runs: list[slice] = []
+    for i in indices.tolist():
+        if runs and runs[-1].stop == i:
+            runs[-1] = slice(runs[-1].start, i + 1)
+        else:
+            runs.append(slice(i, i + 1))
+    return runs

@@ -101,6 +101,10 @@ class GearExpert:
         self.reset()
 
     # ---------------------------------------------------------------- lifecycle
+    def reseed(self, seed: int) -> None:
+        """Nothing to do: the expert draws nothing at random (the demonstrators'
+        interface, see :meth:`~dynoplan.envs.gear.operator.OptionOperator.reseed`)."""
+
     def reset(self) -> None:
         """Start a new episode from the env's current state."""
         self.q_cmd = self.env.arm_qpos

@@ -27,6 +27,7 @@ import numpy as np
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, ExpertAction
 from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState, tool_human_distance
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
@@ -57,6 +58,14 @@ class OptionOperator:
         self.state_fn = PlannerState()
         self.rng = np.random.default_rng(seed)
         self.reset()
+
+    def reseed(self, seed: int) -> None:
+        """Make the next episode depend on ``seed`` alone, not on the episodes before it
+        in this process: OMPL (the moves' and the pick's plans,
+        :func:`~dynoplan.envs.gear.options.motion.reseed_ompl`) and the generator handed to
+        the options are seeded from it. Call it before an independent episode."""
+        reseed_ompl(seed)
+        self.rng = np.random.default_rng(seed)
 
     def reset(self) -> None:
         self.running: int | None = None

@@ -41,7 +41,7 @@ from dynoplan.envs.gear.options.insert import (
     InsertionNetwork,
     insertion_features,
 )
-from dynoplan.envs.gear.options.starts import reach_start
+from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.task import STAGE_INDEX, relation
 from dynoplan.errors import DynoplanError
 from dynoplan.types import BoolArray, FloatArray, IntArray
@@ -158,49 +158,81 @@ class ScriptedInserter:
         return np.concatenate([q_cmd[:6], q[6:12], [GRIPPER_CLOSED]])
 
 
-def collect_demonstrations(env: GearAssemblyEnv, episodes: int, seed: int,
-                           noise_std: float = DEFAULT_NOISE_STD, max_steps: int = 300,
-                           teacher_config: TeacherConfig | None = None) -> InsertionDemos:
-    """Run ``episodes`` noisy-executed teacher insertions (see the module docstring).
+@dataclass
+class InsertionEpisode:
+    """One noisy-executed teacher insertion: ``features`` (T, 20), ``steps`` (T, 6) and
+    whether it ended ``seated``."""
 
-    Episode ``e`` draws its start and noise from ``default_rng([seed, e])``.
-    """
+    features: FloatArray
+    steps: FloatArray
+    seated: bool
+
+
+def insertion_episode(env: GearAssemblyEnv, teacher: ScriptedInserter, seed: int, episode: int,
+                      noise_std: float = DEFAULT_NOISE_STD,
+                      max_steps: int = 300) -> InsertionEpisode:
+    """Episode ``episode`` of :func:`collect_demonstrations` for ``seed``: its start and
+    noise come from ``default_rng([seed, episode])`` alone (no OMPL), so it is the same in
+    any process, after any other."""
+    rng = np.random.default_rng([int(seed), int(episode)])
+    start = reach_start(env, "insert", rng)
+    sigma = noise_std * rng.uniform()
+    obs, info = start.observation, start.info
+    q_right = env.arm_targets[6:12]  # held where commanded (measured angles sag)
+    lim = env.joint_limits
+    feats: list[FloatArray] = []
+    steps: list[FloatArray] = []
+    for _ in range(max_steps):
+        action = teacher.act(obs)
+        feats.append(insertion_features(obs)[0])
+        steps.append(action[:6] - obs[:6])
+        noisy = action.copy()
+        noisy[:6] += rng.normal(0.0, sigma, size=6)
+        noisy[6:12] = q_right
+        noisy[:12] = np.clip(noisy[:12], lim[:, 0], lim[:, 1])
+        obs, _, terminated, truncated, info = env.step(noisy)
+        if terminated or truncated or (int(info["pads_on_gear"]) < 2
+                                        and info["stage"] != STAGE_INDEX["on_peg"]):
+            break  # seated, or the gear slipped out of the hand
+    return InsertionEpisode(np.array(feats).reshape(-1, FEATURE_DIM),
+                            np.array(steps).reshape(-1, OUTPUT_DIM),
+                            bool(info["is_success"]))
+
+
+def insertion_demos(episodes: Sequence[InsertionEpisode], seed: int,
+                    noise_std: float) -> InsertionDemos:
+    """The episodes (of ``seed`` and ``noise_std``) as one :class:`InsertionDemos`."""
+    return InsertionDemos(
+        features=np.concatenate([e.features for e in episodes]).reshape(-1, FEATURE_DIM),
+        steps=np.concatenate([e.steps for e in episodes]).reshape(-1, OUTPUT_DIM),
+        episodes=np.concatenate([np.full(len(e.features), i, dtype=np.int64)
+                                 for i, e in enumerate(episodes)]),
+        n_episodes=len(episodes), seated=sum(e.seated for e in episodes),
+        noise_std=float(noise_std), seed=int(seed))
+
+
+def check_demo_settings(episodes: int, noise_std: float, max_steps: int) -> None:
+    """Raise :class:`DynoplanError` unless ``episodes, max_steps >= 1`` and
+    ``noise_std >= 0``."""
     if episodes < 1 or max_steps < 1:
         raise DynoplanError(f"episodes and max_steps must be >= 1, got {episodes}, "
                             f"{max_steps}")
     if noise_std < 0.0:
         raise DynoplanError(f"noise_std must be >= 0, got {noise_std}")
+
+
+def collect_demonstrations(env: GearAssemblyEnv, episodes: int, seed: int,
+                           noise_std: float = DEFAULT_NOISE_STD, max_steps: int = 300,
+                           teacher_config: TeacherConfig | None = None) -> InsertionDemos:
+    """Run ``episodes`` noisy-executed teacher insertions (see the module docstring).
+
+    Episode ``e`` is :func:`insertion_episode` ``(seed, e)``: it draws its start and noise
+    from ``default_rng([seed, e])``.
+    """
+    check_demo_settings(episodes, noise_std, max_steps)
     teacher = ScriptedInserter(teacher_config)
-    lim = env.joint_limits
-    feats: list[FloatArray] = []
-    steps: list[FloatArray] = []
-    ids: list[int] = []
-    seated = 0
-    for e in range(episodes):
-        rng = np.random.default_rng([int(seed), e])
-        start = reach_start(env, "insert", rng)
-        sigma = noise_std * rng.uniform()
-        obs, info = start.observation, start.info
-        q_right = env.arm_targets[6:12]  # held where commanded (measured angles sag)
-        for _ in range(max_steps):
-            action = teacher.act(obs)
-            feats.append(insertion_features(obs)[0])
-            steps.append(action[:6] - obs[:6])
-            ids.append(e)
-            noisy = action.copy()
-            noisy[:6] += rng.normal(0.0, sigma, size=6)
-            noisy[6:12] = q_right
-            noisy[:12] = np.clip(noisy[:12], lim[:, 0], lim[:, 1])
-            obs, _, terminated, truncated, info = env.step(noisy)
-            if terminated or truncated or (int(info["pads_on_gear"]) < 2
-                                            and info["stage"] != STAGE_INDEX["on_peg"]):
-                break  # seated, or the gear slipped out of the hand
-        seated += int(bool(info["is_success"]))
-    return InsertionDemos(
-        features=np.array(feats).reshape(-1, FEATURE_DIM),
-        steps=np.array(steps).reshape(-1, OUTPUT_DIM),
-        episodes=np.array(ids, dtype=np.int64), n_episodes=int(episodes), seated=seated,
-        noise_std=float(noise_std), seed=int(seed))
+    return insertion_demos([insertion_episode(env, teacher, seed, e, noise_std, max_steps)
+                            for e in range(episodes)], seed, noise_std)
 
 
 def split_episodes(episodes: IntArray, held_out_fraction: float,
@@ -313,7 +345,7 @@ def train_insertion(out_path: str | os.PathLike[str] | None,
     if isinstance(demos, InsertionDemos):
         data = demos
     else:
-        env = GearAssemblyEnv(max_episode_steps=10_000)
+        env = GearAssemblyEnv(max_episode_steps=DATA_EPISODE_STEPS)
         try:
             data = collect_demonstrations(env, int(demos), seed, noise_std, max_steps)
         finally:
@@ -349,5 +381,6 @@ def train_insertion(out_path: str | os.PathLike[str] | None,
 
 
 __all__ = ["DEFAULT_EPISODES", "DEFAULT_EPOCHS", "DEFAULT_NOISE_STD", "InsertionDemos",
-           "ScriptedInserter", "TeacherConfig", "collect_demonstrations", "fit_insertion",
-           "ik_gear_on_axis", "split_episodes", "train_insertion"]
+           "InsertionEpisode", "ScriptedInserter", "TeacherConfig", "check_demo_settings",
+           "collect_demonstrations", "fit_insertion", "ik_gear_on_axis", "insertion_demos",
+           "insertion_episode", "split_episodes", "train_insertion"]

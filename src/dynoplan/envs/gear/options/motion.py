@@ -97,6 +97,7 @@ class LeftArmPlanner:
         self.resolution = resolution
         self.margin = margin
         self.limits = env.joint_limits[:6].copy()
+        self._low, self._high = self.limits[:, 0].copy(), self.limits[:, 1].copy()
         self._right = env.arm_qpos[6:]
         self._extra: Callable[[FloatArray], bool] | None = None
         self._checks = 0
@@ -115,7 +116,7 @@ class LeftArmPlanner:
         """The validity test OMPL uses, on (6,) left-arm joints."""
         self._checks += 1
         q = np.asarray(q_left, dtype=np.float64)
-        if np.any(q < self.limits[:, 0]) or np.any(q > self.limits[:, 1]):
+        if (q < self._low).any() or (q > self._high).any():
             return False
         full = self.full(q)
         if self.checker.in_collision(full, margin=self.margin):

@@ -28,7 +28,9 @@ perturbations that make both classes and the cases near the boundary common: a n
 grasp, a grasp aimed off the gear by 0.5-4 cm (missed, one-pad and tilted grasps), the
 gripper opened at a random moment of the close/lift/hold (the gear slips and drops), and
 the gripper never closed (the tool lifts without the gear). The held-out set is a
-random subset of whole episodes, never single steps of a training episode.
+random subset of whole episodes, never single steps of a training episode. Episode ``e``
+depends on ``(seed, e)`` alone (:func:`grasp_episode`), so episodes can be generated in
+any order, in any process, and give the same data.
 
 **Files**: one safetensors file (float32 weights, float64 feature normalisation) with
 JSON metadata (kind ``grasp_recognizer``, format version, feature names, hidden sizes,
@@ -49,8 +51,9 @@ from torch import nn
 
 from dynoplan.envs.gear.env import GRIPPER_OPEN, OBS_DIM, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.kinematics import ArmKinematics
+from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.options.pick import PickPolicy
-from dynoplan.envs.gear.options.starts import reach_start
+from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp_file import hidden_sizes, load_linears, require_finite
@@ -258,55 +261,82 @@ class DataConfig:
     max_steps: int = 400  # env steps per episode at most
 
 
-def generate_grasp_data(env: GearAssemblyEnv, episodes: int, rng: Generator,
-                        config: DataConfig | None = None) -> GraspData:
-    """Run ``episodes`` perturbed scripted picks from seeded starts and label every
-    observation with :func:`grasp_label` (see the module docstring)."""
-    if episodes < 1:
-        raise DynoplanError(f"episodes must be >= 1, got {episodes}")
+@dataclass
+class GraspEpisode:
+    """One perturbed scripted pick: ``observations`` (T, 50), ``labels`` (T,) bool and
+    its ``perturbation`` (:data:`PERTURBATIONS`)."""
+
+    observations: FloatArray
+    labels: BoolArray
+    perturbation: str
+
+
+def grasp_episode(env: GearAssemblyEnv, policy: PickPolicy, seed: int, episode: int,
+                  config: DataConfig | None = None) -> GraspEpisode:
+    """Episode ``episode`` of :func:`generate_grasp_data` for ``seed``, run in ``env`` with
+    ``policy`` (a :class:`PickPolicy` without a recogniser on ``env``). Every random
+    choice comes from ``default_rng([seed, 0, episode])`` and OMPL is reseeded from the
+    same key, so the episode is the same in any process, after any other."""
     cfg = config or DataConfig()
-    policy = PickPolicy(env, recognizer=None)
+    key = [int(seed), 0, int(episode)]
+    reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
+    rng = np.random.default_rng(key)
+    kind = str(rng.choice(PERTURBATIONS, p=PERTURBATION_WEIGHTS))
+    start = reach_start(env, "pick", rng)
+    obs, info = start.observation, start.info
+    offset = np.zeros(3)
+    if kind == "offset":
+        angle = rng.uniform(-np.pi, np.pi)
+        offset[:2] = rng.uniform(*cfg.offset_range) * np.array([np.cos(angle), np.sin(angle)])
+    release_after = int(rng.integers(0, 60))  # steps after the closing starts
+    hold = int(rng.integers(*cfg.hold_steps))
+    perceived = obs.copy()
+    perceived[OBS_SLICES["gear_pos"]] += offset
+    policy.reset(perceived, rng)
     observations: list[FloatArray] = []
     labels: list[bool] = []
-    index: list[int] = []
-    kinds: list[str] = []
-    for ep in range(episodes):
-        kind = str(rng.choice(PERTURBATIONS, p=PERTURBATION_WEIGHTS))
-        kinds.append(kind)
-        start = reach_start(env, "pick", rng)
-        obs, info = start.observation, start.info
-        offset = np.zeros(3)
-        if kind == "offset":
-            angle = rng.uniform(-np.pi, np.pi)
-            offset[:2] = rng.uniform(*cfg.offset_range) * np.array([np.cos(angle),
-                                                                    np.sin(angle)])
-        release_after = int(rng.integers(0, 60))  # steps after the closing starts
-        hold = int(rng.integers(*cfg.hold_steps))
+    closing_steps = 0
+    extra = 0
+    for _ in range(cfg.max_steps):
+        observations.append(obs)
+        labels.append(grasp_label(obs, info))
         perceived = obs.copy()
         perceived[OBS_SLICES["gear_pos"]] += offset
-        policy.reset(perceived, rng)
-        closing_steps = 0
-        extra = 0
-        for _ in range(cfg.max_steps):
-            observations.append(obs)
-            labels.append(grasp_label(obs, info))
-            index.append(ep)
-            perceived = obs.copy()
-            perceived[OBS_SLICES["gear_pos"]] += offset
-            action = policy.act(perceived)
-            if policy.phase in ("close", "lift", "verify") or policy.finished():
-                closing_steps += 1
-            if kind == "no_close" or (kind == "release" and closing_steps > release_after):
-                action[12] = GRIPPER_OPEN
-            obs, _, terminated, truncated, info = env.step(action)
-            if terminated or truncated:
+        action = policy.act(perceived)
+        if policy.phase in ("close", "lift", "verify") or policy.finished():
+            closing_steps += 1
+        if kind == "no_close" or (kind == "release" and closing_steps > release_after):
+            action[12] = GRIPPER_OPEN
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+        if policy.finished():
+            extra += 1
+            if extra > hold:
                 break
-            if policy.finished():
-                extra += 1
-                if extra > hold:
-                    break
-    return GraspData(observations=np.array(observations), labels=np.array(labels, dtype=bool),
-                     episodes=np.array(index, dtype=np.int64), perturbations=kinds)
+    return GraspEpisode(np.array(observations).reshape(-1, OBS_DIM),
+                        np.array(labels, dtype=bool), kind)
+
+
+def grasp_data(episodes: Sequence[GraspEpisode]) -> GraspData:
+    """The episodes as one :class:`GraspData` (rows of episode ``e`` labelled ``e``)."""
+    return GraspData(
+        observations=np.concatenate([e.observations for e in episodes]),
+        labels=np.concatenate([e.labels for e in episodes]),
+        episodes=np.concatenate([np.full(len(e.labels), i, dtype=np.int64)
+                                 for i, e in enumerate(episodes)]),
+        perturbations=[e.perturbation for e in episodes])
+
+
+def generate_grasp_data(env: GearAssemblyEnv, episodes: int, seed: int,
+                        config: DataConfig | None = None) -> GraspData:
+    """Run ``episodes`` perturbed scripted picks from seeded starts and label every
+    observation with :func:`grasp_label` (see the module docstring); episode ``e`` is
+    :func:`grasp_episode` ``(seed, e)``, whatever ran before it."""
+    if episodes < 1:
+        raise DynoplanError(f"episodes must be >= 1, got {episodes}")
+    policy = PickPolicy(env, recognizer=None)
+    return grasp_data([grasp_episode(env, policy, seed, e, config) for e in range(episodes)])
 
 
 def split_by_episode(data: GraspData, held_out_fraction: float,
@@ -360,26 +390,30 @@ def fit_recognizer(data: GraspData, seed: int = 0, held_out_fraction: float = 0.
     return model, report
 
 
-def train_recognizer(out_path: str | os.PathLike[str] | None, episodes: int = DEFAULT_EPISODES,
-                     seed: int = 0, held_out_fraction: float = 0.25,
-                     epochs: int = DEFAULT_EPOCHS,
+def train_recognizer(out_path: str | os.PathLike[str] | None,
+                     episodes: int | GraspData = DEFAULT_EPISODES, seed: int = 0,
+                     held_out_fraction: float = 0.25, epochs: int = DEFAULT_EPOCHS,
                      hidden_sizes: Sequence[int] = DEFAULT_HIDDEN) -> dict[str, Any]:
-    """Generate ``episodes`` of labelled grasp data in a fresh env, train, measure on the
-    held-out episodes and save to ``out_path`` (skipped when ``None``).
+    """Generate ``episodes`` of labelled grasp data in a fresh env (or take the given
+    :class:`GraspData`), train, measure on the held-out episodes and save to ``out_path``
+    (skipped when ``None``).
 
     Returns the report of :func:`fit_recognizer` plus ``episodes``, ``data_seconds``,
     ``seconds`` (total wall time) and ``path``.
     """
     t0 = time.perf_counter()
-    env = GearAssemblyEnv(max_episode_steps=10_000)
-    try:
-        data = generate_grasp_data(env, episodes, np.random.default_rng([int(seed), 0]))
-    finally:
-        env.close()
+    if isinstance(episodes, GraspData):
+        data = episodes
+    else:
+        env = GearAssemblyEnv(max_episode_steps=DATA_EPISODE_STEPS)
+        try:
+            data = generate_grasp_data(env, episodes, seed)
+        finally:
+            env.close()
     data_seconds = time.perf_counter() - t0
     model, report = fit_recognizer(data, seed=seed, held_out_fraction=held_out_fraction,
                                    hidden_sizes=hidden_sizes, epochs=epochs)
-    report["episodes"] = int(episodes)
+    report["episodes"] = len(data.perturbations)
     report["data_seconds"] = float(data_seconds)
     report["seconds"] = float(time.perf_counter() - t0)
     model.report = dict(report)
@@ -390,5 +424,6 @@ def train_recognizer(out_path: str | os.PathLike[str] | None, episodes: int = DE
 
 
 __all__ = ["FEATURE_NAMES", "MODEL_KIND", "OFF_TABLE_HEIGHT", "PERTURBATIONS", "DataConfig",
-           "GraspData", "GraspRecognizer", "fit_recognizer", "generate_grasp_data",
-           "grasp_features", "grasp_label", "split_by_episode", "train_recognizer"]
+           "GraspData", "GraspEpisode", "GraspRecognizer", "fit_recognizer",
+           "generate_grasp_data", "grasp_data", "grasp_episode", "grasp_features",
+           "grasp_label", "split_by_episode", "train_recognizer"]

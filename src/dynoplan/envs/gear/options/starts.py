@@ -28,6 +28,9 @@ INSERT_STEP = "insert"
 DEFAULT_HUMAN_MODE = {"pick": "away", "fast_move": "away", "cautious_move": "block",
                       "insert": "away"}
 """The human schedule each option's trials use unless told otherwise."""
+DATA_EPISODE_STEPS = 10_000
+"""``max_episode_steps`` of the environments the option networks' training data is
+generated in (the data's own episodes end far sooner)."""
 
 
 @dataclass(frozen=True)
@@ -140,5 +143,5 @@ def _displace(env: GearAssemblyEnv, rng: Generator,
     return obs, info
 
 
-__all__ = ["DEFAULT_HUMAN_MODE", "OptionStart", "StartConfig", "reach_start",
+__all__ = ["DATA_EPISODE_STEPS", "DEFAULT_HUMAN_MODE", "OptionStart", "StartConfig", "reach_start",
            "shifted_schedule"]
