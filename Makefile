@@ -22,7 +22,7 @@ install: $(STAMP)
 
 demo: install
 	$(BIN)/dynoplan random-walk --out results/random-walk
-	$(BIN)/dynoplan gear run --quick --out results/gear-quick
+	$(BIN)/dynoplan gear run --out results/gear
 
 lint: install
 	$(BIN)/ruff check .
