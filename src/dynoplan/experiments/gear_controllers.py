@@ -200,9 +200,9 @@ def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | No
       to start, :data:`INSERT_KEEP_CLEARANCE` to go on (it ignores the human);
     - pick: region, gear not carried and the hand :data:`PICK_CLEARANCE` clear.
     """
-    far = far_from_goal or FarFromGoal()
     if name in MOVES:
         continuation = AllOf(region, InitiationFromCallable(holding_gear))
+        far = far_from_goal or FarFromGoal()
         start_where: Initiation = far
         if name == "cautious_move":
             start_where = AnyOf(far, InitiationFromCallable(hand_near_tool))
@@ -233,7 +233,7 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
     options = []
-    far_from_goal = FarFromGoal()  # one forward-kinematics model for all options
+    far_from_goal = FarFromGoal()  # one forward-kinematics model for both moves
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]

@@ -1,7 +1,7 @@
 """Initiation sets ``I_w``: where an option may start (and keep running)."""
 
 from collections.abc import Callable
-from typing import Protocol, runtime_checkable
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -32,34 +32,33 @@ class InitiationFromCallable:
         return np.asarray(self.fn(states), dtype=bool)
 
 
-class AllOf:
+class _Combined:
+    """Initiation sets combined elementwise by ``_reduce`` (``np.all`` or ``np.any`` over
+    the parts' answers)."""
+
+    _reduce: ClassVar[Callable[..., Any]] = staticmethod(np.all)
+
+    def __init__(self, *parts: Initiation) -> None:
+        if not parts:
+            raise ValueError(f"{type(self).__name__} needs at least one initiation set")
+        self.parts = parts
+
+    def contains(self, states: FloatArray) -> BoolArray:
+        answers = [np.asarray(part.contains(states), dtype=bool) for part in self.parts]
+        out: BoolArray = type(self)._reduce(answers, axis=0)
+        return out
+
+
+class AllOf(_Combined):
     """The intersection of initiation sets: a state is in it when every part contains it."""
 
-    def __init__(self, *parts: Initiation) -> None:
-        if not parts:
-            raise ValueError("AllOf needs at least one initiation set")
-        self.parts = parts
-
-    def contains(self, states: FloatArray) -> BoolArray:
-        out = np.asarray(self.parts[0].contains(states), dtype=bool).copy()
-        for part in self.parts[1:]:
-            out &= part.contains(states)
-        return out
+    _reduce = staticmethod(np.all)
 
 
-class AnyOf:
+class AnyOf(_Combined):
     """The union of initiation sets: a state is in it when some part contains it."""
 
-    def __init__(self, *parts: Initiation) -> None:
-        if not parts:
-            raise ValueError("AnyOf needs at least one initiation set")
-        self.parts = parts
-
-    def contains(self, states: FloatArray) -> BoolArray:
-        out = np.asarray(self.parts[0].contains(states), dtype=bool).copy()
-        for part in self.parts[1:]:
-            out |= part.contains(states)
-        return out
+    _reduce = staticmethod(np.any)
 
 
 class RegionModel(Protocol):

@@ -42,7 +42,7 @@ from torch import nn
 
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_DIM, OBS_SLICES, RIGHT_HOLD, GearAssemblyEnv
 from dynoplan.envs.gear.grasp import quat_to_mat
-from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
 from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
@@ -350,7 +350,7 @@ class InsertPolicy(GearOptionPolicy):
 
     def reset(self, observation: FloatArray, rng: Generator) -> None:
         obs = _as_observations(observation)[0]
-        self._q_right = self.env.arm_targets[6:12]  # held, not the sagging measurement
+        self._q_right = start_joints(self.env, obs)[6:12]  # held, not the sagging measurement
         self.plan_ms = []
         self.steps = 0
         self.status = "running"

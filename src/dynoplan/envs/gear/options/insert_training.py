@@ -33,6 +33,7 @@ import torch
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.grasp import quat_to_mat, rotation_between
 from dynoplan.envs.gear.kinematics import ArmKinematics
+from dynoplan.envs.gear.options.base import start_joints
 from dynoplan.envs.gear.options.insert import (
     DEFAULT_HIDDEN,
     FEATURE_DIM,
@@ -178,7 +179,7 @@ def insertion_episode(env: GearAssemblyEnv, teacher: ScriptedInserter, seed: int
     start = reach_start(env, "insert", rng)
     sigma = noise_std * rng.uniform()
     obs, info = start.observation, start.info
-    q_right = env.arm_targets[6:12]  # held where commanded (measured angles sag)
+    q_right = start_joints(env, obs)[6:12]  # held where commanded (measured angles sag)
     lim = env.joint_limits
     feats: list[FloatArray] = []
     steps: list[FloatArray] = []

@@ -516,10 +516,10 @@ class CautiousMovePolicy(_CarryMove):
     def _retreat(self) -> None:
         """Back away along the candidate motion with the largest predicted clearance:
         towards home, the tool up or down, back towards the torso (level, up or down),
-        away from the hand (up or down), or back to where the path started. The candidates' end
-        poses are solved when a retreat begins and again every ``retreat_refresh`` s
-        (from where the arm is then). The path is dropped (the arm replans from where it
-        ends up)."""
+        away from the hand (up or down), or back to where the path started. The
+        candidates' end poses are solved when a retreat begins and again every
+        ``retreat_refresh`` s (from where the arm is then). The path is dropped (the arm
+        replans from where it ends up)."""
         cfg = self.cfg
         q0 = self.q_cmd.copy()
         if self.mode != "retreat" or self.time - self._retreat_since >= cfg.retreat_refresh:
