@@ -53,3 +53,14 @@ def test_cli_rejects_zero_demonstrations_in_one_line(tmp_path):
     assert result.returncode == 2
     assert result.stderr.startswith("dynoplan: error:") and "Traceback" not in result.stderr
     assert not (tmp_path / "d").exists()
+
+
+def test_cli_rejects_an_unknown_demonstrator_in_one_line(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-c", "from dynoplan.cli.main import main; main()", "gear", "demos",
+         "--n", "2", "--demonstrator", "teacher", "--out", str(tmp_path / "d")],
+        capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "dynoplan: error: unknown demonstrator 'teacher'; expected one of options, expert"]
+    assert not (tmp_path / "d").exists()

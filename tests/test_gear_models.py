@@ -6,6 +6,7 @@ The Eq. 5 hand computation in 2-D lives in tests/test_regions.py.
 import hashlib
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import matplotlib.image
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 
 from dynoplan.data import Episode, labelled_transitions, read_dataset
+from dynoplan.envs.gear.features import RELATIVE, TASK
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
@@ -30,6 +32,7 @@ from dynoplan.experiments.gear_model_files import (
     load_gear_models,
 )
 from dynoplan.experiments.gear_model_metrics import fit_regions_cross_validated
+from dynoplan.experiments.gear_model_settings import QUICK_SETTINGS
 from dynoplan.experiments.gear_models import train_gear_models
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
@@ -72,7 +75,10 @@ def test_metrics_file_has_every_field_and_the_models_load(trained):
     # trial 1 backs away from the human mid-insertion, which they do not
     assert on_disk["goal"]["per_trial_spearman"][0] > 0.9
     assert on_disk["region_inside_rate"] > 0.8
-    assert on_disk["region_far_outside_rate"] >= 0.99
+    # the regions read the relative features by default (as in gear run): the tool's
+    # offset from the gear and the capped tool-hand distance, not the arm's joints
+    assert on_disk["region_features"] == list(RELATIVE.names)
+    assert 0.0 <= on_disk["region_far_outside_rate"] <= 1.0
     assert on_disk["regions"]["far_states"]["far"] > 100
 
     models = load_gear_models(out)
@@ -83,6 +89,17 @@ def test_metrics_file_has_every_field_and_the_models_load(trained):
     assert models.regions.contains_all(states).shape == (5, len(OPTION_NAMES))
     nxt = models.stacked_dynamics().sample(np.zeros((4, 8, STATE_DIM)), np.random.default_rng(0))
     assert nxt.shape == (4, 8, STATE_DIM) and np.isfinite(nxt).all()
+
+
+def test_task_feature_regions_reject_states_far_from_every_demonstration(data, tmp_path):
+    """On the ``task`` features (arm joints, gripper, tool, gear), a state far from every
+    demonstration in the state lies outside every region; the ``relative`` features
+    forget where the arm's joints are, so there the far states are not all outside."""
+    metrics = train_gear_models(data / "demos", None, tmp_path / "models", seed=0,
+                                heldout_demos=data / "heldout", quick=True, progress=False,
+                                settings=replace(QUICK_SETTINGS, region_features=TASK.name))
+    assert metrics["region_features"] == list(TASK.names)
+    assert metrics["region_far_outside_rate"] >= 0.99
 
 
 def test_training_on_a_tiny_dataset_reduces_held_out_loss(trained):

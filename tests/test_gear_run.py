@@ -3,6 +3,8 @@ preconditions, the margin rule and the termination rate of the controller."""
 
 import csv
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -180,3 +182,35 @@ def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
     assert start["cautious_move"] == [False, True, True, True, False, True]
     assert start["fast_move"] == [False, False, False, True, False, True]
     assert all(go_on["fast_move"])  # once running, a move ends at its goal by itself
+
+
+@pytest.mark.slow
+def test_gear_episode_replays_an_evaluation_episode_decision_by_decision(quick_gear_run: Path,
+                                                                         tmp_path: Path):
+    out = tmp_path / "episode"
+    result = CliRunner().invoke(app, ["gear", "episode", "--index", "2", "--models",
+                                      str(quick_gear_run / "models"), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    replay = json.loads((out / "summary.json").read_text())
+    evaluated = json.loads((quick_gear_run / "episodes.json").read_text())["dynoplan"][2]
+    for key in ("seed", "human_mode", "success", "seconds", "contacts", "switches", "holds",
+                "out_of_region_starts", "options"):
+        assert replay[key] == evaluated[key], key
+    with (out / "trace.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [r["option"] for r in rows] == evaluated["options"]
+    assert sum(int(r["contacts"]) for r in rows) == evaluated["contacts"]
+    assert {"score_pick", "score_insert", "admissible", "tool_hand_m"} <= set(rows[0])
+
+
+def test_gear_episode_rejects_an_unknown_controller_without_writing(tmp_path: Path):
+    out = tmp_path / "episode"
+    result = subprocess.run(
+        [sys.executable, "-c", "from dynoplan.cli.main import main; main()", "gear",
+         "episode", "--index", "0", "--controller", "flat_ppo", "--out", str(out)],
+        capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "dynoplan: error: unknown controller 'flat_ppo'; expected one of dynoplan, oracle, "
+        "fixed_script, random (flat_ppo has no decisions)"]
+    assert not out.exists()

@@ -13,6 +13,8 @@ gear_app = typer.Typer(
     no_args_is_help=True,
 )
 
+DEFAULT_MODELS = Path("results/gear-models")
+
 
 @gear_app.command("expert")
 def expert(
@@ -40,12 +42,34 @@ def demos(
     seed: int = typer.Option(0, help="Seed from which every episode's seed is derived."),
     out: Path = typer.Option(Path("results/gear-demos"), help="Dataset folder to write."),
     human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    demonstrator: str = typer.Option("expert", help="expert (the scripted expert, with "
+                                     "privileged state) or options (an operator chaining "
+                                     "the four option policies, as gear run records)."),
+    models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
+                                "for --demonstrator options (trained there first if "
+                                "missing)."),
+    workers: str = workers_option(),
+    ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
-    """Record expert demonstrations with option labels and progress as a dataset."""
-    from dynoplan.experiments.gear_demos import record_demos
+    """Record demonstrations with option labels and progress as a dataset."""
+    import torch
 
-    summary = record_demos(n, seed, out, progress=not quiet, human_mode=human)
+    from dynoplan.errors import DynoplanError
+    from dynoplan.experiments.gear_demos import record_demos
+    from dynoplan.experiments.gear_expert import DEMONSTRATORS
+    from dynoplan.parallel import parse_workers
+
+    if demonstrator not in DEMONSTRATORS:
+        raise DynoplanError(f"unknown demonstrator {demonstrator!r}; expected one of "
+                            f"{', '.join(DEMONSTRATORS)}")
+    pool = parse_workers(workers, ray_address)
+    torch.set_num_threads(1)
+    if demonstrator == "options":
+        for name in ("pick", "insert"):
+            _ensure_networks(name, models, seed)
+    summary = record_demos(n, seed, out, progress=not quiet, human_mode=human,
+                           demonstrator=demonstrator, models=models, workers=pool)
     modes = ", ".join(f"{k} {v}" for k, v in summary["human_modes"].items())
     typer.echo(f"{summary['episodes']} demonstrations, {summary['steps']} steps, success "
                f"{summary['success_rate']:.0%}, human: {modes} -> {out}")
@@ -65,9 +89,6 @@ def render(
 
     written = render_scene(out, seed=seed, video=video, human_mode=human)
     typer.echo(" ".join(str(p) for p in written.values()))
-
-
-DEFAULT_MODELS = Path("results/gear-models")
 
 
 def _ensure_networks(name: str, models: Path, seed: int) -> dict[str, object] | None:
@@ -278,6 +299,41 @@ def evaluate(
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
+
+
+@gear_app.command("episode")
+def episode(
+    index: int = typer.Option(..., help="Evaluation episode, 0-based (as in episodes.json)."),
+    models: Path = typer.Option(DEFAULT_MODELS, help="Models folder (gear train, or gear "
+                                "run's OUT/models)."),
+    controller: str = typer.Option("dynoplan", help="dynoplan, oracle, fixed_script or "
+                                   "random."),
+    seed: int = typer.Option(0, help="Episodes are gear run's for the same seed."),
+    out: Path = typer.Option(Path("results/gear-episode"), help="Output folder."),
+) -> None:
+    """Replay one evaluation episode; write its decisions (OUT/trace.csv) and metrics."""
+    import torch
+
+    from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
+    from dynoplan.io import ensure_writable_dir, write_csv, write_json
+
+    torch.set_num_threads(1)
+    metrics, rows, human = inspect_episode(models, controller, index, seed)
+    ensure_writable_dir(out)
+    write_csv(out / "trace.csv", rows)
+    write_json(out / "summary.json", episode_summary(metrics, controller, index, seed, human))
+    events = ", ".join(human["events"]) or "away"
+    typer.echo(f"episode {index} ({events}): {controller} "
+               f"{'succeeded' if metrics.success else 'failed'} in {metrics.seconds:.2f} s, "
+               f"{metrics.contacts} contacts, min human distance "
+               f"{metrics.min_human_distance:.3f} m, {metrics.switches} switches, "
+               f"{metrics.holds} holds")
+    for row in rows:
+        if row["contacts"]:
+            typer.echo(f"  contact at {row['time_s']:.2f} s during {row['option']} "
+                       f"({row['contacts']} contacts, tool-hand {row['tool_hand_m']:.2f} m "
+                       f"at the decision, admissible: {row['admissible'] or 'none'})")
+    typer.echo(f"-> {out}/trace.csv, summary.json")
 
 
 def _echo_results(rows: list[dict[str, Any]]) -> None:

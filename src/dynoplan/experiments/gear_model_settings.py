@@ -7,7 +7,7 @@
 
 from dataclasses import dataclass
 
-from dynoplan.envs.gear.features import TASK
+from dynoplan.envs.gear.features import RELATIVE
 from dynoplan.models.neural_dynamics import DEFAULT_HIDDEN, DEFAULT_MEMBERS
 
 
@@ -63,7 +63,7 @@ class GearTrainSettings:
     rollouts: int = 32
     heldout_episodes: int = 10
     far_states: int = 2000
-    region_features: str = TASK.name
+    region_features: str = RELATIVE.name
 
 
 DEFAULT_SETTINGS = GearTrainSettings()

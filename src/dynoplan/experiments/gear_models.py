@@ -20,9 +20,10 @@ The goal heuristic reads the planner state without the human's hand (the ``task`
 feature map, columns 0:19): where the task stands does not depend on where the human is,
 and with 10 demonstrations the hand's varied positions otherwise become spurious cues
 (pooled held-out Spearman 0.85 with the hand, 0.90 without). The regions read a named
-feature map (:mod:`dynoplan.envs.gear.features`; ``task`` by default, ``relative`` in
-``dynoplan gear run``). The human enters planning through the dynamics models (which
-predict all 22 columns), the terminations and, with ``relative``, the regions.
+feature map (:mod:`dynoplan.envs.gear.features`; ``relative`` by default, the same in
+``dynoplan gear train`` and ``dynoplan gear run``). The human enters planning through the
+dynamics models (which predict all 22 columns), the terminations, the preconditions and,
+with ``relative``, the regions.
 
 This module trains; the rest lives in ``gear_model_settings`` (:class:`GearTrainSettings`),
 ``gear_model_data`` (datasets to arrays, splits), ``gear_model_metrics`` (held-out

@@ -37,7 +37,6 @@ import gymnasium as gym
 
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.features import RELATIVE
 from dynoplan.envs.gear.options.catalog import NEURAL_FILES, policy_factories
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
@@ -181,7 +180,7 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     base = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
     metrics = stage("train", lambda: train_gear_models(
         out / "demos", out / "transitions", models_dir, seed, out / "heldout", quick,
-        progress=progress, settings=replace(base, region_features=RELATIVE.name)))
+        progress=progress, settings=base))
     summary["model_metrics"] = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
     summary["figures"] = stage("figures", lambda: make_gear_figures(
         models_dir, out / "demos", out / "heldout", out / "figures", seed=seed,
