@@ -189,7 +189,8 @@ def test_gear_episode_replays_an_evaluation_episode_decision_by_decision(quick_g
                                                                          tmp_path: Path):
     out = tmp_path / "episode"
     result = CliRunner().invoke(app, ["gear", "episode", "--index", "2", "--models",
-                                      str(quick_gear_run / "models"), "--out", str(out)])
+                                      str(quick_gear_run / "models"), "--out", str(out),
+                                      "--video"])
     assert result.exit_code == 0, result.output
     replay = json.loads((out / "summary.json").read_text())
     evaluated = json.loads((quick_gear_run / "episodes.json").read_text())["dynoplan"][2]
@@ -201,6 +202,9 @@ def test_gear_episode_replays_an_evaluation_episode_decision_by_decision(quick_g
     assert [r["option"] for r in rows] == evaluated["options"]
     assert sum(int(r["contacts"]) for r in rows) == evaluated["contacts"]
     assert {"score_pick", "score_insert", "admissible", "tool_hand_m"} <= set(rows[0])
+    # the rendered episode is the same episode
+    assert replay["video"]["success"] == evaluated["success"]
+    assert (out / "episode.mp4").stat().st_size > 10_000
 
 
 def test_gear_episode_rejects_an_unknown_controller_without_writing(tmp_path: Path):

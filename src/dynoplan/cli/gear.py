@@ -310,18 +310,32 @@ def episode(
                                    "random."),
     seed: int = typer.Option(0, help="Episodes are gear run's for the same seed."),
     out: Path = typer.Option(Path("results/gear-episode"), help="Output folder."),
+    video: bool = typer.Option(False, "--video", help="Also render the episode offscreen "
+                               "to OUT/episode.mp4."),
 ) -> None:
     """Replay one evaluation episode; write its decisions (OUT/trace.csv) and metrics."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
+    from dynoplan.experiments.gear_controllers import PlannerSettings
+    from dynoplan.experiments.gear_inspect import (
+        episode_summary,
+        evaluation_episode,
+        inspect_episode,
+    )
+    from dynoplan.experiments.gear_run import render_video, save_video
     from dynoplan.io import ensure_writable_dir, write_csv, write_json
 
     torch.set_num_threads(1)
     metrics, rows, human = inspect_episode(models, controller, index, seed)
     ensure_writable_dir(out)
     write_csv(out / "trace.csv", rows)
-    write_json(out / "summary.json", episode_summary(metrics, controller, index, seed, human))
+    summary = episode_summary(metrics, controller, index, seed, human)
+    if video:
+        clip = render_video(models, evaluation_episode(index, seed), PlannerSettings(),
+                            controller)
+        summary["video"] = save_video(clip, metrics, index, out / "episode.mp4")
+    write_json(out / "summary.json", summary)
     events = ", ".join(human["events"]) or "away"
     typer.echo(f"episode {index} ({events}): {controller} "
                f"{'succeeded' if metrics.success else 'failed'} in {metrics.seconds:.2f} s, "
@@ -333,7 +347,7 @@ def episode(
             typer.echo(f"  contact at {row['time_s']:.2f} s during {row['option']} "
                        f"({row['contacts']} contacts, tool-hand {row['tool_hand_m']:.2f} m "
                        f"at the decision, admissible: {row['admissible'] or 'none'})")
-    typer.echo(f"-> {out}/trace.csv, summary.json")
+    typer.echo(f"-> {out}/trace.csv, summary.json{', episode.mp4' if video else ''}")
 
 
 def _echo_results(rows: list[dict[str, Any]]) -> None:

@@ -20,7 +20,7 @@ from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import episode_seeds
+from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import EpisodeMetrics, trace_metrics
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation
@@ -50,9 +50,7 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
     if controller not in CONTROLLERS:
         raise DynoplanError(f"unknown controller {controller!r}; expected one of "
                             f"{', '.join(CONTROLLERS)} (flat_ppo has no decisions)")
-    if index < 0:
-        raise DynoplanError(f"episode index must be >= 0, got {index}")
-    episode = episode_seeds(seed + EVAL_SEED_OFFSET, index + 1)[index]
+    episode = evaluation_episode(index, seed)
     state = build_evaluation(EvalJob(models, controller, planner or PlannerSettings()))
     assert state.controller is not None
     reseed_ompl(episode.env_seed)
@@ -63,6 +61,14 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
     human = {"events": list(schedule.events), "times": schedule.times.round(3).tolist(),
              "positions": schedule.positions.round(3).tolist()}
     return metrics, decision_rows(trace, names), human
+
+
+def evaluation_episode(index: int, seed: int = 0) -> EpisodeSeed:
+    """The seed of evaluation episode ``index`` of ``gear run`` / ``gear evaluate`` with
+    ``--seed seed``."""
+    if index < 0:
+        raise DynoplanError(f"episode index must be >= 0, got {index}")
+    return episode_seeds(seed + EVAL_SEED_OFFSET, index + 1)[index]
 
 
 def decision_rows(trace: EpisodeTrace, option_names: tuple[str, ...]) -> list[dict[str, Any]]:
@@ -100,4 +106,5 @@ def episode_summary(metrics: EpisodeMetrics, controller: str, index: int, seed: 
     return out
 
 
-__all__ = ["TRACE_COLUMNS", "decision_rows", "episode_summary", "inspect_episode"]
+__all__ = ["TRACE_COLUMNS", "decision_rows", "episode_summary", "evaluation_episode",
+           "inspect_episode"]

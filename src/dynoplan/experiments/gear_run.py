@@ -278,18 +278,18 @@ def video_episode(episodes: Sequence[EpisodeMetrics]) -> int:
         not episodes[i].success, episodes[i].seconds, i))
 
 
-def render_video(models_dir: Path, seed: EpisodeSeed,
-                 planner: PlannerSettings) -> dict[str, Any]:
-    """DynoPlan's episode ``seed`` rendered offscreen, as the evaluation ran it (OMPL
-    reseeded from the seed first): ``{"mp4": bytes of the H.264 file, "success",
-    "options"}`` (consecutive repeats collapsed). Writes nothing but a temporary file, so
-    it can run as a task on any worker."""
+def render_video(models_dir: Path, seed: EpisodeSeed, planner: PlannerSettings,
+                 controller_name: str = "dynoplan") -> dict[str, Any]:
+    """Controller ``controller_name``'s episode ``seed`` rendered offscreen, as the
+    evaluation ran it (OMPL reseeded from the seed first): ``{"mp4": bytes of the H.264
+    file, "success", "options"}`` (consecutive repeats collapsed). Writes nothing but a
+    temporary file, so it can run as a task on any worker."""
     from dynoplan.reports.video import write_mp4
 
     env = GearAssemblyEnv(render_mode="rgb_array")
     frames: list[Any] = []
     try:
-        controller = make_gear_controller("dynoplan", env, load_gear_models(models_dir),
+        controller = make_gear_controller(controller_name, env, load_gear_models(models_dir),
                                           policy_factories(models_dir), planner)
         reseed_ompl(seed.env_seed)
         trace = _run_rendered(controller, env, seed, frames)
