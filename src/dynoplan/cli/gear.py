@@ -66,8 +66,7 @@ def demos(
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     if demonstrator == "options":
-        for name in ("pick", "insert"):
-            _ensure_networks(name, models, seed)
+        _ensure_neural_options(models, seed)
     summary = record_demos(n, seed, out, progress=not quiet, human_mode=human,
                            demonstrator=demonstrator, models=models, workers=pool)
     modes = ", ".join(f"{k} {v}" for k, v in summary["human_modes"].items())
@@ -100,6 +99,14 @@ def _ensure_networks(name: str, models: Path, seed: int) -> dict[str, object] | 
     typer.echo(f"training the {name} network into {models} ...")
     report: dict[str, object] = train_option_networks(models, seed, only=(name,))[name]
     return report
+
+
+def _ensure_neural_options(models: Path, seed: int) -> None:
+    """Train every neural option's network missing from ``models`` (:func:`_ensure_networks`)."""
+    from dynoplan.envs.gear.options.catalog import NEURAL_FILES
+
+    for name in NEURAL_FILES:
+        _ensure_networks(name, models, seed)
 
 
 @gear_app.command("option")
@@ -165,8 +172,7 @@ def collect(
 
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
-    for name in ("pick", "insert"):
-        _ensure_networks(name, models, seed)
+    _ensure_neural_options(models, seed)
     summary = collect_transitions(models, runs, seed, out, max_decisions=max_decisions,
                                   progress=not quiet, workers=pool)
     counts = ", ".join(f"{k} {v}" for k, v in summary["transitions"].items())
@@ -317,23 +323,18 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from dynoplan.experiments.gear_controllers import PlannerSettings
-    from dynoplan.experiments.gear_inspect import (
-        episode_summary,
-        evaluation_episode,
-        inspect_episode,
-    )
-    from dynoplan.experiments.gear_run import render_video, save_video
+    from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
+    from dynoplan.experiments.gear_run import save_video, video_clip
     from dynoplan.io import ensure_writable_dir, write_csv, write_json
 
     torch.set_num_threads(1)
-    metrics, rows, human = inspect_episode(models, controller, index, seed)
+    frames: list[Any] | None = [] if video else None  # the replay renders itself
+    metrics, rows, human = inspect_episode(models, controller, index, seed, frames=frames)
     ensure_writable_dir(out)
     write_csv(out / "trace.csv", rows)
     summary = episode_summary(metrics, controller, index, seed, human)
-    if video:
-        clip = render_video(models, evaluation_episode(index, seed), PlannerSettings(),
-                            controller)
+    if frames is not None:
+        clip = video_clip(frames, metrics.success, [o for o in metrics.options if o != "hold"])
         summary["video"] = save_video(clip, metrics, index, out / "episode.mp4")
     write_json(out / "summary.json", summary)
     events = ", ".join(human["events"]) or "away"

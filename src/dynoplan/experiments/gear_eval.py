@@ -91,10 +91,34 @@ def controller_episode(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv,
     """One seeded episode of ``controller`` on ``env`` (``gear_env`` itself or a wrapper
     of it, for example a fault); out-of-region starts are counted against ``regions``
     when given (see :func:`trace_metrics`). OMPL is reseeded from the episode's seed
-    first, so the episode does not depend on what this process planned before."""
+    first (:func:`run_episode`), so the episode does not depend on what this process
+    planned before."""
+    return trace_metrics(run_episode(env, controller, seed), gear_env, seed.env_seed, regions)
+
+
+def run_episode(env: gym.Env[Any, Any], controller: Controller, seed: EpisodeSeed,
+                frames: list[Any] | None = None) -> EpisodeTrace:
+    """Run ``controller``'s episode ``seed`` on ``env`` as the evaluation does (OMPL
+    reseeded from the seed first); with ``frames``, append ``env.render()`` after every
+    step (``env`` built with ``render_mode="rgb_array"``)."""
     reseed_ompl(seed.env_seed)
-    trace = controller.run(env, seed.rng(), seed=seed.env_seed)
-    return trace_metrics(trace, gear_env, seed.env_seed, regions)
+    if frames is not None:
+        env = _Recorder(env, frames)
+    trace: EpisodeTrace = controller.run(env, seed.rng(), seed=seed.env_seed)
+    return trace
+
+
+class _Recorder(gym.Wrapper[Any, Any, Any, Any]):
+    """Appends a rendered frame to ``frames`` after every step."""
+
+    def __init__(self, env: gym.Env[Any, Any], frames: list[Any]) -> None:
+        super().__init__(env)
+        self.frames = frames
+
+    def step(self, action: Any) -> Any:
+        out = self.env.step(action)
+        self.frames.append(self.env.render())
+        return out
 
 
 def run_controller(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv, controller: Controller,
@@ -163,4 +187,4 @@ def summarise(name: str, episodes: Sequence[EpisodeMetrics]) -> dict[str, Any]:
 
 
 __all__ = ["RESULT_COLUMNS", "EpisodeMetrics", "controller_episode", "policy_episode",
-           "run_controller", "run_policy", "summarise", "trace_metrics"]
+           "run_controller", "run_episode", "run_policy", "summarise", "trace_metrics"]

@@ -17,12 +17,11 @@ import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT
-from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
-from dynoplan.experiments.gear_eval import EpisodeMetrics, trace_metrics
+from dynoplan.experiments.gear_eval import EpisodeMetrics, run_episode, trace_metrics
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 
@@ -35,10 +34,11 @@ TRACE_COLUMNS = (
 
 
 def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
-                    planner: PlannerSettings | None = None
+                    planner: PlannerSettings | None = None, frames: list[Any] | None = None
                     ) -> tuple[EpisodeMetrics, list[dict[str, Any]], dict[str, Any]]:
     """Replay evaluation episode ``index`` (0-based, as in ``episodes.json``) of
-    ``controller`` on the models in ``models``.
+    ``controller`` on the models in ``models``; with ``frames``, render it offscreen and
+    append one frame per step (for :func:`~dynoplan.experiments.gear_run.video_clip`).
 
     Returns:
         The episode's metrics (the same as the evaluation's for the same models, seed
@@ -51,10 +51,13 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
         raise DynoplanError(f"unknown controller {controller!r}; expected one of "
                             f"{', '.join(CONTROLLERS)} (flat_ppo has no decisions)")
     episode = evaluation_episode(index, seed)
-    state = build_evaluation(EvalJob(models, controller, planner or PlannerSettings()))
+    state = build_evaluation(EvalJob(models, controller, planner or PlannerSettings(),
+                                     render=frames is not None))
     assert state.controller is not None
-    reseed_ompl(episode.env_seed)
-    trace = state.controller.run(state.env, episode.rng(), seed=episode.env_seed)
+    try:
+        trace = run_episode(state.env, state.controller, episode, frames)
+    finally:
+        state.env.close()
     metrics = trace_metrics(trace, state.gear_env, episode.env_seed, state.regions)
     names = tuple(o.name for o in state.controller.options)
     schedule = state.gear_env.schedule

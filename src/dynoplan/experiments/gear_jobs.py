@@ -46,6 +46,7 @@ class EvalJob:
         fault: None, or one of :data:`FAULTS` wrapped around the environment.
         observation_noise: std (m, rad) of the ``observation_noise`` fault.
         flat_folder: the flat policy's folder (for :data:`FLAT_POLICY`).
+        render: build the environment with ``render_mode="rgb_array"`` (for a video).
     """
 
     models: Path
@@ -54,6 +55,7 @@ class EvalJob:
     fault: str | None = None
     observation_noise: float = 0.005
     flat_folder: Path | None = None
+    render: bool = False
 
     def __post_init__(self) -> None:
         if self.controller not in (*CONTROLLERS, FLAT_POLICY):
@@ -87,7 +89,7 @@ def build_evaluation(job: EvalJob) -> EvalState:
     from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
 
     torch.set_num_threads(1)
-    gear_env = GearAssemblyEnv()
+    gear_env = GearAssemblyEnv(render_mode="rgb_array" if job.render else None)
     env: gym.Env[Any, Any] = gear_env
     if job.fault == "observation_noise":
         env = ObservationNoise(gear_env, job.observation_noise)

@@ -33,20 +33,16 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
-import gymnasium as gym
-
-from dynoplan.control.controller import EpisodeTrace
-from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.options.catalog import NEURAL_FILES, policy_factories
-from dynoplan.envs.gear.options.motion import reseed_ompl
+from dynoplan.envs.gear.options.catalog import NEURAL_FILES
 from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
-from dynoplan.experiments.gear_controllers import (
-    CONTROLLERS,
-    PlannerSettings,
-    make_gear_controller,
+from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_eval import (
+    RESULT_COLUMNS,
+    EpisodeMetrics,
+    run_episode,
+    summarise,
 )
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
-from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, evaluate_many
+from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation, evaluate_many
 from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
 from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
@@ -280,49 +276,40 @@ def video_episode(episodes: Sequence[EpisodeMetrics]) -> int:
 
 def render_video(models_dir: Path, seed: EpisodeSeed, planner: PlannerSettings,
                  controller_name: str = "dynoplan") -> dict[str, Any]:
-    """Controller ``controller_name``'s episode ``seed`` rendered offscreen, as the
-    evaluation ran it (OMPL reseeded from the seed first): ``{"mp4": bytes of the H.264
-    file, "success", "options"}`` (consecutive repeats collapsed). Writes nothing but a
-    temporary file, so it can run as a task on any worker."""
-    from dynoplan.reports.video import write_mp4
-
-    env = GearAssemblyEnv(render_mode="rgb_array")
+    """Controller ``controller_name``'s episode ``seed`` rendered offscreen, built and run
+    as the evaluation builds and runs it (:func:`build_evaluation`, :func:`run_episode`):
+    :func:`video_clip` of it. Writes nothing but a temporary file, so it can run as a task
+    on any worker."""
+    state = build_evaluation(EvalJob(models_dir, controller_name, planner, render=True))
+    assert state.controller is not None
     frames: list[Any] = []
     try:
-        controller = make_gear_controller(controller_name, env, load_gear_models(models_dir),
-                                          policy_factories(models_dir), planner)
-        reseed_ompl(seed.env_seed)
-        trace = _run_rendered(controller, env, seed, frames)
+        trace = run_episode(state.env, state.controller, seed, frames)
     finally:
-        env.close()
+        state.env.close()
+    return video_clip(frames, trace.success,
+                      [d.option for d in trace.decisions if d.option is not None])
+
+
+def video_clip(frames: Sequence[Any], success: bool, options: Sequence[str]) -> dict[str, Any]:
+    """An episode's ``frames`` (RGB arrays, 20 per second) as ``{"mp4": bytes of the H.264
+    file, "success", "options"}`` (the options it ran, consecutive repeats collapsed)."""
+    from dynoplan.reports.video import write_mp4
+
     with tempfile.TemporaryDirectory() as tmp:
-        path = write_mp4(Path(tmp) / "episode.mp4", frames, fps=20)
-        mp4 = path.read_bytes()
-    options = [d.option for d in trace.decisions if d.option is not None]
-    return {"mp4": mp4, "success": trace.success, "options": _runs(options)}
+        mp4 = write_mp4(Path(tmp) / "episode.mp4", frames, fps=20).read_bytes()
+    return {"mp4": mp4, "success": success, "options": _runs(options)}
 
 
 def save_video(video: dict[str, Any], evaluated: EpisodeMetrics, index: int,
                path: Path) -> dict[str, Any]:
-    """Write :func:`render_video`'s file to ``path``; its entry of ``summary.json``."""
+    """Write :func:`video_clip`'s file to ``path``; its entry of ``summary.json``."""
     def write(tmp: Path) -> None:
         tmp.write_bytes(video["mp4"])
 
     write_with(path, write)
     return {"file": path.name, "episode": index, "human_mode": evaluated.human_mode,
             "success": video["success"], "options": video["options"]}
-
-
-def _run_rendered(controller: Any, env: GearAssemblyEnv, seed: EpisodeSeed,
-                  frames: list[Any]) -> EpisodeTrace:
-    class Recorder(gym.Wrapper[Any, Any, Any, Any]):
-        def step(self, action: Any) -> Any:
-            out = self.env.step(action)
-            frames.append(env.render())
-            return out
-
-    trace: EpisodeTrace = controller.run(Recorder(env), seed.rng(), seed=seed.env_seed)
-    return trace
 
 
 def _runs(options: Sequence[str]) -> list[str]:
@@ -369,5 +356,5 @@ def _mode_cell(entry: dict[str, Any] | None) -> str:
 
 __all__ = ["EVAL_SEED_OFFSET", "ORACLE_FIRST", "QUICK_RUN", "GearRunSettings",
            "evaluate_controllers", "evaluate_faults", "render_video", "results_markdown",
-           "run_gear_pipeline", "save_video", "video_episode"]
+           "run_gear_pipeline", "save_video", "video_clip", "video_episode"]
 
