@@ -55,14 +55,9 @@ def demos(
     """Record demonstrations with option labels and progress as a dataset."""
     import torch
 
-    from dynoplan.errors import DynoplanError
     from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.experiments.gear_expert import DEMONSTRATORS
     from dynoplan.parallel import parse_workers
 
-    if demonstrator not in DEMONSTRATORS:
-        raise DynoplanError(f"unknown demonstrator {demonstrator!r}; expected one of "
-                            f"{', '.join(DEMONSTRATORS)}")
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     if demonstrator == "options":
