@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.task import OPTION_NAMES
-from dynoplan.experiments.episodes import episode_seeds
 from dynoplan.experiments.gear_collect import CollectJob, build_collection, collect_option_run
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation, evaluate_episode
+from dynoplan.seeding import episode_seeds
 
 
 def timed(fn: Any, *args: Any) -> tuple[Any, float, float]:

@@ -8,7 +8,7 @@ Usage::
 Both choosers are DynoPlan's Eq. 1 over the same options (initiation sets, terminations)
 and goal heuristic, with the **same** samples and horizon (``--samples``, ``--horizon``):
 :class:`~dynoplan.planning.OptionPlanner` rolls the learned dynamics ensembles forward,
-:class:`~dynoplan.envs.gear.oracle.SimulatorOracle` copies the MuJoCo state and runs
+:class:`~dynoplan.planning.SimulatorOracle` copies the MuJoCo state and runs
 each option's own policy in a scratch simulator. The decision states are those of
 ``--episodes`` seeded DynoPlan episodes (every ``--every``-th decision where some
 option is admissible, after ``--warmup`` such decisions); at each, the two choosers
@@ -32,11 +32,14 @@ import torch
 
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options.catalog import policy_factories
-from dynoplan.envs.gear.oracle import SimulatorOracle
-from dynoplan.experiments.episodes import episode_seeds
-from dynoplan.experiments.gear_controllers import PlannerSettings, make_gear_controller
+from dynoplan.experiments.gear_controllers import (
+    PlannerSettings,
+    gear_oracle,
+    make_gear_controller,
+)
 from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.planning import OptionPlanner
+from dynoplan.seeding import episode_seeds
 
 
 def measure(models_dir: Path, episodes: int, every: int, samples: int, horizon: int,
@@ -47,8 +50,7 @@ def measure(models_dir: Path, episodes: int, every: int, samples: int, horizon: 
     controller = make_gear_controller("dynoplan", env, models, factories)
     options = controller.options
     same = OptionPlanner(options, models.goal, horizon=horizon, samples=samples)
-    oracle = SimulatorOracle(env, options, dict(factories), models.goal, horizon=horizon,
-                             samples=samples)
+    oracle = gear_oracle(env, options, factories, models.goal, horizon, samples)
     timings: dict[str, list[float]] = {"learned": [], "oracle": [], "learned_default": []}
     own = controller.chooser
     rng = np.random.default_rng([seed, 1])

@@ -37,12 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from dynoplan.experiments.episodes import episode_seeds
 from dynoplan.experiments.gear_controllers import PlannerSettings
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.io import write_json
 from dynoplan.parallel import SERIAL, Workers, imap_unordered, ray_session
+from dynoplan.seeding import episode_seeds
 
 
 def timed_episode(state: Any, seed: Any) -> tuple[Any, float, float]:

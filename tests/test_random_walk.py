@@ -7,8 +7,9 @@ from gymnasium.utils.env_checker import check_env
 
 from dynoplan.envs import RANDOM_WALK_ID
 from dynoplan.envs.random_walk import NoisyWalkDynamics, NoisyWalkGoal, RandomWalkEnv
-from dynoplan.experiments.episodes import episode_seeds, planning_steps_summary, run_episodes
 from dynoplan.experiments.random_walk import RandomWalkSettings, make_chooser
+from dynoplan.pipeline.evaluate import planning_steps_summary, run_episodes
+from dynoplan.seeding import episode_seeds
 
 
 def test_env_passes_the_gymnasium_checker():

@@ -12,11 +12,11 @@ import pytest
 from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
-from dynoplan.experiments.episodes import episode_seeds
 from dynoplan.experiments.gear_collect import collect_transitions
 from dynoplan.experiments.gear_controllers import PlannerSettings
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate, evaluate_episode
 from dynoplan.parallel import SERIAL, Workers, parallel_map
+from dynoplan.seeding import episode_seeds
 
 pytestmark = pytest.mark.slow
 

@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import EpisodeSeed
 from dynoplan.experiments.gear_eval import EpisodeMetrics
 from dynoplan.experiments.gear_jobs import EvalJob
 from dynoplan.experiments.sweep import cell_key, run_sweep
 from dynoplan.experiments.sweep_config import load_sweep_config
+from dynoplan.seeding import EpisodeSeed
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-c", "from dynoplan.cli.main import main; main()"]

@@ -24,13 +24,13 @@ from dynoplan.data import DatasetMetadata, Episode, write_dataset
 from dynoplan.envs import GEAR_ASSEMBLY_ID
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
+from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.options.catalog import policy_factories
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_options import PolicyFactory
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.types import FloatArray, Generator
 
@@ -90,7 +90,7 @@ class CollectJob:
     options: tuple[str, ...]
     seed: int
     max_decisions: int
-    factories: Mapping[str, PolicyFactory] | None = field(default=None, hash=False,
+    factories: Mapping[str, GearPolicyFactory] | None = field(default=None, hash=False,
                                                           compare=False)
 
 
@@ -128,7 +128,7 @@ def collect_option_run(state: CollectState, run: tuple[str, int]) -> tuple[str, 
                              state.job.max_decisions)
 
 
-def collect_transitions(factories: Mapping[str, PolicyFactory] | Path, runs_per_option: int,
+def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_per_option: int,
                         seed: int, out: Path, max_decisions: int = 30,
                         progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
     """Collect ``runs_per_option`` runs of every option in ``factories``; write the

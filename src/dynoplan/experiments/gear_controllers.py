@@ -43,9 +43,8 @@ import numpy as np
 from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.options.catalog import PolicyFactory
+from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.options.moves import PreInsertionBeta
-from dynoplan.envs.gear.oracle import SimulatorOracle
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
 from dynoplan.envs.gear.state import (
     DECISION_STEPS,
@@ -57,6 +56,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_files import GearModels
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import (
     AllOf,
     AnyOf,
@@ -67,7 +67,7 @@ from dynoplan.options.initiation import (
 )
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
-from dynoplan.planning import OptionPlanner
+from dynoplan.planning import OptionPlanner, SimulatorOracle
 from dynoplan.types import BoolArray, FloatArray
 
 CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
@@ -219,7 +219,7 @@ def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | No
 
 
 def gear_options(env: GearAssemblyEnv, models: GearModels,
-                 factories: Mapping[str, PolicyFactory], regions: bool = True,
+                 factories: Mapping[str, GearPolicyFactory], regions: bool = True,
                  terminations: bool = True, dynamics_noise: float = 0.0) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
@@ -252,7 +252,7 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
 
 
 def make_gear_controller(name: str, env: GearAssemblyEnv, models: GearModels,
-                         factories: Mapping[str, PolicyFactory],
+                         factories: Mapping[str, GearPolicyFactory],
                          settings: PlannerSettings = PlannerSettings()) -> Controller:
     """The controller ``name`` (one of :data:`CONTROLLERS`) on ``env``."""
     if name not in CONTROLLERS:
@@ -267,9 +267,8 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: GearModels,
         chooser = OptionPlanner(options, models.goal, horizon=settings.horizon,
                                 samples=settings.samples)
     elif name == "oracle":
-        chooser = SimulatorOracle(env, options, dict(factories), models.goal,
-                                  horizon=settings.oracle_horizon,
-                                  samples=settings.oracle_samples)
+        chooser = gear_oracle(env, options, factories, models.goal,
+                              settings.oracle_horizon, settings.oracle_samples)
     elif name == "random":
         chooser = RandomChoice(options)
     else:
@@ -280,6 +279,17 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: GearModels,
                       replan_every=None if scripted else DECISION_STEPS,
                       margin=settings.margin, hold_action=HoldStill(env), record_infos=True,
                       termination_every=1 if scripted else DECISION_STEPS)
+
+
+def gear_oracle(env: GearAssemblyEnv, options: list[Option],
+                factories: Mapping[str, GearPolicyFactory], goal: GoalHeuristic, horizon: int,
+                samples: int) -> SimulatorOracle:
+    """The simulator oracle on the gear: MuJoCo (and the human's schedule) copied into a
+    scratch environment that never truncates, one decision = :data:`DECISION_STEPS`."""
+    return SimulatorOracle(env, options, factories, goal,
+                           scratch=GearAssemblyEnv(max_episode_steps=10**9),
+                           state_fn=PlannerState(), steps_per_decision=DECISION_STEPS,
+                           horizon=horizon, samples=samples)
 
 
 class HoldStill:
@@ -312,6 +322,7 @@ __all__ = [
     "HoldStill",
     "PlannerSettings",
     "gear_options",
+    "gear_oracle",
     "hand_clear_of_tool",
     "hand_near_tool",
     "holding_gear",

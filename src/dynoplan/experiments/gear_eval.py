@@ -5,7 +5,7 @@ Controllers (rows of ``results.csv``):
 - ``dynoplan``: the option planner (Eq. 1) with the learned dynamics ensembles, the
   learned goal heuristic and the Gaussian-mixture regions as initiation sets;
 - ``oracle``: the same controller, but each option's future simulated by MuJoCo itself
-  (:class:`~dynoplan.envs.gear.oracle.SimulatorOracle`);
+  (:class:`~dynoplan.planning.SimulatorOracle`);
 - ``fixed_script``: pick, fast move, insert, each run to its end, ignoring the human
   and the regions;
 - ``random``: a uniformly random admissible option at every decision;
@@ -13,7 +13,7 @@ Controllers (rows of ``results.csv``):
 
 Every controller runs on the same episodes: episode ``i`` resets the env with the same
 seed (gear pose and human schedule: none, crossing or blocking). An episode depends on
-its :class:`~dynoplan.experiments.episodes.EpisodeSeed` alone, not on the episodes run
+its :class:`~dynoplan.seeding.EpisodeSeed` alone, not on the episodes run
 before it, so a run split over workers (:mod:`dynoplan.experiments.gear_jobs`) gives the
 same metrics.
 """
@@ -30,9 +30,10 @@ from dynoplan.control import Controller
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.options.motion import reseed_ompl
-from dynoplan.experiments.episodes import EpisodeSeed, quantile_or_none
 from dynoplan.options.initiation import RegionModel
+from dynoplan.pipeline.evaluate import quantile_or_none
 from dynoplan.progress import track
+from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray
 
 RESULT_COLUMNS = (

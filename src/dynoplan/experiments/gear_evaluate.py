@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import episode_seeds
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
 from dynoplan.experiments.gear_jobs import FLAT_POLICY
@@ -20,6 +19,7 @@ from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET, GearRunSettings, eva
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.reports.tables import markdown_table
+from dynoplan.seeding import episode_seeds
 
 
 def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], episodes: int,

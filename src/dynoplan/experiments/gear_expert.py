@@ -20,10 +20,10 @@ from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.expert import OPTION_NAMES, ExpertAction, GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import episode_seeds as derive_episode_seeds
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.reports.video import write_mp4
+from dynoplan.seeding import episode_seeds as derive_episode_seeds
 from dynoplan.types import FloatArray
 
 Episode = dict[str, Any]

@@ -2,7 +2,7 @@
 
 The evaluation (``dynoplan gear run`` / ``gear evaluate``) reports per-episode metrics in
 ``episodes.json``; this module replays one of those episodes (the same
-:class:`~dynoplan.experiments.episodes.EpisodeSeed`, hence the same gear pose, human
+:class:`~dynoplan.seeding.EpisodeSeed`, hence the same gear pose, human
 schedule and, for the same models, the same decisions) and keeps its trace: per decision,
 the option chosen (or a hold), why it stopped, which options were admissible and how the
 planner scored them, where the tool, the gear and the human's hand were, and the
@@ -19,11 +19,11 @@ from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import EpisodeMetrics, run_episode, trace_metrics
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
+from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 TRACE_COLUMNS = (
     "decision", "time_s", "option", "stop_reason", "steps", "admissible", "tool_hand_m",

@@ -5,7 +5,7 @@ settings only; every worker process rebuilds the environment, loads the models f
 folder and builds the controller once (:func:`build_evaluation`), then runs seeded
 episodes on it (:func:`evaluate_episode`). Networks are never pickled: a worker reads
 the same files the caller would. Since an episode depends on its
-:class:`~dynoplan.experiments.episodes.EpisodeSeed` alone, the metrics are the same on
+:class:`~dynoplan.seeding.EpisodeSeed` alone, the metrics are the same on
 one worker or many (only the measured decision latencies differ).
 """
 
@@ -19,11 +19,11 @@ import gymnasium as gym
 from dynoplan.control import Controller
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import EpisodeSeed
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import EpisodeMetrics, controller_episode, policy_episode
 from dynoplan.options.initiation import RegionModel
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
+from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray
 
 FLAT_POLICY = "flat_ppo"

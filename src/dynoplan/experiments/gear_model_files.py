@@ -8,9 +8,10 @@ SHA-256). :func:`load_gear_models` reads the folder back as :class:`GearModels`,
 missing, truncated, modified or mismatched file is rejected with one error line.
 
 The goal heuristic and the regions read named feature maps of the planner state
-(:mod:`dynoplan.envs.gear.features`); :class:`GoalOnFeatures` and
-:class:`RegionsOnFeatures` wrap them so that they take full planner states
-``(batch, 22)``.
+(:mod:`dynoplan.envs.gear.features`); the library's
+:class:`~dynoplan.models.features.GoalOnFeatures` and
+:class:`~dynoplan.models.features.RegionsOnFeatures` wrap them so that they take full
+planner states ``(batch, 22)``.
 """
 
 import hashlib
@@ -20,16 +21,16 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from dynoplan.envs.gear.features import FEATURE_MAPS, TASK, FeatureMap
+from dynoplan.envs.gear.features import FEATURE_MAPS, TASK
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_settings import GearTrainSettings
 from dynoplan.models.dynamics import StackedDynamics
+from dynoplan.models.features import FeatureMap, GoalOnFeatures, RegionsOnFeatures
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.regions import SafetyRegions
-from dynoplan.types import BoolArray, FloatArray, Generator
 
 MODELS_KIND = "gear_models"
 MODELS_FORMAT_VERSION = 2
@@ -46,76 +47,6 @@ GOAL_FEATURES = TASK
 def dynamics_file(option: str) -> str:
     """File name of option ``option``'s dynamics model inside a models folder."""
     return f"dynamics-{option}.safetensors"
-
-
-class _OnFeatures:
-    """A model of full planner states ``(batch, 22)`` that reads ``features(states)``."""
-
-    def __init__(self, features: FeatureMap) -> None:
-        self.features = features
-
-    @property
-    def state_dim(self) -> int:
-        return STATE_DIM
-
-    def _columns(self, states: FloatArray) -> FloatArray:
-        return self.features(states)
-
-
-class GoalOnFeatures(_OnFeatures):
-    """The goal heuristic ``G(s)`` of full planner states, read from some of their columns.
-
-    Satisfies :class:`~dynoplan.models.goal.GoalHeuristic` for ``(batch, state_dim)``
-    states; ``network`` sees ``features(states)``.
-    """
-
-    def __init__(self, network: GoalNetwork, features: FeatureMap) -> None:
-        super().__init__(features)
-        self.network = network
-
-    def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
-        """One draw of ``g ~ G(s)`` per state: ``(batch, state_dim)`` -> ``(batch,)``."""
-        return self.network.sample(self._columns(states), rng)
-
-    def mean_std(self, states: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Mean and standard deviation of ``G(s)``, each ``(batch,)``."""
-        return self.network.mean_std(self._columns(states))
-
-    def interval(self, states: FloatArray, level: float = 0.9) -> tuple[FloatArray, FloatArray]:
-        """Central ``level`` interval of ``G(s)``: lower and upper bounds, each ``(batch,)``."""
-        return self.network.interval(self._columns(states), level)
-
-
-class RegionsOnFeatures(_OnFeatures):
-    """Safety regions (Eq. 5) of full planner states, read from some of their columns.
-
-    Offers what :class:`~dynoplan.options.initiation.InRegion` and the planner use
-    (``option_names``, ``option_index``, ``contains``, ``contains_all``, ``log_likelihood``)
-    on ``(batch, state_dim)`` states; ``regions`` sees ``features(states)``.
-    """
-
-    def __init__(self, regions: SafetyRegions, features: FeatureMap) -> None:
-        super().__init__(features)
-        self.regions = regions
-
-    @property
-    def option_names(self) -> list[str]:
-        return self.regions.option_names
-
-    def option_index(self, option: str | int) -> int:
-        return self.regions.option_index(option)
-
-    def log_likelihood(self, states: FloatArray, option: str | int) -> FloatArray:
-        """``log L(s | k)`` of Eq. 5, ``(batch,)``."""
-        return self.regions.log_likelihood(self._columns(states), option)
-
-    def contains(self, states: FloatArray, option: str | int) -> BoolArray:
-        """Whether each state lies in option ``k``'s region, ``(batch,)``."""
-        return self.regions.contains(self._columns(states), option)
-
-    def contains_all(self, states: FloatArray) -> BoolArray:
-        """Membership for every option at once, ``(batch, options)``."""
-        return self.regions.contains_all(self._columns(states))
 
 
 @dataclass

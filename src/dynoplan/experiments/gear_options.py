@@ -8,7 +8,6 @@ pass; then the policy judges its own success from the simulator (``succeeded(inf
 """
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,16 +17,14 @@ import numpy.typing as npt
 
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
-from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import quantile_or_none
 from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.pipeline.evaluate import quantile_or_none
 from dynoplan.progress import track
 from dynoplan.reports.video import write_mp4
-
-PolicyFactory = Callable[[GearAssemblyEnv], GearOptionPolicy]
 
 
 @dataclass(frozen=True)
@@ -105,7 +102,7 @@ def summarise_trials(option: str, results: list[TrialResult], seed: int,
     }
 
 
-def run_option_trials(option: str, factory: PolicyFactory, trials: int, seed: int, out: Path,
+def run_option_trials(option: str, factory: GearPolicyFactory, trials: int, seed: int, out: Path,
                       human_mode: str | None = None, max_steps: int = 600,
                       video: bool = False, progress: bool = True,
                       extra: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -148,5 +145,5 @@ def _frame(env: GearAssemblyEnv) -> npt.NDArray[np.uint8]:
     return frame
 
 
-__all__ = ["PolicyFactory", "TrialResult", "run_option_trials", "run_trial",
+__all__ = ["GearPolicyFactory", "TrialResult", "run_option_trials", "run_trial",
            "summarise_trials"]

@@ -34,7 +34,6 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from dynoplan.envs.gear.options.catalog import NEURAL_FILES
-from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import (
     RESULT_COLUMNS,
@@ -48,6 +47,7 @@ from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
 from dynoplan.reports.tables import markdown_table
+from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 T = TypeVar("T")
 

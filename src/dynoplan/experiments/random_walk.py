@@ -24,11 +24,12 @@ from dynoplan.envs import RANDOM_WALK_ID
 from dynoplan.envs.random_walk.models import NoisyWalkGoal
 from dynoplan.envs.random_walk.options import make_random_walk_options
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import episode_seeds, planning_steps_summary, run_episodes
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.pipeline.evaluate import planning_steps_summary, run_episodes
 from dynoplan.planning.option_planner import OptionPlanner
 from dynoplan.reports.random_walk_figures import plot_mdp_solution, plot_robustness
 from dynoplan.reports.tables import markdown_table
+from dynoplan.seeding import episode_seeds
 
 ROBUSTNESS_NOISES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 

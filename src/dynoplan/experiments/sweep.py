@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import EpisodeSeed, episode_seeds
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
 from dynoplan.experiments.gear_model_files import MANIFEST_FILE
@@ -34,6 +33,7 @@ from dynoplan.experiments.sweep_config import Cell, SweepConfig, load_sweep_conf
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.reports.tables import markdown_table
+from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 CELL_FORMAT = "dynoplan-sweep-cell"
 CELL_VERSION = 1

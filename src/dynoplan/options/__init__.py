@@ -8,7 +8,7 @@ from dynoplan.options.initiation import (
     InitiationFromCallable,
     InRegion,
 )
-from dynoplan.options.option import FunctionPolicy, Option, OptionPolicy
+from dynoplan.options.option import FunctionPolicy, Option, OptionPolicy, PolicyFactory
 from dynoplan.options.termination import (
     ConstantTermination,
     StackedTermination,
@@ -28,6 +28,7 @@ __all__ = [
     "InitiationFromCallable",
     "Option",
     "OptionPolicy",
+    "PolicyFactory",
     "StackedTermination",
     "Termination",
     "TerminationFromCallable",

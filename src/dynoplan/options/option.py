@@ -15,7 +15,7 @@ Lifecycle (like a behaviour tree's ``initialise / update / terminate``):
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -51,6 +51,14 @@ class FunctionPolicy(OptionPolicy):
 
     def act(self, observation: Any) -> Any:
         return self.fn(observation, self._rng)
+
+
+EnvT = TypeVar("EnvT")
+PolicyT = TypeVar("PolicyT", bound=OptionPolicy)
+PolicyFactory = Callable[[EnvT], PolicyT]
+"""``factory(env) -> policy``: builds an option's policy bound to one environment (a
+policy may keep per-environment state, so every environment gets its own). Generic in
+the environment and policy types: ``PolicyFactory[GearAssemblyEnv, GearOptionPolicy]``."""
 
 
 @dataclass

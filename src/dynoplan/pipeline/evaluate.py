@@ -1,7 +1,7 @@
 """Evaluating controllers built from options: DynoPlan, each option alone, random choice.
 
-Every controller runs the same seeded episodes (:func:`~dynoplan.experiments.episodes.
-episode_seeds`), so the rows of a results table differ only by the controller.
+Every controller runs the same seeded episodes (:func:`~dynoplan.seeding.episode_seeds`),
+so the rows of a results table differ only by the controller.
 """
 
 from collections.abc import Sequence
@@ -14,11 +14,12 @@ import numpy as np
 from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
 from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import episode_seeds, quantile_or_none, run_episodes
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.option import Option
 from dynoplan.planning.option_planner import OptionPlanner
+from dynoplan.progress import track
 from dynoplan.reports.tables import markdown_table
+from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 DYNOPLAN = "dynoplan"
 RANDOM = "random"
@@ -58,6 +59,41 @@ class ControllerSettings:
             raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
         if self.max_decisions < 1 or self.max_option_steps < 1:
             raise DynoplanError("max_decisions and max_option_steps must be >= 1")
+
+
+def run_episodes(env: gym.Env[Any, Any], controller: Controller, seeds: Sequence[EpisodeSeed],
+                 description: str, progress: bool = True,
+                 reset_options: dict[str, Any] | None = None) -> list[EpisodeTrace]:
+    """One trace per seed, in order."""
+    return [controller.run(env, s.rng(), seed=s.env_seed, reset_options=reset_options)
+            for s in track(seeds, description, total=len(seeds), enabled=progress)]
+
+
+def quantile_or_none(values: Sequence[float], q: float) -> float | None:
+    """The ``q`` quantile (``inverted_cdf``: always an observed value); None if infinite."""
+    if not values:
+        return None
+    v = float(np.quantile(np.asarray(values, dtype=np.float64), q, method="inverted_cdf"))
+    return v if np.isfinite(v) else None
+
+
+def planning_steps_summary(traces: Sequence[EpisodeTrace]) -> dict[str, Any]:
+    """Success rate and the distribution of planning steps to reach the goal.
+
+    An episode that never reaches the goal counts as infinitely many planning steps, so a
+    quantile that falls on failures is ``None`` (JSON ``null``), not a flattering number.
+    """
+    steps = [float(t.planning_steps) if t.success else np.inf for t in traces]
+    succeeded = [s for s in steps if np.isfinite(s)]
+    return {
+        "episodes": len(traces),
+        "success_rate": float(np.mean([t.success for t in traces])) if traces else 0.0,
+        "planning_steps_median": quantile_or_none(steps, 0.5),
+        "planning_steps_p90": quantile_or_none(steps, 0.9),
+        "planning_steps_max": quantile_or_none(steps, 1.0),
+        "planning_steps_mean_of_successes": float(np.mean(succeeded)) if succeeded else None,
+        "env_steps_median": float(np.median([t.env_steps for t in traces])) if traces else None,
+    }
 
 
 def controller_names(options: Sequence[Option]) -> list[str]:

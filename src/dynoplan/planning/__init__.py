@@ -1,5 +1,7 @@
-"""How we plan with what is learned: the n-step option MPC of Eq. 1."""
+"""How we plan with what is learned: the n-step option MPC of Eq. 1, and the same choice
+with the simulator as the model (the oracle)."""
 
 from dynoplan.planning.option_planner import OptionPlanner, Plan, Rollouts
+from dynoplan.planning.simulator_oracle import RestorableEnv, SimulatorOracle
 
-__all__ = ["OptionPlanner", "Plan", "Rollouts"]
+__all__ = ["OptionPlanner", "Plan", "RestorableEnv", "Rollouts", "SimulatorOracle"]

@@ -29,13 +29,9 @@ from dynoplan.envs.gear.state import PlannerState
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_data import CAUTIOUS
-from dynoplan.experiments.gear_model_files import (
-    HELDOUT_DIR,
-    GoalOnFeatures,
-    RegionsOnFeatures,
-    load_gear_models,
-)
+from dynoplan.experiments.gear_model_files import HELDOUT_DIR, load_gear_models
 from dynoplan.io import ensure_writable_dir, write_json, write_with
+from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
 from dynoplan.progress import track
 from dynoplan.types import BoolArray, FloatArray, IntArray
 

@@ -23,41 +23,22 @@ option was only demonstrated with the human away (the operator moves cautiously,
 backs off, when the hand comes near); beyond the cap, where the hand is does not matter.
 """
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
 
 from dynoplan.envs.gear.state import STATE_DIM, STATE_NAMES, STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.models.storage import as_states
+from dynoplan.models.features import FeatureMap
 from dynoplan.types import FloatArray
 
 HUMAN_DISTANCE_CAP = 1.0
 """m: tool-hand distances beyond this read as this (the hand is out of the way)."""
 
 
-@dataclass(frozen=True)
-class FeatureMap:
-    """``states (N, 22) -> features (N, dim)``, with a name and one name per feature."""
-
-    name: str
-    names: tuple[str, ...]
-    fn: Callable[[FloatArray], FloatArray]
-
-    @property
-    def dim(self) -> int:
-        return len(self.names)
-
-    def __call__(self, states: FloatArray) -> FloatArray:
-        """``(N, 22)`` -> ``(N, dim)`` float64 (another shape: one clear error)."""
-        out: FloatArray = self.fn(as_states(states, STATE_DIM))
-        return out
-
-
 def _columns(name: str, cols: Sequence[int]) -> FeatureMap:
     idx = np.asarray(cols, dtype=np.int64)
-    return FeatureMap(name, tuple(STATE_NAMES[i] for i in cols), lambda s: s[:, idx])
+    return FeatureMap(name, tuple(STATE_NAMES[i] for i in cols), lambda s: s[:, idx], STATE_DIM)
 
 
 def _relative(states: FloatArray) -> FloatArray:
@@ -71,7 +52,7 @@ TASK = _columns("task", range(STATE_SLICES["human_pos"].start))
 POSE = _columns("pose", range(STATE_SLICES["gripper"].start, STATE_SLICES["human_pos"].start))
 RELATIVE = FeatureMap("relative", ("gripper", "tool_minus_gear_x", "tool_minus_gear_y",
                                    "tool_minus_gear_z", "gear_x", "gear_y", "gear_z",
-                                   "tool_hand_distance"), _relative)
+                                   "tool_hand_distance"), _relative, STATE_DIM)
 FEATURE_MAPS: dict[str, FeatureMap] = {m.name: m for m in (TASK, POSE, RELATIVE)}
 
 

@@ -19,14 +19,14 @@ the planning options do not follow). It has the expert's interface: ``reset()`` 
 ``act(observation, info) -> ExpertAction``.
 """
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, ExpertAction
-from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState, tool_human_distance
 from dynoplan.envs.gear.task import OPTION_NAMES
@@ -42,13 +42,12 @@ INSERT_CLEAR = 0.3
 """Tool-hand distance (m) the operator waits for before inserting."""
 MAX_PICK_ATTEMPTS = 3
 
-PolicyFactory = Callable[[GearAssemblyEnv], GearOptionPolicy]
 
 
 class OptionOperator:
     """Chains the option policies built by ``factories`` on ``env`` (module docstring)."""
 
-    def __init__(self, env: GearAssemblyEnv, factories: Mapping[str, PolicyFactory],
+    def __init__(self, env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory],
                  seed: int = 0) -> None:
         missing = [n for n in OPTION_NAMES if n not in factories]
         if missing:

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
-from dynoplan.options import OptionPolicy
+from dynoplan.options import OptionPolicy, PolicyFactory
 from dynoplan.options.termination import Termination
 from dynoplan.types import FloatArray
 
@@ -60,3 +60,7 @@ def start_joints(env: GearAssemblyEnv, observation: Any) -> FloatArray:
 
 
 __all__ = ["GearOptionPolicy", "start_joints"]
+
+
+GearPolicyFactory = PolicyFactory[GearAssemblyEnv, GearOptionPolicy]
+"""Builds a gear option's policy bound to one environment."""

@@ -11,13 +11,12 @@ builds that option's policy on a given environment.
 """
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.options.base import GearOptionPolicy
+from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
@@ -26,7 +25,6 @@ RECOGNIZER_FILE = "grasp_recognizer.safetensors"
 INSERT_FILE = "insert_policy.safetensors"
 NEURAL_FILES = {"pick": RECOGNIZER_FILE, "insert": INSERT_FILE}
 
-PolicyFactory = Callable[[GearAssemblyEnv], GearOptionPolicy]
 
 
 @dataclass(frozen=True)
@@ -104,7 +102,7 @@ def train_option_networks(models: Path, seed: int, quick: bool = False,
     return reports
 
 
-def policy_factory(name: str, models: Path | None) -> PolicyFactory:
+def policy_factory(name: str, models: Path | None) -> GearPolicyFactory:
     """A factory of ``name``'s policy; neural options read their network from ``models``."""
     from dynoplan.envs.gear.options.moves import CautiousMovePolicy, FastMovePolicy
 
@@ -132,11 +130,20 @@ def policy_factory(name: str, models: Path | None) -> PolicyFactory:
     return lambda env: InsertPolicy(env, network)
 
 
-def policy_factories(models: Path | None) -> dict[str, PolicyFactory]:
+def policy_factories(models: Path | None) -> dict[str, GearPolicyFactory]:
     """:func:`policy_factory` of every option, in :data:`OPTION_NAMES` order."""
     return {name: policy_factory(name, models) for name in OPTION_NAMES}
 
 
-__all__ = ["INSERT_FILE", "NEURAL_FILES", "RECOGNIZER_FILE", "NetworkData", "PolicyFactory",
-           "build_network_data", "network_data_episode", "policy_factories", "policy_factory",
-           "train_option_networks"]
+__all__ = [
+    "INSERT_FILE",
+    "NEURAL_FILES",
+    "RECOGNIZER_FILE",
+    "GearPolicyFactory",
+    "NetworkData",
+    "build_network_data",
+    "network_data_episode",
+    "policy_factories",
+    "policy_factory",
+    "train_option_networks",
+]

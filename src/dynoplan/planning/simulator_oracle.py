@@ -1,28 +1,42 @@
-"""DynoPlan with the simulator itself as every option's dynamics model (the oracle).
+"""Eq. 1 with the simulator itself as every option's dynamics model (the oracle).
 
 :class:`SimulatorOracle` is an option chooser like
 :class:`~dynoplan.planning.OptionPlanner`, but instead of sampling learned models it
-copies the live MuJoCo state into a scratch environment and runs each admissible
-option's own policy there for up to ``horizon`` decisions of
-:data:`~dynoplan.envs.gear.state.DECISION_STEPS` steps (drawing the option's termination
-after each decision, as the learned planner does), then scores the end state with the
-same goal heuristic. The human's schedule is copied too, so the oracle knows the future
+copies the live simulator state into a scratch environment and runs each admissible
+option's own policy there for up to ``horizon`` decisions of ``steps_per_decision``
+environment steps (drawing the option's termination after each decision, as the learned
+planner does), then scores the end state with the same goal heuristic. Whatever the
+environment copies (for the gear assembly, the human's schedule too) the oracle knows
 exactly: an upper bound on what a perfect model could give.
+
+Any Task whose environment can copy another instance's state
+(:class:`RestorableEnv`) can use it.
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
-from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.options.base import GearOptionPolicy
-from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.option import Option
+from dynoplan.options.option import Option, OptionPolicy, PolicyFactory
 from dynoplan.planning.option_planner import Plan
 from dynoplan.types import FloatArray, Generator
 
-PolicyFactory = Callable[[GearAssemblyEnv], GearOptionPolicy]
+
+class RestorableEnv(Protocol):
+    """A Gymnasium environment that can take over another instance's full state.
+
+    ``copy_state_from(source)`` makes this environment's simulation (and whatever else
+    decides its future, such as a scripted bystander) identical to ``source``'s, and
+    returns the observation and info there, as ``reset`` would.
+    """
+
+    def copy_state_from(self, source: Any) -> tuple[Any, dict[str, Any]]: ...
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]: ...
+
+    def close(self) -> None: ...
 
 
 class SimulatorOracle:
@@ -32,25 +46,31 @@ class SimulatorOracle:
         env: the live environment whose state is copied at every decision.
         options: the options (their initiation sets and terminations are used).
         factories: option name -> a policy factory; each builds a private policy bound to
-            the oracle's scratch environment.
+            the scratch environment.
         goal: the goal heuristic ``G``.
+        scratch: the environment the rollouts run in (never ``env`` itself; it must not
+            truncate within ``horizon`` decisions).
+        state_fn: observation -> planner state ``(state_dim,)``.
+        steps_per_decision: environment steps of one decision (the learned models' step).
         horizon: decisions simulated per rollout.
-        samples: rollouts per option (the simulator is deterministic given the human's
-            schedule, so samples differ only through termination draws and the policies'
-            own randomness).
+        samples: rollouts per option (a deterministic simulator's samples differ only
+            through termination draws and the policies' own randomness).
     """
 
-    def __init__(self, env: GearAssemblyEnv, options: Sequence[Option],
-                 factories: dict[str, PolicyFactory], goal: GoalHeuristic, horizon: int = 20,
-                 samples: int = 1) -> None:
+    def __init__(self, env: Any, options: Sequence[Option],
+                 factories: Mapping[str, PolicyFactory[Any, OptionPolicy]],
+                 goal: GoalHeuristic, scratch: RestorableEnv,
+                 state_fn: Callable[[Any], FloatArray], steps_per_decision: int = 1,
+                 horizon: int = 20, samples: int = 1) -> None:
         self.env = env
         self.options = list(options)
         self.goal = goal
         self.horizon = horizon
         self.samples = samples
-        self.scratch = GearAssemblyEnv(max_episode_steps=10**9)
+        self.scratch = scratch
         self.policies = {o.name: factories[o.name](self.scratch) for o in self.options}
-        self.state_fn = PlannerState()
+        self.state_fn = state_fn
+        self.steps_per_decision = steps_per_decision
         self.simulated_steps = 0
 
     @property
@@ -83,7 +103,7 @@ class SimulatorOracle:
         policy.reset(obs, rng)
         state = self.state_fn(obs)
         for decision in range(1, self.horizon + 1):
-            for _ in range(DECISION_STEPS):
+            for _ in range(self.steps_per_decision):
                 obs, _, terminated, truncated, _ = self.scratch.step(policy.act(obs))
                 self.simulated_steps += 1
                 if policy.finished() or terminated or truncated:
@@ -100,4 +120,4 @@ class SimulatorOracle:
         self.scratch.close()
 
 
-__all__ = ["SimulatorOracle"]
+__all__ = ["RestorableEnv", "SimulatorOracle"]
