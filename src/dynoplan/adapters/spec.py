@@ -22,7 +22,8 @@ from dynoplan.options.termination import Termination
 
 @dataclass
 class OptionSpec:
-    """An option without its dynamics model: ``(pi_w, I_w, beta_w)``.
+    """An option without its dynamics model: ``(pi_w, I_w, beta_w)``, and where a running
+    option may go on (its continuation set; ``None``: its initiation set).
 
     Build one with :func:`option_spec`, which accepts callables, Stable-Baselines3
     models, classifiers and regions.
@@ -32,12 +33,19 @@ class OptionSpec:
     policy: OptionPolicy
     termination: Termination
     initiation: Initiation = field(default_factory=Everywhere)
+    continuation: Initiation | None = None
+
+    @property
+    def continuation_set(self) -> Initiation:
+        """The set a running option stays in: ``continuation``, else ``initiation``."""
+        return self.initiation if self.continuation is None else self.continuation
 
     def with_dynamics(self, dynamics: DynamicsModel,
                       initiation: Initiation | None = None) -> Option:
         """The full option with ``D_w = dynamics`` (and optionally another ``I_w``)."""
         return Option(self.name, self.policy, dynamics, self.termination,
-                      self.initiation if initiation is None else initiation)
+                      self.initiation if initiation is None else initiation,
+                      self.continuation)
 
 
 def _check_name(name: Any) -> str:
@@ -48,7 +56,7 @@ def _check_name(name: Any) -> str:
 
 
 def option_spec(name: str, policy: Any, termination: Any = None,
-                initiation: Any = None) -> OptionSpec:
+                initiation: Any = None, continuation: Any = None) -> OptionSpec:
     """An :class:`OptionSpec` from whatever the user has.
 
     Args:
@@ -59,13 +67,17 @@ def option_spec(name: str, policy: Any, termination: Any = None,
             or ``None`` for never (see :func:`~dynoplan.adapters.termination_from`).
         initiation: ``None`` (everywhere), an ``Initiation``, or ``fn(states) -> (B,)``
             booleans (see :func:`~dynoplan.adapters.initiation_from`).
+        continuation: where a running option may go on, in the same forms; ``None``:
+            its initiation set (give one when a condition only matters at the start, for
+            example "a move may not start at its goal").
     """
     return OptionSpec(_check_name(name), policy_from(policy), termination_from(termination),
-                      initiation_from(initiation, name))
+                      initiation_from(initiation, name),
+                      None if continuation is None else initiation_from(continuation, name))
 
 
 def make_option(name: str, policy: Any, dynamics: DynamicsModel, termination: Any = None,
-                initiation: Any = None) -> Option:
+                initiation: Any = None, continuation: Any = None) -> Option:
     """A complete :class:`~dynoplan.options.Option` from whatever the user has.
 
     Same arguments as :func:`option_spec`, plus ``dynamics``: any object with
@@ -75,7 +87,8 @@ def make_option(name: str, policy: Any, dynamics: DynamicsModel, termination: An
         raise DynoplanError(
             f"{type(dynamics).__name__} is not a dynamics model: it needs "
             "sample(states, rng) -> next states")
-    return option_spec(name, policy, termination, initiation).with_dynamics(dynamics)
+    return option_spec(name, policy, termination, initiation,
+                       continuation).with_dynamics(dynamics)
 
 
 def as_spec(item: Option | OptionSpec) -> OptionSpec:
@@ -83,7 +96,8 @@ def as_spec(item: Option | OptionSpec) -> OptionSpec:
     if isinstance(item, OptionSpec):
         return item
     if isinstance(item, Option):
-        return OptionSpec(item.name, item.policy, item.termination, item.initiation)
+        return OptionSpec(item.name, item.policy, item.termination, item.initiation,
+                          item.continuation)
     raise DynoplanError(f"expected an Option or OptionSpec, got {type(item).__name__}")
 
 

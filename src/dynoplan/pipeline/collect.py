@@ -22,9 +22,9 @@ from dynoplan.adapters.spec import OptionSpec, as_spec, check_unique_names
 from dynoplan.control.controller import default_success
 from dynoplan.data.episodes import OPTION_KEY, PROGRESS_KEY, Episode
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.episodes import episode_seeds
 from dynoplan.options.option import Option
 from dynoplan.progress import track
+from dynoplan.seeding import episode_seeds
 from dynoplan.types import FloatArray, Generator
 
 ObservationFn = Callable[[Any], FloatArray]
@@ -93,8 +93,11 @@ def probe_options(env: gym.Env[Any, Any], items: Sequence[Option | OptionSpec],
         _call(where, "policy", states, spec.policy.reset, obs, rng)
         _check_action(env.action_space, _call(where, "policy", states, spec.policy.act, obs),
                       spec.name)
-        for what, fn in (("termination", spec.termination.probability),
-                         ("initiation", spec.initiation.contains)):
+        parts = [("termination", spec.termination.probability),
+                 ("initiation", spec.initiation.contains)]
+        if spec.continuation is not None:
+            parts.append(("continuation", spec.continuation.contains))
+        for what, fn in parts:
             out = np.asarray(_call(where, what, states, fn, states))
             if out.shape != (2,):
                 raise DynoplanError(
@@ -188,7 +191,7 @@ class RandomOptions(Demonstrator):
     """Exploration: a uniformly random admissible option, run until its ``beta`` fires.
 
     A new option is drawn when the running one's termination fires (drawn from the
-    episode's ``rng``, as the controller does), when it leaves its initiation set, or
+    episode's ``rng``, as the controller does), when it leaves its continuation set, or
     after ``max_option_steps``. With no admissible option, any option is drawn.
     """
 
@@ -211,7 +214,7 @@ class RandomOptions(Demonstrator):
         if self._current is not None:
             spec = self.specs[self._current]
             stop = (self._steps >= self.max_option_steps
-                    or not bool(spec.initiation.contains(s)[0])
+                    or not bool(spec.continuation_set.contains(s)[0])
                     or self._rng.random() < float(spec.termination.probability(s)[0]))
             if stop:
                 self._current = None

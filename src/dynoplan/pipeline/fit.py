@@ -33,7 +33,7 @@ from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_traini
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.models.training import one_step_error
-from dynoplan.options.initiation import Everywhere, Initiation, InRegion
+from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination, Termination
 from dynoplan.pipeline.collect import ObservationFn, flat_state
@@ -282,14 +282,27 @@ class FittedModels:
     report: dict[str, Any] = field(default_factory=dict)
     use_regions: bool = True
 
+    def region(self, name: str) -> Initiation | None:
+        """Option ``name``'s learned region, or ``None`` (no region, or regions unused)."""
+        if self.use_regions and self.regions is not None and name in self.regions.option_names:
+            return InRegion(self.regions, name)
+        return None
+
     def initiation(self, spec: OptionSpec) -> Initiation:
-        """The option's region when it has one (and regions are used), else its own set."""
-        if (self.use_regions and self.regions is not None
-                and spec.name in self.regions.option_names):
-            if not isinstance(spec.initiation, Everywhere):
-                return _Both(spec.initiation, InRegion(self.regions, spec.name))
-            return InRegion(self.regions, spec.name)
-        return spec.initiation
+        """The option's own initiation set intersected with its region when it has one."""
+        region = self.region(spec.name)
+        if region is None:
+            return spec.initiation
+        return region if isinstance(spec.initiation, Everywhere) else AllOf(spec.initiation,
+                                                                              region)
+
+    def continuation(self, spec: OptionSpec) -> Initiation | None:
+        """The option's own continuation set intersected with its region (``None``: the
+        same as :meth:`initiation`)."""
+        region = self.region(spec.name)
+        if spec.continuation is None or region is None:
+            return spec.continuation
+        return AllOf(spec.continuation, region)
 
     def build(self, specs: Sequence[OptionSpec]) -> tuple[list[Option], list[Option]]:
         """The options the controller runs and the same options as the planner sees them.
@@ -301,11 +314,13 @@ class FittedModels:
         for spec in specs:
             if spec.name not in self.dynamics:
                 raise DynoplanError(f"no dynamics model for option '{spec.name}'")
-            initiation = self.initiation(spec)
+            initiation, continuation = self.initiation(spec), self.continuation(spec)
             model = self.dynamics[spec.name]
-            run.append(Option(spec.name, spec.policy, model, spec.termination, initiation))
+            run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
+                              continuation))
             plan.append(Option(spec.name, spec.policy, model,
-                               strided(spec.termination, self.stride), initiation))
+                               strided(spec.termination, self.stride), initiation,
+                               continuation))
         return run, plan
 
     def save(self, folder: str | os.PathLike[str]) -> Path:
@@ -375,16 +390,6 @@ class FittedModels:
         return cls([str(n) for n in names], dynamics, GoalNetwork.load(root / str(doc["goal"])),
                    regions, stride, dict(doc.get("report", {})),
                    bool(doc.get("use_regions", True)))
-
-
-class _Both:
-    """The intersection of two initiation sets."""
-
-    def __init__(self, a: Initiation, b: Initiation) -> None:
-        self.a, self.b = a, b
-
-    def contains(self, states: FloatArray) -> np.ndarray:
-        return np.asarray(self.a.contains(states)) & np.asarray(self.b.contains(states))
 
 
 def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
