@@ -146,7 +146,7 @@ def test_option_network_data_is_the_same_on_two_workers_in_any_order(ray_runtime
 
 
 def test_one_map_of_several_jobs_gives_each_job_its_own_results(ray_runtime, job, serial):
-    from dynoplan.experiments.gear_jobs import evaluate_many
+    from dynoplan.pipeline.evaluate import evaluate_many
 
     seeds = episode_seeds(7, EPISODES)
     script = EvalJob(job.models, "fixed_script", QUICK_PLANNER)

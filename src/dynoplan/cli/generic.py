@@ -12,6 +12,7 @@ from pathlib import Path
 
 import typer
 
+from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.errors import DynoplanError
 
 generic_app = typer.Typer(
@@ -48,14 +49,18 @@ def pipeline(
                                  help="Fit the safety regions (Eq. 5) and enforce them."),
     dynamics_epochs: int = typer.Option(30, "--dynamics-epochs", help="Epochs per ensemble."),
     goal_epochs: int = typer.Option(150, "--goal-epochs", help="Epochs of the goal network."),
+    workers: str = workers_option(),
+    ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Collect, fit dynamics/goal/regions, run DynoPlan and compare with each option alone
     and random choice; writes OUT/summary.json, OUT/results.md, datasets and models."""
     from dynoplan.data.dataset import read_dataset
+    from dynoplan.parallel import parse_workers
     from dynoplan.pipeline import (
         ControllerSettings,
         FitSettings,
+        GymTask,
         PipelineSettings,
         call_factory,
         load_object,
@@ -64,10 +69,9 @@ def pipeline(
 
     if replan_every < 0:
         raise DynoplanError(f"--replan-every must be >= 0, got {replan_every}")
-    made = call_factory(options, "options")
-    if not isinstance(made, list | tuple) or not made:
-        raise DynoplanError(
-            f"'{options}' must return a non-empty list of options, got {type(made).__name__}")
+    pool = parse_workers(workers, ray_address)
+    task = GymTask(env, options)
+    made = task.make_options()
     demo_data = read_dataset(demo_dataset) if demo_dataset is not None else None
     demo_maker = None
     if demo_data is None:
@@ -90,6 +94,6 @@ def pipeline(
     result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
                           settings=settings, out=out, progress=not quiet,
                           status=None if quiet else lambda m: typer.echo(f"-- {m}", err=True),
-                          command=command)
+                          command=command, workers=pool, task=task)
     typer.echo(result.table)
     typer.echo(f"{result.summary['seconds']:.1f} s -> {out}/summary.json")

@@ -1,5 +1,6 @@
 """The ``--workers`` and ``--ray-address`` options shared by the commands that run many
-independent episodes (``gear collect``, ``gear run``, ``gear evaluate``, ``sweep``)."""
+independent episodes (``gear collect``, ``gear run``, ``gear evaluate``, ``sweep``,
+``pipeline``)."""
 
 from typing import Any
 

@@ -22,7 +22,8 @@ from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import EpisodeMetrics, controller_episode, policy_episode
 from dynoplan.options.initiation import RegionModel
-from dynoplan.parallel import SERIAL, Workers, imap_unordered
+from dynoplan.parallel import SERIAL, Workers
+from dynoplan.pipeline.evaluate import evaluate_many
 from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray
 
@@ -67,6 +68,10 @@ class EvalJob:
         if self.controller == FLAT_POLICY and self.flat_folder is None:
             raise DynoplanError(f"{FLAT_POLICY} needs the flat policy's folder")
 
+    def build(self) -> "EvalState":
+        """:func:`build_evaluation` of this job (what a worker holds)."""
+        return build_evaluation(self)
+
 
 @dataclass
 class EvalState:
@@ -78,6 +83,10 @@ class EvalState:
     controller: Controller | None
     act: Callable[[FloatArray], FloatArray] | None
     regions: RegionModel | None
+
+    def episode(self, seed: EpisodeSeed) -> EpisodeMetrics:
+        """:func:`evaluate_episode` on this state."""
+        return evaluate_episode(self, seed)
 
 
 def build_evaluation(job: EvalJob) -> EvalState:
@@ -125,24 +134,5 @@ def evaluate(job: EvalJob, seeds: Sequence[EpisodeSeed], workers: Workers = SERI
     return evaluate_many([(job, seeds)], workers, description or job.controller, progress)[0]
 
 
-def evaluate_many(batches: Sequence[tuple[EvalJob, Sequence[EpisodeSeed]]],
-                  workers: Workers = SERIAL, description: str = "episodes",
-                  progress: bool = False) -> list[list[EpisodeMetrics]]:
-    """Every ``(job, seeds)`` batch, as one map: per batch, one result per seed, in
-    order. The episodes of all batches share the workers, so none waits for the last
-    episode of another batch (submit the costliest batches first: on Ray the tasks start
-    in the given order). Results are those of :func:`evaluate` on each batch."""
-    tasks = [(job, seed) for job, seeds in batches for seed in seeds]
-    results: list[EpisodeMetrics | None] = [None] * len(tasks)
-    for i, metrics in imap_unordered(build_evaluation, evaluate_episode, tasks, workers,
-                                     description, progress):
-        results[i] = metrics
-    out: list[list[EpisodeMetrics]] = []
-    for _, seeds in batches:
-        done, results = results[:len(seeds)], results[len(seeds):]
-        out.append([m for m in done if m is not None])
-    return out
-
-
 __all__ = ["FAULTS", "FLAT_POLICY", "EvalJob", "EvalState", "build_evaluation", "evaluate",
-           "evaluate_episode", "evaluate_many"]
+           "evaluate_episode"]

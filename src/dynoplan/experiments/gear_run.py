@@ -41,11 +41,12 @@ from dynoplan.experiments.gear_eval import (
     run_episode,
     summarise,
 )
-from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation, evaluate_many
+from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation
 from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
 from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
+from dynoplan.pipeline.evaluate import evaluate_many
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 

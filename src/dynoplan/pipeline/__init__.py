@@ -18,9 +18,12 @@ from dynoplan.pipeline.collect import (
     record_episode,
 )
 from dynoplan.pipeline.evaluate import (
+    ControllerJob,
     ControllerSettings,
+    EpisodeRecord,
     controller_names,
     evaluate_controllers,
+    evaluate_many,
     make_controller,
     results_table,
     summarize,
@@ -40,23 +43,26 @@ from dynoplan.pipeline.fit import (
 from dynoplan.pipeline.run import (
     PipelineResult,
     PipelineSettings,
-    call_factory,
     demos_from_dataset,
-    load_object,
     run_pipeline,
 )
+from dynoplan.pipeline.task import GymTask, Task, call_factory, load_object
 
 __all__ = [
     "CallableDemonstrator",
+    "ControllerJob",
     "ControllerSettings",
     "Demonstrator",
     "DynamicsFitter",
+    "EpisodeRecord",
     "FitSettings",
     "FittedModels",
+    "GymTask",
     "PipelineResult",
     "PipelineSettings",
     "RandomOptions",
     "StridedTermination",
+    "Task",
     "box_state_dim",
     "call_factory",
     "collect_transitions",
@@ -64,6 +70,7 @@ __all__ = [
     "demos_from_dataset",
     "ensemble_fitter",
     "evaluate_controllers",
+    "evaluate_many",
     "fit_dynamics",
     "fit_goal",
     "fit_models",

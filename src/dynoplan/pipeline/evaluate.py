@@ -4,9 +4,10 @@ Every controller runs the same seeded episodes (:func:`~dynoplan.seeding.episode
 so the rows of a results table differ only by the controller.
 """
 
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -16,6 +17,8 @@ from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.errors import DynoplanError
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.option import Option
+from dynoplan.parallel import SERIAL, Workers, imap_unordered
+from dynoplan.pipeline.task import Task
 from dynoplan.planning.option_planner import OptionPlanner
 from dynoplan.progress import track
 from dynoplan.reports.tables import markdown_table
@@ -132,58 +135,195 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                       margin=settings.margin, hold_action=settings.hold_action)
 
 
-def summarize(traces: Sequence[EpisodeTrace]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """What one episode of one controller did: small and picklable (what a worker sends
+    back) and all that :func:`summarize` reads.
+
+    Attributes:
+        env_seed: the seed ``env.reset`` got.
+        success, env_steps, total_reward: the episode's outcome.
+        planning_steps: decisions that ran an option.
+        switches: changes of option between consecutive such decisions.
+        out_of_region_starts: options started outside their initiation set.
+        no_admissible: decisions with no admissible option (holds).
+        decision_ms: every decision's latency (ms), holds included.
+        option_steps: ``(name, env steps it ran)`` per option that ran, sorted by name.
+    """
+
+    env_seed: int
+    success: bool
+    env_steps: int
+    total_reward: float
+    planning_steps: int
+    switches: int
+    out_of_region_starts: int
+    no_admissible: int
+    decision_ms: tuple[float, ...]
+    option_steps: tuple[tuple[str, int], ...]
+
+    @classmethod
+    def of(cls, trace: EpisodeTrace, env_seed: int) -> "EpisodeRecord":
+        ran: dict[str, int] = {}
+        for d in trace.decisions:
+            if d.option is not None:
+                ran[d.option] = ran.get(d.option, 0) + d.steps
+        return cls(env_seed, trace.success, trace.env_steps, trace.total_reward,
+                   trace.planning_steps, trace.switches, trace.out_of_region_starts,
+                   trace.no_admissible, tuple(1e3 * x for x in trace.latencies_s),
+                   tuple(sorted(ran.items())))
+
+
+def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
     """Success rate, time to success, return and decision statistics of some episodes.
 
     ``steps_to_success_*`` are over successful episodes only (``None`` if there are
     none); latencies are per decision, in milliseconds; ``option_share`` is the fraction
     of all environment steps each option ran (options that never ran are left out).
     """
-    if not traces:
+    if not records:
         raise DynoplanError("no episodes to summarise")
-    successes = [t.env_steps for t in traces if t.success]
-    latencies = [1e3 * x for t in traces for x in t.latencies_s]
+    successes = [r.env_steps for r in records if r.success]
+    latencies = [x for r in records for x in r.decision_ms]
     ran: dict[str, int] = {}
-    for t in traces:
-        for d in t.decisions:
-            if d.option is not None:
-                ran[d.option] = ran.get(d.option, 0) + d.steps
+    for r in records:
+        for name, steps in r.option_steps:
+            ran[name] = ran.get(name, 0) + steps
     total = max(sum(ran.values()), 1)
     return {
-        "episodes": len(traces),
-        "success_rate": float(np.mean([t.success for t in traces])),
+        "episodes": len(records),
+        "success_rate": float(np.mean([r.success for r in records])),
         "steps_to_success_mean": float(np.mean(successes)) if successes else None,
         "steps_to_success_median": float(np.median(successes)) if successes else None,
-        "return_mean": float(np.mean([t.total_reward for t in traces])),
-        "env_steps_mean": float(np.mean([t.env_steps for t in traces])),
-        "decisions_mean": float(np.mean([t.planning_steps for t in traces])),
-        "switches_mean": float(np.mean([t.switches for t in traces])),
-        "out_of_region_starts": int(sum(t.out_of_region_starts for t in traces)),
-        "no_admissible": int(sum(t.no_admissible for t in traces)),
+        "return_mean": float(np.mean([r.total_reward for r in records])),
+        "env_steps_mean": float(np.mean([r.env_steps for r in records])),
+        "decisions_mean": float(np.mean([r.planning_steps for r in records])),
+        "switches_mean": float(np.mean([r.switches for r in records])),
+        "out_of_region_starts": int(sum(r.out_of_region_starts for r in records)),
+        "no_admissible": int(sum(r.no_admissible for r in records)),
         "latency_ms_p50": quantile_or_none(latencies, 0.5),
         "latency_ms_p95": quantile_or_none(latencies, 0.95),
         "option_share": {name: steps / total for name, steps in sorted(ran.items())},
     }
 
 
+# --- episodes as jobs, here or on Ray workers ----------------------------------------
+
+
+class EpisodeRunner(Protocol):
+    """What a worker holds for one job: ``episode(seed)`` runs one seeded episode and
+    returns a small, picklable result (an :class:`EpisodeRecord`, or a task's own)."""
+
+    def episode(self, seed: EpisodeSeed) -> Any: ...
+
+
+class EpisodeJob(Hashable, Protocol):
+    """A controller on seeded episodes, as a worker rebuilds it: small, frozen, hashable
+    and picklable (paths, names, frozen settings); ``build()`` makes the runner (once per
+    worker process and job)."""
+
+    def build(self) -> EpisodeRunner: ...
+
+
+def _build(job: EpisodeJob) -> EpisodeRunner:
+    return job.build()
+
+
+def _episode(runner: EpisodeRunner, seed: EpisodeSeed) -> Any:
+    return runner.episode(seed)
+
+
+def evaluate_many(batches: Sequence[tuple[EpisodeJob, Sequence[EpisodeSeed]]],
+                  workers: Workers = SERIAL, description: str = "episodes",
+                  progress: bool = False) -> list[list[Any]]:
+    """Every ``(job, seeds)`` batch, as one map on ``workers``: per batch, one result per
+    seed, in order. The episodes of all batches share the workers, so none waits for the
+    last episode of another batch (submit the costliest batches first: on Ray the tasks
+    start in the given order). An episode depends on its seed alone, so the results are
+    the same on one worker or many."""
+    tasks = [(job, seed) for job, seeds in batches for seed in seeds]
+    results: list[Any] = [None] * len(tasks)
+    for i, result in imap_unordered(_build, _episode, tasks, workers, description, progress):
+        results[i] = result
+    out: list[list[Any]] = []
+    for _, seeds in batches:
+        out.append(results[:len(seeds)])
+        results = results[len(seeds):]
+    return out
+
+
+@dataclass
+class ControllerRunner:
+    """A controller and its environment: runs seeded episodes as :class:`EpisodeRecord`."""
+
+    env: gym.Env[Any, Any]
+    controller: Controller
+
+    def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
+        trace = self.controller.run(self.env, seed.rng(), seed=seed.env_seed)
+        return EpisodeRecord.of(trace, seed.env_seed)
+
+
+@dataclass(frozen=True)
+class ControllerJob:
+    """Controller ``controller`` of ``task`` on the models in ``models`` (a folder written
+    by :meth:`~dynoplan.pipeline.FittedModels.save`), as a worker rebuilds it."""
+
+    task: Task
+    models: Path
+    controller: str
+    settings: ControllerSettings
+
+    def build(self) -> ControllerRunner:
+        from dynoplan.pipeline.fit import FittedModels
+
+        models = FittedModels.load(self.models)
+        run_options, planner_options = models.build(self.task.make_options())
+        return ControllerRunner(self.task.make_env(), make_controller(
+            self.controller, run_options, models.goal, self.settings, planner_options))
+
+
 def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                          goal: GoalHeuristic, settings: ControllerSettings, episodes: int,
                          seed: int, planner_options: Sequence[Option] | None = None,
                          controllers: Sequence[str] | None = None,
-                         progress: bool = False) -> dict[str, dict[str, Any]]:
+                         progress: bool = False, workers: Workers = SERIAL,
+                         task: Task | None = None,
+                         models: Path | None = None) -> dict[str, dict[str, Any]]:
     """Run each controller on the same ``episodes`` seeded episodes; one summary each.
 
     ``controllers`` defaults to :func:`controller_names` (DynoPlan, every option alone,
-    random choice).
+    random choice). On one worker the controllers run here on ``env`` and ``options``; on
+    several, every worker rebuilds them from ``task`` and the models folder ``models``
+    (:class:`ControllerJob`), which must hold the same models, and the table is the same.
     """
     if episodes < 1:
         raise DynoplanError(f"episodes must be >= 1, got {episodes}")
     seeds = episode_seeds(seed, episodes)
-    rows: dict[str, dict[str, Any]] = {}
-    for kind in controllers or controller_names(options):
-        controller = make_controller(kind, options, goal, settings, planner_options)
-        rows[kind] = summarize(run_episodes(env, controller, seeds, kind, progress))
-    return rows
+    kinds = list(controllers or controller_names(options))
+    if workers.parallel:
+        if task is None or models is None:
+            raise DynoplanError("evaluating on several workers needs the task and the "
+                                "models folder (workers rebuild the controllers from them)")
+        jobs: list[EpisodeJob] = [ControllerJob(task, models, kind, settings)
+                                  for kind in kinds]
+    else:
+        jobs = [_LocalJob(env, make_controller(kind, options, goal, settings, planner_options))
+                for kind in kinds]
+    done = evaluate_many([(job, seeds) for job in jobs], workers,
+                         f"evaluate ({len(kinds)} controllers)", progress)
+    return {kind: summarize(records) for kind, records in zip(kinds, done, strict=True)}
+
+
+@dataclass(eq=False)
+class _LocalJob:
+    """A job whose runner is already built (one worker: this process)."""
+
+    env: gym.Env[Any, Any]
+    controller: Controller
+
+    def build(self) -> ControllerRunner:
+        return ControllerRunner(self.env, self.controller)
 
 
 _COLUMNS = ["controller", "success_rate", "steps_to_success_mean", "return_mean",

@@ -11,9 +11,6 @@ streams for the demonstrations, the exploration episodes, model fitting and the
 evaluation episodes, so changing the number of one never changes the others.
 """
 
-import importlib
-import importlib.util
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -31,6 +28,7 @@ from dynoplan.data.metadata import DatasetMetadata
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.options.option import Option
+from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import (
     ObservationFn,
     collect_transitions,
@@ -41,6 +39,7 @@ from dynoplan.pipeline.collect import (
 )
 from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_controllers, results_table
 from dynoplan.pipeline.fit import DynamicsFitter, FitSettings, FittedModels, fit_models
+from dynoplan.pipeline.task import Task
 
 
 @dataclass(frozen=True)
@@ -169,6 +168,8 @@ def run_pipeline(
     progress: bool = False,
     status: Callable[[str], None] | None = None,
     command: str | None = None,
+    workers: Workers = SERIAL,
+    task: Task | None = None,
 ) -> PipelineResult:
     """Collect, fit, control and evaluate on any Gymnasium environment with a Box space.
 
@@ -189,6 +190,10 @@ def run_pipeline(
         progress: show progress bars on stderr.
         status: called with the name of each stage as it starts.
         command: the command line that started the run, recorded in the outputs.
+        workers: where the evaluation episodes run; on several workers (Ray) each
+            rebuilds the controllers from ``task`` and ``out/models``, so both are needed
+            (the results are the same as on one).
+        task: the same environment and options as references workers can rebuild.
 
     Raises:
         DynoplanError: a non-Box observation space, options that disagree with the
@@ -197,6 +202,11 @@ def run_pipeline(
     """
     settings = settings or PipelineSettings()
     settings.validate()
+    if workers.parallel and (task is None or out is None or fitter is not None
+                             or state_fn is not flat_state):
+        raise DynoplanError("the pipeline on several workers needs a task and an output "
+                            "folder, and the default dynamics fitter and planner state "
+                            "(workers rebuild the controllers from files)")
     say = status or (lambda _msg: None)
     started = time.perf_counter()
     environment = make_env(env) if isinstance(env, str) else env
@@ -221,10 +231,12 @@ def run_pipeline(
     models = fit_models(specs, transitions, demo_episodes, settings.fit, seeds["fit"],
                         state_fn, fitter, say)
     run_options, planner_options = models.build(specs)
+    models_dir = models.save(folder / "models") if folder is not None else None
     say("evaluation")
     evaluation = evaluate_controllers(environment, run_options, models.goal, settings.control,
                                       settings.episodes, seeds["evaluation"], planner_options,
-                                      settings.controllers, progress)
+                                      settings.controllers, progress, workers, task,
+                                      models_dir)
     summary = {
         "dynoplan_version": __version__,
         "env_id": _env_id(environment),
@@ -241,7 +253,7 @@ def run_pipeline(
         "command": command,
     }
     if folder is not None:
-        _write_outputs(folder, environment, names, demo_episodes, transitions, models, summary,
+        _write_outputs(folder, environment, names, demo_episodes, transitions, summary,
                        settings)
     return PipelineResult(run_options, planner_options, models, demo_episodes, transitions,
                           evaluation, summary)
@@ -260,7 +272,7 @@ def _jsonable(value: Any) -> Any:
 
 
 def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
-                   demos: list[Episode], transitions: list[Episode], models: FittedModels,
+                   demos: list[Episode], transitions: list[Episode],
                    summary: dict[str, Any], settings: PipelineSettings) -> None:
     env_id = _env_id(env)
     try:
@@ -274,7 +286,6 @@ def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
                                observation_space=_box_or_none(env.observation_space),
                                action_space=_space_or_none(env.action_space))
         write_dataset(folder / sub, episodes, meta)
-    models.save(folder / "models")
     write_json(folder / "summary.json", summary)
     command = summary.get("command")
     head = f"Produced by `{command}`" if command else "Produced by run_pipeline"
@@ -290,59 +301,3 @@ def _box_or_none(space: gym.Space[Any]) -> gym.spaces.Box | None:
 
 def _space_or_none(space: gym.Space[Any]) -> gym.spaces.Box | gym.spaces.Discrete | None:
     return space if isinstance(space, gym.spaces.Box | gym.spaces.Discrete) else None
-
-
-def load_object(reference: str) -> Any:
-    """The object named by ``"package.module:name"`` or ``"path/to/file.py:name"``.
-
-    The current folder is searched first, so ``examples.mountain_car.options:make_options``
-    works from the repository root.
-
-    Raises:
-        DynoplanError: a malformed reference, a module that cannot be imported, or a
-            missing name.
-    """
-    module_name, sep, attr = reference.partition(":")
-    if not sep or not module_name or not attr:
-        raise DynoplanError(
-            f"'{reference}': expected MODULE:NAME, e.g. examples.mountain_car.options:make_options")
-    try:
-        if module_name.endswith(".py"):
-            path = Path(module_name)
-            if not path.is_file():
-                raise DynoplanError(f"'{reference}': file {path} not found")
-            spec = importlib.util.spec_from_file_location(path.stem, path)
-            if spec is None or spec.loader is None:
-                raise DynoplanError(f"'{reference}': cannot load {path}")
-            module = importlib.util.module_from_spec(spec)
-            spec.loader.exec_module(module)
-        else:
-            if "" not in sys.path and str(Path.cwd()) not in sys.path:
-                sys.path.insert(0, str(Path.cwd()))
-            module = importlib.import_module(module_name)
-    except DynoplanError:
-        raise
-    except ImportError as exc:
-        raise DynoplanError(f"'{reference}': cannot import module '{module_name}' ({exc})") \
-            from None
-    except Exception as exc:  # the user's module raised while importing
-        raise DynoplanError(
-            f"'{reference}': importing failed: {type(exc).__name__}: {exc}") from None
-    try:
-        return getattr(module, attr)
-    except AttributeError:
-        raise DynoplanError(f"'{reference}': module '{module_name}' has no '{attr}'") from None
-
-
-def call_factory(reference: str, what: str) -> Any:
-    """Call the factory named by ``reference`` (see :func:`load_object`) with no arguments."""
-    factory = load_object(reference)
-    if not callable(factory):
-        raise DynoplanError(f"'{reference}': {what} factory is not callable")
-    try:
-        return factory()
-    except DynoplanError:
-        raise
-    except Exception as exc:
-        raise DynoplanError(
-            f"'{reference}': making the {what} failed: {type(exc).__name__}: {exc}") from None

@@ -1,0 +1,132 @@
+"""Tasks: what the one pipeline needs to know of an environment.
+
+A *task* names an environment and the options that act in it, in a form that any worker
+process can rebuild from (references, not live objects): the pipeline's stages take a
+task, and the evaluation ships it to Ray workers, which rebuild the environment, the
+options and the controller from it and from the models folder.
+
+:class:`GymTask` is the task of a user's Gymnasium environment with user-written options
+(``dynoplan pipeline --env ID --options MODULE:FUNCTION``).
+"""
+
+import importlib
+import importlib.util
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import gymnasium as gym
+
+from dynoplan.adapters.spec import OptionSpec, as_spec
+from dynoplan.errors import DynoplanError
+
+
+class Task(Protocol):
+    """What a stage of the pipeline rebuilds, here or on a worker.
+
+    A task is small, frozen and hashable (workers keep what they built per task), and
+    picklable (it is shipped to them).
+    """
+
+    @property
+    def name(self) -> str:
+        """Shown in tables and recorded in summaries."""
+        ...
+
+    def make_env(self) -> gym.Env[Any, Any]:
+        """A new instance of the task's environment."""
+        ...
+
+    def make_options(self) -> list[OptionSpec]:
+        """The task's options (without dynamics; the pipeline learns those), in order."""
+        ...
+
+
+@dataclass(frozen=True)
+class GymTask:
+    """A registered Gymnasium environment with the user's options.
+
+    Attributes:
+        env_id: the Gymnasium id (``gymnasium.make``).
+        options: ``MODULE:FUNCTION`` returning the options (a list of
+            :func:`~dynoplan.adapters.option_spec`); see :func:`load_object`.
+    """
+
+    env_id: str
+    options: str
+
+    @property
+    def name(self) -> str:
+        return self.env_id
+
+    def make_env(self) -> gym.Env[Any, Any]:
+        """``gymnasium.make(env_id)``, after importing the options' module (which may
+        register the environment: a worker process has not imported it yet)."""
+        from dynoplan.pipeline.collect import make_env
+
+        load_object(self.options)
+        return make_env(self.env_id)
+
+    def make_options(self) -> list[OptionSpec]:
+        made = call_factory(self.options, "options")
+        if not isinstance(made, list | tuple) or not made:
+            raise DynoplanError(f"'{self.options}' must return a non-empty list of options, "
+                                f"got {type(made).__name__}")
+        return [as_spec(o) for o in made]
+
+
+def load_object(reference: str) -> Any:
+    """The object named by ``"package.module:name"`` or ``"path/to/file.py:name"``.
+
+    The current folder is searched first, so ``examples.mountain_car.options:make_options``
+    works from the repository root.
+
+    Raises:
+        DynoplanError: a malformed reference, a module that cannot be imported, or a
+            missing name.
+    """
+    module_name, sep, attr = reference.partition(":")
+    if not sep or not module_name or not attr:
+        raise DynoplanError(
+            f"'{reference}': expected MODULE:NAME, e.g. examples.mountain_car.options:make_options")
+    try:
+        if module_name.endswith(".py"):
+            path = Path(module_name)
+            if not path.is_file():
+                raise DynoplanError(f"'{reference}': file {path} not found")
+            spec = importlib.util.spec_from_file_location(path.stem, path)
+            if spec is None or spec.loader is None:
+                raise DynoplanError(f"'{reference}': cannot load {path}")
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        else:
+            if "" not in sys.path and str(Path.cwd()) not in sys.path:
+                sys.path.insert(0, str(Path.cwd()))
+            module = importlib.import_module(module_name)
+    except DynoplanError:
+        raise
+    except ImportError as exc:
+        raise DynoplanError(f"'{reference}': cannot import module '{module_name}' ({exc})") \
+            from None
+    except Exception as exc:  # the user's module raised while importing
+        raise DynoplanError(
+            f"'{reference}': importing failed: {type(exc).__name__}: {exc}") from None
+    try:
+        return getattr(module, attr)
+    except AttributeError:
+        raise DynoplanError(f"'{reference}': module '{module_name}' has no '{attr}'") from None
+
+
+def call_factory(reference: str, what: str) -> Any:
+    """Call the factory named by ``reference`` (see :func:`load_object`) with no arguments."""
+    factory = load_object(reference)
+    if not callable(factory):
+        raise DynoplanError(f"'{reference}': {what} factory is not callable")
+    try:
+        return factory()
+    except DynoplanError:
+        raise
+    except Exception as exc:
+        raise DynoplanError(
+            f"'{reference}': making the {what} failed: {type(exc).__name__}: {exc}") from None
