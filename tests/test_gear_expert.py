@@ -83,7 +83,8 @@ def test_run_expert_writes_the_summary(tmp_path):
     assert on_disk == summary
     for key in ("success_rate", "contacts", "realtime_factor", "min_human_distance"):
         assert key in summary
-    assert summary["episodes"] == 2 and 0.0 <= summary["success_rate"] <= 1.0
+    # the scripted expert assembles the gear in both episodes
+    assert summary["episodes"] == 2 and summary["success_rate"] == 1.0
 
 
 def test_bad_arguments_are_user_errors(tmp_path):

@@ -116,9 +116,13 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     assert [r["controller"] for r in rows] == ["dynoplan", "oracle", "fixed_script", "random",
                                              "flat_ppo"]
     assert set(REQUIRED) <= set(rows[0]) and tuple(rows[0]) == RESULT_COLUMNS
-    for row in rows:
-        assert 0.0 <= float(row["success_rate"]) <= 1.0
-        assert int(row["contacts"]) >= 0
+    by_name = {r["controller"]: r for r in rows}
+    # the learned planner and the oracle assemble the gear in every quick episode,
+    # without touching the human
+    for name in ("dynoplan", "oracle"):
+        assert float(by_name[name]["success_rate"]) == 1.0, name
+        assert int(by_name[name]["contacts"]) == 0, name
+    assert float(by_name["dynoplan"]["time_to_success_s"]) < 40.0  # the episodes' limit
     summary = json.loads((out / "summary.json").read_text())
     assert summary["wall_s"] > 0 and summary["workers"]["count"] >= 1  # --workers auto
     assert set(summary["stages_s"]) == {"networks", "demos", "collect", "train", "figures",
