@@ -23,7 +23,9 @@ from torch.nn import functional as F
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import LoopStackedDynamics, StackedDynamics
 from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
-from dynoplan.models.storage import load_arrays, require, save_arrays
+from dynoplan.models.mlp import MLP, truncated_normal_init
+from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
+from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.models.training import TrainingReport, mixture_quantile, train_gaussian_ensemble
 from dynoplan.types import FloatArray, Generator
 
@@ -44,38 +46,35 @@ class GaussianEnsembleMLP(nn.Module):
     ``(members, batch, out_size)``; member ``k`` only sees ``x[k]``. The log-variance is
     soft-bounded: ``max - softplus(max - raw)`` then ``min + softplus(. - min)``.
 
-    Weights are ``(members, in, out)`` and biases ``(members, 1, out)``, initialised
-    from a truncated normal with std ``1 / (2 sqrt(in))`` (as mbrl-lib) drawn from
-    ``generator``.
+    Weights are ``(members, in, out)`` and biases ``(members, 1, out)`` (an ensemble
+    :class:`~dynoplan.models.mlp.MLP`, bias fused into the product), initialised from a
+    truncated normal with std ``1 / (2 sqrt(in))`` (as mbrl-lib) drawn from ``generator``.
     """
 
     def __init__(self, in_size: int, out_size: int, hidden_sizes: Sequence[int], members: int,
-                 generator: torch.Generator | None = None) -> None:
+                 generator: torch.Generator) -> None:
         super().__init__()
         self.in_size = int(in_size)
         self.out_size = int(out_size)
         self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
         self.members = int(members)
-        sizes = [self.in_size, *self.hidden_sizes, 2 * self.out_size]
-        self.weights = nn.ParameterList()
-        self.biases = nn.ParameterList()
-        for fan_in, fan_out in pairwise(sizes):
-            w = torch.empty(self.members, fan_in, fan_out)
-            std = 1.0 / (2.0 * np.sqrt(fan_in))
-            nn.init.trunc_normal_(w, std=std, a=-2 * std, b=2 * std, generator=generator)
-            self.weights.append(nn.Parameter(w))
-            self.biases.append(nn.Parameter(torch.zeros(self.members, 1, fan_out)))
+        self.mlp = MLP([self.in_size, *self.hidden_sizes, 2 * self.out_size],
+                       truncated_normal_init, generator, members=self.members)
         self.min_logvar = nn.Parameter(torch.full((1, self.out_size), -10.0))
         self.max_logvar = nn.Parameter(torch.full((1, self.out_size), 0.5))
 
+    @property
+    def weights(self) -> list[torch.Tensor]:
+        """The layers' weights, ``(members, in, out)`` each."""
+        return self.mlp.weights
+
+    @property
+    def biases(self) -> list[torch.Tensor]:
+        """The layers' biases, ``(members, 1, out)`` each."""
+        return self.mlp.biases
+
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        h = x
-        last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
-            h = torch.baddbmm(b, h, w)
-            if i < last:
-                h = F.silu(h)
-        mean, raw = h.split(self.out_size, dim=-1)
+        mean, raw = self.mlp(x).split(self.out_size, dim=-1)
         return mean, bound_logvar(raw, self.min_logvar, self.max_logvar)
 
     def logvar_bound_penalty(self) -> torch.Tensor:
@@ -311,11 +310,7 @@ class MLPEnsembleDynamics:
     # --- storage ----------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the model to ``path`` (safetensors + JSON metadata, atomically)."""
-        arrays: dict[str, np.ndarray] = {}
-        for i, (w, b) in enumerate(zip(self.network.weights, self.network.biases,
-                                       strict=True)):
-            arrays[f"weight_{i}"] = w.detach().numpy()
-            arrays[f"bias_{i}"] = b.detach().numpy()
+        arrays = linear_arrays(self.network.mlp)
         arrays["min_logvar"] = self.network.min_logvar.detach().numpy()
         arrays["max_logvar"] = self.network.max_logvar.detach().numpy()
         arrays["input_mean"] = self.input_mean
@@ -339,41 +334,21 @@ class MLPEnsembleDynamics:
         arrays, meta = load_arrays(path, MODEL_KIND)
         d = _meta_int(meta, "state_dim", path)
         members = _meta_int(meta, "members", path)
-        hidden = meta.get("hidden_sizes")
-        if (not isinstance(hidden, list) or not hidden
-                or not all(isinstance(h, int) and h >= 1 for h in hidden)):
-            raise DynoplanError(f"{path}: metadata field 'hidden_sizes' must be a non-empty "
-                                f"list of positive integers, got {hidden!r}")
-        if meta.get("activation", "silu") != "silu":
-            raise DynoplanError(f"{path}: activation {meta.get('activation')!r} is not "
-                                "supported (expected 'silu')")
-        option = meta.get("option", "")
-        model = cls(d, hidden, members, option=str(option))
+        hidden = hidden_sizes(meta, path)
+        model = cls(d, hidden, members, option=str(meta.get("option", "")))
         net = model.network
-        sizes = [d, *hidden, 2 * d]
+        expected = load_linears(net.mlp, arrays, path)
         with torch.no_grad():
-            for i, (fan_in, fan_out) in enumerate(pairwise(sizes)):
-                w = _float32(require(arrays, f"weight_{i}", (members, fan_in, fan_out), path),
-                             f"weight_{i}", path)
-                b = _float32(require(arrays, f"bias_{i}", (members, 1, fan_out), path),
-                             f"bias_{i}", path)
-                net.weights[i].copy_(torch.from_numpy(w))
-                net.biases[i].copy_(torch.from_numpy(b))
             for name in ("min_logvar", "max_logvar"):
-                a = _float32(require(arrays, name, (1, d), path), name, path)
+                a = require_finite(arrays, name, (1, d), np.float32, path)
                 getattr(net, name).copy_(torch.from_numpy(a))
-        extra = set(arrays) - {f"weight_{i}" for i in range(len(sizes) - 1)} - {
-            f"bias_{i}" for i in range(len(sizes) - 1)} - {
-            "min_logvar", "max_logvar", "input_mean", "input_std", "delta_mean", "delta_std",
-            "std_scale"}
+        normalisers = ("input_mean", "input_std", "delta_mean", "delta_std", "std_scale")
+        extra = set(arrays) - expected - {"min_logvar", "max_logvar", *normalisers}
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
                                 f"describes {len(hidden)} hidden layers)")
-        for name in ("input_mean", "input_std", "delta_mean", "delta_std", "std_scale"):
-            a = require(arrays, name, (d,), path)
-            if a.dtype != np.float64 or not np.isfinite(a).all():
-                raise DynoplanError(f"{path}: array '{name}' must be finite float64")
-            setattr(model, name, a.copy())
+        for name in normalisers:
+            setattr(model, name, require_finite(arrays, name, (d,), np.float64, path))
         if (model.input_std <= 0).any() or (model.delta_std <= 0).any() \
                 or (model.std_scale <= 0).any():
             raise DynoplanError(f"{path}: normalisation standard deviations must be positive")
@@ -393,8 +368,3 @@ def _meta_int(meta: dict[str, Any], name: str, path: str | os.PathLike[str]) -> 
                             f"got {value!r}")
     return value
 
-
-def _float32(a: np.ndarray, name: str, path: str | os.PathLike[str]) -> np.ndarray:
-    if a.dtype != np.float32:
-        raise DynoplanError(f"{path}: array '{name}' is {a.dtype}, expected float32")
-    return a

@@ -41,9 +41,8 @@ import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -56,7 +55,8 @@ from dynoplan.envs.gear.options.pick import PickPolicy
 from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
-from dynoplan.models.mlp_file import hidden_sizes, load_linears, require_finite
+from dynoplan.models.mlp import MLP, uniform_weight_init
+from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
@@ -107,7 +107,8 @@ class GraspRecognizer:
         seed: seeds the weight initialisation (a local ``torch.Generator``).
 
     Attributes:
-        network: ``nn.Sequential`` of float32 layers, features -> one logit.
+        network: the :class:`~dynoplan.models.mlp.MLP` (float32), standardised features
+            -> one logit.
         feature_mean, feature_std: (8,) float64 standardisation.
         report: what :func:`fit_recognizer` measured (held-out accuracy, sizes, ...),
             stored in and read back from the file.
@@ -118,19 +119,8 @@ class GraspRecognizer:
             raise DynoplanError(f"the recogniser needs hidden layers of width >= 1, got "
                                 f"{tuple(hidden_sizes)}")
         self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
-        gen = torch.Generator().manual_seed(int(seed))
-        sizes = [FEATURE_DIM, *self.hidden_sizes, 1]
-        layers: list[nn.Module] = []
-        for i, (fan_in, fan_out) in enumerate(pairwise(sizes)):
-            layer = nn.Linear(fan_in, fan_out)
-            bound = 1.0 / np.sqrt(fan_in)
-            with torch.no_grad():
-                layer.weight.uniform_(-bound, bound, generator=gen)
-                layer.bias.zero_()
-            layers.append(layer)
-            if i < len(sizes) - 2:
-                layers.append(nn.SiLU())
-        self.network = nn.Sequential(*layers)
+        self.network = MLP([FEATURE_DIM, *self.hidden_sizes, 1], uniform_weight_init,
+                           torch.Generator().manual_seed(int(seed)))
         self.feature_mean = np.zeros(FEATURE_DIM)
         self.feature_std = np.ones(FEATURE_DIM)
         self.report: dict[str, Any] = {}
@@ -138,7 +128,7 @@ class GraspRecognizer:
 
     @property
     def linears(self) -> list[nn.Linear]:
-        return [m for m in self.network if isinstance(m, nn.Linear)]
+        return cast(list[nn.Linear], list(self.network.linears))
 
     # ------------------------------------------------------------------ inference
     def logits(self, features: FloatArray) -> FloatArray:
@@ -195,10 +185,7 @@ class GraspRecognizer:
     # ------------------------------------------------------------------ files
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the recogniser to ``path`` (safetensors + JSON metadata, atomically)."""
-        arrays: dict[str, np.ndarray] = {}
-        for i, layer in enumerate(self.linears):
-            arrays[f"weight_{i}"] = layer.weight.detach().numpy().copy()
-            arrays[f"bias_{i}"] = layer.bias.detach().numpy().copy()
+        arrays = linear_arrays(self.network)
         arrays["feature_mean"] = self.feature_mean
         arrays["feature_std"] = self.feature_std
         meta = {"feature_names": list(FEATURE_NAMES), "hidden_sizes": list(self.hidden_sizes),
@@ -221,9 +208,8 @@ class GraspRecognizer:
                                 f"do not match this dynoplan's {list(FEATURE_NAMES)}")
         hidden = hidden_sizes(meta, path)
         model = cls(hidden)
-        sizes = [FEATURE_DIM, *hidden, 1]
         expected = {"feature_mean", "feature_std"}
-        expected |= load_linears(model.linears, sizes, arrays, path)
+        expected |= load_linears(model.network, arrays, path)
         extra = set(arrays) - expected
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
