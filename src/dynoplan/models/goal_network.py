@@ -41,6 +41,7 @@ from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.mlp import MLP, uniform_init
 from dynoplan.models.mlp_file import linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import as_states, load_arrays, save_arrays
+from dynoplan.models.trainer import HoldOut, KeepBest, shuffled, train
 from dynoplan.types import FloatArray, Generator, IntArray
 
 _KIND = "goal_network"
@@ -93,6 +94,7 @@ class _BetaEnsemble(nn.Module):
     def __init__(self, state_dim: int, hidden: int, members: int,
                  generator: torch.Generator) -> None:
         super().__init__()
+        self.members = members
         self.mlp = MLP([state_dim, hidden, hidden, 2], uniform_init, generator, members=members,
                        fused_bias=False)
         self.register_buffer("in_mean", torch.zeros(state_dim))
@@ -100,6 +102,16 @@ class _BetaEnsemble(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.mlp(((x - self.in_mean) / self.in_std).unsqueeze(0))
+
+    def loss(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A minibatch's loss (:data:`~dynoplan.models.trainer.BatchLoss`): states ``x``
+        ``(batch, d)``, clipped progress ``y`` ``(batch,)`` -> :func:`_beta_nll`, twice."""
+        nll = _beta_nll(self(x), y)
+        return nll, nll
+
+    def holdout_nll(self, x: torch.Tensor, y: torch.Tensor) -> float:
+        """:func:`_beta_nll` per member (the mean over members of their mean NLL)."""
+        return float(_beta_nll(self(x), y)) / self.members
 
 
 def _beta_params(raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -272,7 +284,6 @@ class GoalNetwork:
         xt = torch.as_tensor(x, dtype=torch.float32)
         yt = torch.as_tensor(np.clip(y, _TARGET_EPS, 1.0 - _TARGET_EPS), dtype=torch.float32)
         x_train, y_train = xt[train_idx], yt[train_idx]
-        x_held, y_held = xt[held_idx], yt[held_idx]
         with torch.no_grad():
             net.in_mean.copy_(x_train.mean(dim=0))
             # constant features would divide by zero; leave them unscaled
@@ -280,36 +291,17 @@ class GoalNetwork:
             net.in_std.copy_(torch.where(std > 1e-8, std, torch.ones_like(std)))
 
         optimiser = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
-        n_train = len(train_idx)
-        batches = max(1, math.ceil(n_train / batch_size))
-        report = GoalTrainingReport(n_train=n_train, n_holdout=len(held_idx),
-                                    holdout_index=held_idx)
-        best: dict[str, torch.Tensor] | None = None
-        net.train()
-        for epoch in range(epochs):
-            for group in optimiser.param_groups:
-                group["lr"] = lr * 0.5 * (1.0 + math.cos(math.pi * epoch / epochs))
-            order = torch.randperm(n_train, generator=generator)
-            total = 0.0
-            for b in range(batches):
-                rows = order[b * batch_size:(b + 1) * batch_size]
-                loss = _beta_nll(net(x_train[rows]), y_train[rows])
-                optimiser.zero_grad(set_to_none=True)
-                loss.backward()
-                optimiser.step()
-                total += float(loss.detach()) * len(rows)
-            report.train_loss.append(total / n_train / members)
-            if len(held_idx):
-                with torch.no_grad():
-                    held = float(_beta_nll(net(x_held), y_held)) / members
-                report.holdout_loss.append(held)
-                if keep_best and held <= min(report.holdout_loss):
-                    best = {k: v.detach().clone() for k, v in net.state_dict().items()}
-                    report.best_epoch = epoch
-        if best is not None:
-            net.load_state_dict(best)
-        else:
-            report.best_epoch = epochs - 1
+        schedule = torch.optim.lr_scheduler.LambdaLR(
+            optimiser, lambda epoch: 0.5 * (1.0 + math.cos(math.pi * epoch / epochs)))
+        holdout = HoldOut(xt[held_idx], yt[held_idx], net.holdout_nll) if len(held_idx) else None
+        rows = shuffled(len(train_idx), generator)
+        result = train(net, net.loss, x_train, y_train, optimiser, rows, epochs=epochs,
+                       batch_size=batch_size, schedule=schedule, holdout=holdout,
+                       keep_best=KeepBest(ties="last") if keep_best else None)
+        report = GoalTrainingReport(
+            train_loss=[loss / members for loss in result.train_loss],
+            holdout_loss=list(result.holdout_loss), n_train=result.n_train,
+            n_holdout=result.n_holdout, holdout_index=held_idx, best_epoch=result.best_epoch)
         return cls(net, x.shape[1], hidden, members), report
 
     # --- storage ---------------------------------------------------------------------

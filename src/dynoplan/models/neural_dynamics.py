@@ -5,8 +5,11 @@ over the normalised state *change* ``s_{t+1} - s_t``. The log-variance is soft-b
 between learned ``min_logvar`` and ``max_logvar`` as in PETS and mbrl-lib's
 ``GaussianMLP``. Input and output normalisation live in the model and in its file.
 
-Sampling, alone or for several options' models at once, runs on the batched engine of
-:mod:`dynoplan.models.ensemble_rollouts`.
+Training (:meth:`MLPEnsembleDynamics.fit`) fits each member on its own bootstrap of the
+training rows by minimising the Gaussian negative log-likelihood, with Adam and weight
+decay, as mbrl-lib's ``ModelTrainer`` does for its ``GaussianMLP``
+(:func:`~dynoplan.models.trainer.train`). Sampling, alone or for several options' models
+at once, runs on the batched engine of :mod:`dynoplan.models.ensemble_rollouts`.
 """
 
 import os
@@ -26,7 +29,8 @@ from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
 from dynoplan.models.mlp import MLP, truncated_normal_init
 from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import load_arrays, save_arrays
-from dynoplan.models.training import TrainingReport, mixture_quantile, train_gaussian_ensemble
+from dynoplan.models.trainer import HoldOut, KeepBest, TrainingReport, bootstrapped, train
+from dynoplan.models.training import gaussian_nll, mixture_quantile
 from dynoplan.types import FloatArray, Generator
 
 MODEL_KIND = "mlp_ensemble_dynamics"
@@ -76,6 +80,21 @@ class GaussianEnsembleMLP(nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         mean, raw = self.mlp(x).split(self.out_size, dim=-1)
         return mean, bound_logvar(raw, self.min_logvar, self.max_logvar)
+
+    def loss(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A minibatch's loss (:data:`~dynoplan.models.trainer.BatchLoss`): inputs ``x``
+        ``(members, batch, in)``, targets ``y`` ``(members, batch, out)`` -> the sum over
+        members of each member's mean NLL (as mbrl-lib) plus :meth:`logvar_bound_penalty`,
+        and the mean NLL per target element."""
+        mean, logvar = self(x)
+        nll = gaussian_nll(mean, logvar, y)
+        return nll.mean(dim=(1, 2)).sum() + self.logvar_bound_penalty(), nll.detach().mean()
+
+    def holdout_nll(self, x: torch.Tensor, y: torch.Tensor) -> float:
+        """Mean NLL per target element of every member on every row: ``x`` ``(batch, in)``,
+        ``y`` ``(batch, out)``."""
+        mean, logvar = self(x.expand(self.members, *x.shape))
+        return float(gaussian_nll(mean, logvar, y.expand(self.members, *y.shape)).mean())
 
     def logvar_bound_penalty(self) -> torch.Tensor:
         """PETS's ``0.01 * (sum(max_logvar) - sum(min_logvar))``."""
@@ -258,8 +277,16 @@ class MLPEnsembleDynamics:
 
         A random ``holdout_fraction`` of the rows (chosen with ``seed``) is held out; the
         normalisers are computed from the remaining rows; each member trains on its own
-        bootstrap of them (Adam with ``weight_decay``). With ``keep_best`` the weights of
-        the epoch with the lowest held-out loss are kept.
+        bootstrap of them (Adam with ``weight_decay``, ``batch_size`` rows per member and
+        step; the bootstrap and the shuffling come from a ``torch.Generator`` seeded with
+        ``seed``). With ``keep_best`` the weights of the first epoch with the lowest
+        held-out loss are kept.
+
+        The report's losses are the Gaussian negative log-likelihood per target element
+        (with the ``0.5 * log(2 pi)`` constant), in the model's normalised target units,
+        averaged over members: the training loss is the mean over the epoch's minibatches,
+        the held-out loss is every member's on every held-out row. A model that predicts
+        the training targets' mean and variance scores about 1.42; lower is better.
 
         Args:
             states: ``(N, d)``; ``next_states``: ``(N, d)``.
@@ -279,17 +306,20 @@ class MLPEnsembleDynamics:
             n_holdout = min(max(n_holdout, 1), n - 2)
         self.std_scale = np.ones(self.state_dim)  # a new fit needs a new calibration
         perm = np.random.default_rng(seed).permutation(n)
-        train, hold = perm[n_holdout:], perm[:n_holdout]
+        fit_rows, hold_rows = perm[n_holdout:], perm[:n_holdout]
         delta = nxt - s
-        self.input_mean, self.input_std = _mean_std(s[train])
-        self.delta_mean, self.delta_std = _mean_std(delta[train])
+        self.input_mean, self.input_std = _mean_std(s[fit_rows])
+        self.delta_mean, self.delta_std = _mean_std(delta[fit_rows])
         xn = torch.from_numpy(((s - self.input_mean) / self.input_std).astype(np.float32))
         yn = torch.from_numpy(((delta - self.delta_mean) / self.delta_std).astype(np.float32))
-        tr, ho = torch.from_numpy(train), torch.from_numpy(hold)
-        report = train_gaussian_ensemble(
-            self.network, xn[tr], yn[tr], xn[ho], yn[ho], members=self.members,
-            epochs=epochs, batch_size=batch_size, lr=lr, weight_decay=weight_decay, seed=seed,
-            keep_best=keep_best, penalty=self.network.logvar_bound_penalty)
+        tr, ho = torch.from_numpy(fit_rows), torch.from_numpy(hold_rows)
+        net = self.network
+        rows = bootstrapped(self.members, len(fit_rows), torch.Generator().manual_seed(int(seed)))
+        optimiser = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay)
+        report = train(net, net.loss, xn[tr], yn[tr], optimiser, rows, epochs=epochs,
+                       batch_size=batch_size, average="batches",
+                       holdout=HoldOut(xn[ho], yn[ho], net.holdout_nll) if n_holdout else None,
+                       keep_best=KeepBest() if keep_best else None)
         self.refresh()
         return report
 

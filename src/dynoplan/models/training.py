@@ -1,10 +1,4 @@
-"""Training and evaluation of probabilistic ensemble dynamics (PETS-style).
-
-Training (:func:`train_gaussian_ensemble`) fits each ensemble member on its own bootstrap
-of the training rows by minimising the Gaussian negative log-likelihood, with Adam and
-weight decay, as mbrl-lib's ``ModelTrainer`` does for its ``GaussianMLP``. Every random
-choice (bootstrap, shuffling) comes from a seeded ``torch.Generator``; the global torch
-random state is never used.
+"""Gaussian negative log-likelihood and evaluation of probabilistic ensemble dynamics.
 
 Evaluation (:func:`one_step_error`, :func:`calibration`) works on any model with a
 ``predict`` method returning the per-member Gaussian of the next state, so that a learned
@@ -12,9 +6,6 @@ model can be compared with the "state stays the same" baseline and its uncertain
 checked against held-out transitions.
 """
 
-import copy
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -27,121 +18,9 @@ from dynoplan.types import FloatArray
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 
-@dataclass(frozen=True)
-class TrainingReport:
-    """What happened during :func:`train_gaussian_ensemble`.
-
-    Losses are the Gaussian negative log-likelihood per target element (with the
-    ``0.5 * log(2 pi)`` constant), in the model's normalised target units, averaged over
-    members. A model that predicts the training targets' mean and variance scores about
-    1.42; lower is better.
-
-    Attributes:
-        train_loss: ``(epochs,)``, mean over the epoch's minibatches (each member on its
-            own bootstrap sample).
-        holdout_loss: ``(epochs,)``, on the held-out rows after each epoch (every member
-            on every held-out row); empty when nothing was held out.
-        best_epoch: index of the epoch whose weights the model keeps (lowest held-out
-            loss when ``keep_best``, else the last).
-        n_train: rows used for training.
-        n_holdout: rows held out.
-        seconds: wall-clock training time.
-    """
-
-    train_loss: tuple[float, ...]
-    holdout_loss: tuple[float, ...]
-    best_epoch: int
-    n_train: int
-    n_holdout: int
-    seconds: float
-
-
 def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Elementwise Gaussian negative log-likelihood ``0.5 (log 2pi + logvar + r^2 / var)``."""
     return 0.5 * (_LOG_2PI + logvar + (target - mean) ** 2 * torch.exp(-logvar))
-
-
-def train_gaussian_ensemble(
-    net: torch.nn.Module,
-    x_train: torch.Tensor,
-    y_train: torch.Tensor,
-    x_holdout: torch.Tensor,
-    y_holdout: torch.Tensor,
-    *,
-    members: int,
-    epochs: int,
-    batch_size: int,
-    lr: float,
-    weight_decay: float,
-    seed: int,
-    keep_best: bool = True,
-    penalty: Callable[[], torch.Tensor] | None = None,
-) -> TrainingReport:
-    """Fit an ensemble by Gaussian NLL, each member on its own bootstrap of the rows.
-
-    Args:
-        net: the ensemble, ``net(x (members, batch, in)) -> (mean, logvar)``, each
-            ``(members, batch, out)``; its parameters are updated in place.
-        x_train: ``(n_train, in)`` float32 normalised inputs; ``y_train``: ``(n_train, out)``.
-        x_holdout: ``(n_holdout, in)``; ``y_holdout``: ``(n_holdout, out)``; may have 0 rows.
-        members: the ensemble size (one bootstrap sample each).
-        epochs: passes over each member's bootstrap sample.
-        batch_size: rows per member per gradient step.
-        lr: Adam learning rate.
-        weight_decay: Adam's L2 weight decay.
-        seed: seeds the bootstrap and the shuffling (a local ``torch.Generator``).
-        keep_best: restore the weights of the epoch with the lowest held-out loss.
-        penalty: a scalar added to the loss, for example PETS's
-            ``0.01 * (sum(max_logvar) - sum(min_logvar))`` that keeps the learned
-            log-variance bounds tight.
-    """
-    started = time.perf_counter()
-    n_train, n_holdout = int(x_train.shape[0]), int(x_holdout.shape[0])
-    gen = torch.Generator().manual_seed(int(seed))
-    boot = torch.randint(n_train, (members, n_train), generator=gen)  # (members, n_train)
-    optimiser = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay)
-    train_loss: list[float] = []
-    holdout_loss: list[float] = []
-    best, best_epoch, best_state = np.inf, epochs - 1, None
-    for epoch in range(epochs):
-        net.train(True)
-        order = torch.argsort(torch.rand(members, n_train, generator=gen), dim=1)
-        rows = torch.gather(boot, 1, order)
-        total, batches = 0.0, 0
-        for start in range(0, n_train, batch_size):
-            idx = rows[:, start:start + batch_size]  # (members, b)
-            mean, logvar = net(x_train[idx])
-            nll = gaussian_nll(mean, logvar, y_train[idx])
-            # sum over members of each member's mean loss, as mbrl-lib does
-            loss = nll.mean(dim=(1, 2)).sum()
-            if penalty is not None:
-                loss = loss + penalty()
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            optimiser.step()
-            total += float(nll.detach().mean())
-            batches += 1
-        train_loss.append(total / batches)
-        net.train(False)
-        if n_holdout:
-            score = _holdout_nll(net, x_holdout, y_holdout, members)
-            holdout_loss.append(score)
-            if keep_best and score < best:
-                best, best_epoch = score, epoch
-                best_state = copy.deepcopy(net.state_dict())
-    if keep_best and best_state is not None:
-        net.load_state_dict(best_state)
-    if not (keep_best and n_holdout):
-        best_epoch = epochs - 1
-    return TrainingReport(tuple(train_loss), tuple(holdout_loss), best_epoch, n_train,
-                          n_holdout, time.perf_counter() - started)
-
-
-def _holdout_nll(net: torch.nn.Module, x: torch.Tensor, y: torch.Tensor,
-                 members: int) -> float:
-    with torch.inference_mode():
-        mean, logvar = net(x.expand(members, *x.shape))
-        return float(gaussian_nll(mean, logvar, y.expand(members, *y.shape)).mean())
 
 
 # --- evaluation ---------------------------------------------------------------------------

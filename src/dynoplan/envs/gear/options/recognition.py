@@ -58,6 +58,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp import MLP, uniform_weight_init
 from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import load_arrays, save_arrays
+from dynoplan.models.trainer import shuffled, train
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
 MODEL_KIND = "grasp_recognizer"
@@ -154,8 +155,9 @@ class GraspRecognizer:
     # ------------------------------------------------------------------ training
     def fit(self, features: FloatArray, labels: BoolArray, epochs: int = DEFAULT_EPOCHS,
             batch_size: int = 256, learning_rate: float = 3e-3, seed: int = 0) -> list[float]:
-        """Minimise the binary cross-entropy with Adam; returns the mean loss per epoch.
-        Sets the feature standardisation from ``features`` (N, 8)."""
+        """Minimise the binary cross-entropy with Adam (minibatches in an order drawn from a
+        ``torch.Generator`` seeded with ``seed``); returns the mean loss per epoch. Sets the
+        feature standardisation from ``features`` (N, 8)."""
         x = np.asarray(features, dtype=np.float64)
         y = np.asarray(labels, dtype=bool)
         if x.ndim != 2 or x.shape[1] != FEATURE_DIM or len(x) != len(y) or len(x) == 0:
@@ -165,22 +167,17 @@ class GraspRecognizer:
         self.feature_std = np.maximum(x.std(axis=0), 1e-6)
         xt = torch.from_numpy(((x - self.feature_mean) / self.feature_std).astype(np.float32))
         yt = torch.from_numpy(y.astype(np.float32))
-        gen = torch.Generator().manual_seed(int(seed))
         optimiser = torch.optim.Adam(self.network.parameters(), lr=learning_rate)
         loss_fn = nn.BCEWithLogitsLoss()
-        losses = []
-        for _ in range(epochs):
-            order = torch.randperm(len(xt), generator=gen)
-            total = 0.0
-            for start in range(0, len(xt), batch_size):
-                idx = order[start:start + batch_size]
-                optimiser.zero_grad()
-                loss = loss_fn(self.network(xt[idx])[:, 0], yt[idx])
-                loss.backward()
-                optimiser.step()
-                total += float(loss.detach()) * len(idx)
-            losses.append(total / len(xt))
-        return losses
+
+        def loss(inputs: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            bce = loss_fn(self.network(inputs)[:, 0], targets)
+            return bce, bce
+
+        rows = shuffled(len(xt), torch.Generator().manual_seed(int(seed)))
+        report = train(self.network, loss, xt, yt, optimiser, rows, epochs=epochs,
+                       batch_size=batch_size)
+        return list(report.train_loss)
 
     # ------------------------------------------------------------------ files
     def save(self, path: str | os.PathLike[str]) -> Path:
