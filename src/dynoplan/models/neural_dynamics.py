@@ -26,11 +26,11 @@ from torch.nn import functional as F
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import LoopStackedDynamics, StackedDynamics
 from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
+from dynoplan.models.evaluation import mixture_quantile
 from dynoplan.models.mlp import MLP, truncated_normal_init
 from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.models.trainer import HoldOut, KeepBest, TrainingReport, bootstrapped, train
-from dynoplan.models.training import gaussian_nll, mixture_quantile
 from dynoplan.types import FloatArray, Generator
 
 MODEL_KIND = "mlp_ensemble_dynamics"
@@ -41,6 +41,7 @@ DEFAULT_HIDDEN = (160, 160)
 # 4 members divide the planner's default 64 samples into full blocks of 16 rows, which
 # the batched matrix products run at a higher fraction of peak than blocks of 13
 DEFAULT_MEMBERS = 4
+_LOG_2PI = float(np.log(2.0 * np.pi))
 
 
 class GaussianEnsembleMLP(nn.Module):
@@ -99,6 +100,11 @@ class GaussianEnsembleMLP(nn.Module):
     def logvar_bound_penalty(self) -> torch.Tensor:
         """PETS's ``0.01 * (sum(max_logvar) - sum(min_logvar))``."""
         return 0.01 * (self.max_logvar.sum() - self.min_logvar.sum())
+
+
+def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Elementwise Gaussian negative log-likelihood ``0.5 (log 2pi + logvar + r^2 / var)``."""
+    return 0.5 * (_LOG_2PI + logvar + (target - mean) ** 2 * torch.exp(-logvar))
 
 
 def bound_logvar(raw: torch.Tensor, min_logvar: torch.Tensor,

@@ -1,29 +1,18 @@
-"""Gaussian negative log-likelihood and evaluation of probabilistic ensemble dynamics.
+"""Evaluation of learned ensemble dynamics against held-out transitions.
 
-Evaluation (:func:`one_step_error`, :func:`calibration`) works on any model with a
-``predict`` method returning the per-member Gaussian of the next state, so that a learned
-model can be compared with the "state stays the same" baseline and its uncertainty
-checked against held-out transitions.
+Both functions work on any model with a ``predict`` method returning the per-member
+Gaussian of the next state (:class:`GaussianEnsemblePredictor`), so that a learned model
+can be compared with the "state stays the same" baseline (:func:`one_step_error`) and its
+uncertainty checked against held-out transitions (:func:`calibration`).
 """
 
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-import torch
 from scipy.special import ndtr
 
 from dynoplan.types import FloatArray
-
-_LOG_2PI = float(np.log(2.0 * np.pi))
-
-
-def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Elementwise Gaussian negative log-likelihood ``0.5 (log 2pi + logvar + r^2 / var)``."""
-    return 0.5 * (_LOG_2PI + logvar + (target - mean) ** 2 * torch.exp(-logvar))
-
-
-# --- evaluation ---------------------------------------------------------------------------
 
 
 class GaussianEnsemblePredictor(Protocol):
