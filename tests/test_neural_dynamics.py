@@ -7,9 +7,10 @@ from scipy.stats import ks_2samp, norm
 
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel, LoopStackedDynamics, stack_dynamics
-from dynoplan.models.neural_dynamics import MLPEnsembleDynamics, StackedMLPEnsemble
+from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
+from dynoplan.models.evaluation import calibration, mixture_quantile, one_step_error
+from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.storage import save_arrays
-from dynoplan.models.training import calibration, mixture_quantile, one_step_error
 from dynoplan.options import ConstantTermination, FunctionPolicy, Option
 from dynoplan.planning import OptionPlanner
 

@@ -86,9 +86,9 @@ from dynoplan.experiments.gear_model_settings import (
     GearTrainSettings,
 )
 from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.models.evaluation import calibration, one_step_error
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
-from dynoplan.models.training import calibration, one_step_error
 from dynoplan.progress import track
 from dynoplan.types import FloatArray, IntArray
 

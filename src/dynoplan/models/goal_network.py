@@ -38,7 +38,10 @@ from torch import nn
 from dynoplan.data.episodes import Episode, StateFn
 from dynoplan.errors import DynoplanError
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.models.storage import as_states, load_arrays, require, save_arrays
+from dynoplan.models.mlp import MLP, uniform_init
+from dynoplan.models.mlp_file import linear_arrays, load_linears, require_finite
+from dynoplan.models.storage import as_states, load_arrays, save_arrays
+from dynoplan.models.trainer import HoldOut, KeepBest, shuffled, train
 from dynoplan.types import FloatArray, Generator, IntArray
 
 _KIND = "goal_network"
@@ -49,7 +52,6 @@ _KAPPA_FLOOR = 1e-2
 """Lower bound of the Beta concentration ``alpha + beta`` (keeps both parameters > 0)."""
 _LOGIT_CLAMP = 15.0
 """``|a(s)|`` is clamped so that ``alpha`` and ``beta`` stay positive in float32."""
-_PARAM_NAMES = ("w1", "b1", "w2", "b2", "w3", "b3")
 
 
 @dataclass
@@ -82,36 +84,34 @@ class _BetaEnsemble(nn.Module):
 
     ``forward`` maps raw states ``(batch, d)`` to ``(members, batch, 2)``: the logit of
     the mean and the pre-softplus concentration. Input normalisation is part of the model.
+    The weights (an ensemble :class:`~dynoplan.models.mlp.MLP`, bias added after the
+    product) get PyTorch's ``nn.Linear`` default init, drawn from ``generator`` only.
     """
 
     in_mean: torch.Tensor
     in_std: torch.Tensor
 
-    def __init__(self, state_dim: int, hidden: int, members: int) -> None:
+    def __init__(self, state_dim: int, hidden: int, members: int,
+                 generator: torch.Generator) -> None:
         super().__init__()
-        m, d, h = members, state_dim, hidden
-        self.register_buffer("in_mean", torch.zeros(d))
-        self.register_buffer("in_std", torch.ones(d))
-        self.w1 = nn.Parameter(torch.empty(m, d, h))
-        self.b1 = nn.Parameter(torch.empty(m, 1, h))
-        self.w2 = nn.Parameter(torch.empty(m, h, h))
-        self.b2 = nn.Parameter(torch.empty(m, 1, h))
-        self.w3 = nn.Parameter(torch.empty(m, h, 2))
-        self.b3 = nn.Parameter(torch.empty(m, 1, 2))
-
-    def reset_parameters(self, generator: torch.Generator) -> None:
-        """PyTorch's ``nn.Linear`` default init, drawn from ``generator`` only."""
-        with torch.no_grad():
-            for w, b in ((self.w1, self.b1), (self.w2, self.b2), (self.w3, self.b3)):
-                bound = 1.0 / math.sqrt(w.shape[1])
-                w.uniform_(-bound, bound, generator=generator)
-                b.uniform_(-bound, bound, generator=generator)
+        self.members = members
+        self.mlp = MLP([state_dim, hidden, hidden, 2], uniform_init, generator, members=members,
+                       fused_bias=False)
+        self.register_buffer("in_mean", torch.zeros(state_dim))
+        self.register_buffer("in_std", torch.ones(state_dim))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        z = ((x - self.in_mean) / self.in_std).unsqueeze(0)
-        h = nn.functional.silu(z @ self.w1 + self.b1)
-        h = nn.functional.silu(h @ self.w2 + self.b2)
-        return h @ self.w3 + self.b3
+        return self.mlp(((x - self.in_mean) / self.in_std).unsqueeze(0))
+
+    def loss(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A minibatch's loss (:data:`~dynoplan.models.trainer.BatchLoss`): states ``x``
+        ``(batch, d)``, clipped progress ``y`` ``(batch,)`` -> :func:`_beta_nll`, twice."""
+        nll = _beta_nll(self(x), y)
+        return nll, nll
+
+    def holdout_nll(self, x: torch.Tensor, y: torch.Tensor) -> float:
+        """:func:`_beta_nll` per member (the mean over members of their mean NLL)."""
+        return float(_beta_nll(self(x), y)) / self.members
 
 
 def _beta_params(raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -280,56 +280,36 @@ class GoalNetwork:
         train_idx, held_idx = _split(len(x), holdout_fraction, groups, seed)
 
         generator = torch.Generator().manual_seed(seed)
-        net = _BetaEnsemble(x.shape[1], hidden, members)
-        net.reset_parameters(generator)
+        net = _BetaEnsemble(x.shape[1], hidden, members, generator)
         xt = torch.as_tensor(x, dtype=torch.float32)
         yt = torch.as_tensor(np.clip(y, _TARGET_EPS, 1.0 - _TARGET_EPS), dtype=torch.float32)
         x_train, y_train = xt[train_idx], yt[train_idx]
-        x_held, y_held = xt[held_idx], yt[held_idx]
         with torch.no_grad():
             net.in_mean.copy_(x_train.mean(dim=0))
             # constant features would divide by zero; leave them unscaled
             std = x_train.std(dim=0, correction=0)
             net.in_std.copy_(torch.where(std > 1e-8, std, torch.ones_like(std)))
 
-        params = [p for n, p in net.named_parameters() if n in _PARAM_NAMES]
-        optimiser = torch.optim.AdamW(params, lr=lr, weight_decay=weight_decay)
-        n_train = len(train_idx)
-        batches = max(1, math.ceil(n_train / batch_size))
-        report = GoalTrainingReport(n_train=n_train, n_holdout=len(held_idx),
-                                    holdout_index=held_idx)
-        best: dict[str, torch.Tensor] | None = None
-        net.train()
-        for epoch in range(epochs):
-            for group in optimiser.param_groups:
-                group["lr"] = lr * 0.5 * (1.0 + math.cos(math.pi * epoch / epochs))
-            order = torch.randperm(n_train, generator=generator)
-            total = 0.0
-            for b in range(batches):
-                rows = order[b * batch_size:(b + 1) * batch_size]
-                loss = _beta_nll(net(x_train[rows]), y_train[rows])
-                optimiser.zero_grad(set_to_none=True)
-                loss.backward()
-                optimiser.step()
-                total += float(loss.detach()) * len(rows)
-            report.train_loss.append(total / n_train / members)
-            if len(held_idx):
-                with torch.no_grad():
-                    held = float(_beta_nll(net(x_held), y_held)) / members
-                report.holdout_loss.append(held)
-                if keep_best and held <= min(report.holdout_loss):
-                    best = {k: v.detach().clone() for k, v in net.state_dict().items()}
-                    report.best_epoch = epoch
-        if best is not None:
-            net.load_state_dict(best)
-        else:
-            report.best_epoch = epochs - 1
+        optimiser = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
+        schedule = torch.optim.lr_scheduler.LambdaLR(
+            optimiser, lambda epoch: 0.5 * (1.0 + math.cos(math.pi * epoch / epochs)))
+        holdout = HoldOut(xt[held_idx], yt[held_idx], net.holdout_nll) if len(held_idx) else None
+        rows = shuffled(len(train_idx), generator)
+        result = train(net, net.loss, x_train, y_train, optimiser, rows, epochs=epochs,
+                       batch_size=batch_size, schedule=schedule, holdout=holdout,
+                       keep_best=KeepBest(ties="last") if keep_best else None)
+        report = GoalTrainingReport(
+            train_loss=[loss / members for loss in result.train_loss],
+            holdout_loss=list(result.holdout_loss), n_train=result.n_train,
+            n_holdout=result.n_holdout, holdout_index=held_idx, best_epoch=result.best_epoch)
         return cls(net, x.shape[1], hidden, members), report
 
     # --- storage ---------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write a ``.safetensors`` file (no pickle); :meth:`load` restores it bit-exactly."""
-        arrays = {name: t.detach().numpy().copy() for name, t in self._net.state_dict().items()}
+        arrays = linear_arrays(self._net.mlp, "w{}", "b{}", first=1)
+        arrays["in_mean"] = self._net.in_mean.numpy().copy()
+        arrays["in_std"] = self._net.in_std.numpy().copy()
         meta = {
             "architecture": _ARCHITECTURE,
             "state_dim": self._state_dim,
@@ -360,20 +340,11 @@ class GoalNetwork:
                 f"{path}: architecture {meta.get('architecture')!r} (kappa_floor "
                 f"{meta.get('kappa_floor')!r}, logit_clamp {meta.get('logit_clamp')!r}) is not "
                 f"this version's {_ARCHITECTURE!r} ({_KAPPA_FLOOR}, {_LOGIT_CLAMP})")
-        shapes: dict[str, tuple[int, ...]] = {
-            "in_mean": (d,), "in_std": (d,),
-            "w1": (m, d, h), "b1": (m, 1, h),
-            "w2": (m, h, h), "b2": (m, 1, h),
-            "w3": (m, h, 2), "b3": (m, 1, 2),
-        }
-        net = _BetaEnsemble(d, h, m)
-        state: dict[str, torch.Tensor] = {}
-        for name, shape in shapes.items():
-            a = require(arrays, name, shape, path)
-            if a.dtype != np.float32 or not np.isfinite(a).all():
-                raise DynoplanError(f"{path}: array '{name}' must be finite float32")
-            state[name] = torch.from_numpy(a.copy())
-        net.load_state_dict(state)
+        net = _BetaEnsemble(d, h, m, torch.Generator())
+        load_linears(net.mlp, arrays, path, "w{}", "b{}", first=1)
+        for name in ("in_mean", "in_std"):
+            getattr(net, name).copy_(torch.from_numpy(
+                require_finite(arrays, name, (d,), np.float32, path)))
         return cls(net, d, h, m)
 
 

@@ -1,18 +1,22 @@
-"""Reading small torch MLPs back from model files (:mod:`dynoplan.models.storage`).
+"""Writing and reading the linear layers of an :class:`~dynoplan.models.mlp.MLP` in model
+files (:mod:`dynoplan.models.storage`).
 
-A file holds ``weight_i`` ``(fan_out, fan_in)`` and ``bias_i`` ``(fan_out,)`` float32
-arrays per linear layer, and its metadata lists ``hidden_sizes`` and the activation.
-Every check failure is one :class:`~dynoplan.errors.DynoplanError` line.
+A file holds one weight and one bias float32 array per linear layer, named
+``weight_i`` and ``bias_i`` (``i`` from 0) unless the model kind names them otherwise,
+with the shapes of the layer's parameters: ``(fan_out, fan_in)`` and ``(fan_out,)`` for
+a single network, ``(members, fan_in, fan_out)`` and ``(members, 1, fan_out)`` for an
+ensemble. The metadata lists ``hidden_sizes`` and the activation. Every check failure is
+one :class:`~dynoplan.errors.DynoplanError` line.
 """
 
 import os
-from collections.abc import Sequence
-from itertools import pairwise
 from typing import Any
 
 import numpy as np
+import torch
 
 from dynoplan.errors import DynoplanError
+from dynoplan.models.mlp import MLP
 from dynoplan.models.storage import require
 
 
@@ -25,41 +29,49 @@ def require_finite(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | 
         raise DynoplanError(f"{path}: array '{name}' has dtype {a.dtype}, expected "
                             f"{np.dtype(dtype)}")
     if not np.all(np.isfinite(a)):
-        raise DynoplanError(f"{path}: array '{name}' holds NaN or infinity")
+        raise DynoplanError(f"{path}: array '{name}' must be finite, it holds NaN or infinity")
     return a.copy()
 
 
 def hidden_sizes(meta: dict[str, Any], path: str | os.PathLike[str]) -> list[int]:
     """The metadata's ``hidden_sizes`` (a non-empty list of positive integers), after
-    checking that the activation is SiLU."""
+    checking that the activation is SiLU (the only one there is; absent means SiLU)."""
     hidden = meta.get("hidden_sizes")
     if (not isinstance(hidden, list) or not hidden
             or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
                        for h in hidden)):
         raise DynoplanError(f"{path}: metadata field 'hidden_sizes' must be a non-empty "
                             f"list of positive integers, got {hidden!r}")
-    if meta.get("activation") != "silu":
+    if meta.get("activation", "silu") != "silu":
         raise DynoplanError(f"{path}: activation {meta.get('activation')!r} is not "
                             "supported (expected 'silu')")
     return hidden
 
 
-def load_linears(linears: Sequence[Any], sizes: Sequence[int], arrays: dict[str, np.ndarray],
-                 path: str | os.PathLike[str]) -> set[str]:
-    """Copy ``weight_i`` and ``bias_i`` into ``linears`` (torch ``nn.Linear`` layers of
-    ``sizes[i] -> sizes[i + 1]``); return the names of the arrays read."""
-    import torch
+def linear_arrays(mlp: MLP, weight: str = "weight_{}", bias: str = "bias_{}",
+                  first: int = 0) -> dict[str, np.ndarray]:
+    """Copies of the layers' weights and biases, named ``weight.format(i)`` and
+    ``bias.format(i)`` for layer ``i - first``, in layer order (weight before bias)."""
+    arrays: dict[str, np.ndarray] = {}
+    for i, (w, b) in enumerate(zip(mlp.weights, mlp.biases, strict=True), start=first):
+        arrays[weight.format(i)] = w.detach().numpy().copy()
+        arrays[bias.format(i)] = b.detach().numpy().copy()
+    return arrays
 
+
+def load_linears(mlp: MLP, arrays: dict[str, np.ndarray], path: str | os.PathLike[str],
+                 weight: str = "weight_{}", bias: str = "bias_{}", first: int = 0) -> set[str]:
+    """Copy the arrays named as by :func:`linear_arrays` into ``mlp``'s layers after
+    checking that each is finite float32 of the parameter's shape; return the names
+    read."""
     read: set[str] = set()
     with torch.no_grad():
-        for i, (layer, (fan_in, fan_out)) in enumerate(zip(linears, pairwise(sizes),
-                                                           strict=True)):
-            w = require_finite(arrays, f"weight_{i}", (fan_out, fan_in), np.float32, path)
-            b = require_finite(arrays, f"bias_{i}", (fan_out,), np.float32, path)
-            layer.weight.copy_(torch.from_numpy(w))
-            layer.bias.copy_(torch.from_numpy(b))
-            read |= {f"weight_{i}", f"bias_{i}"}
+        for i, (w, b) in enumerate(zip(mlp.weights, mlp.biases, strict=True), start=first):
+            for name, param in ((weight.format(i), w), (bias.format(i), b)):
+                a = require_finite(arrays, name, tuple(param.shape), np.float32, path)
+                param.copy_(torch.from_numpy(a))
+                read.add(name)
     return read
 
 
-__all__ = ["hidden_sizes", "load_linears", "require_finite"]
+__all__ = ["hidden_sizes", "linear_arrays", "load_linears", "require_finite"]

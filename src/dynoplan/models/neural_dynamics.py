@@ -5,31 +5,15 @@ over the normalised state *change* ``s_{t+1} - s_t``. The log-variance is soft-b
 between learned ``min_logvar`` and ``max_logvar`` as in PETS and mbrl-lib's
 ``GaussianMLP``. Input and output normalisation live in the model and in its file.
 
-Sampling (``D_w``) has two modes. A rollout of the planner keeps one member for its whole
-length (PETS's TS-infinity, :meth:`StackedMLPEnsemble.trajectory_sampler`): the spread of
-the futures then shows the members' disagreement, not just their average. A single
-``sample`` call propagates like mbrl-lib's ``random_model`` / PETS's TS1. In both, the
-rows are split across the members by a random permutation (drawn once per batch of
-rollouts, or at every ``sample`` call),
-in groups of equal size (``ceil(batch / members)`` slots each; when ``members`` does not
-divide ``batch`` a random rotation decides which members get the extra rows). Each row
-therefore uses a member that is uniform over the ensemble, and each member runs on one
-dense block of rows, so the whole ensemble is one batched matrix product per layer with
-no wasted rows. (Unlike drawing the member of every row independently, the number of
-rows per member is fixed; the per-row distribution is the same.) The next state is
-``s + mu_k(s) + sigma_k(s) * eps`` with ``eps ~ N(0, I)`` drawn from the caller's
-``numpy.random.Generator``; the torch global random state is never used.
-
-Several options' ensembles of the same architecture are evaluated together by
-:meth:`MLPEnsembleDynamics.stack`: their weights are stacked to
-``(options * members, in, out)`` and every layer is one ``torch.baddbmm`` over
-``(options * members, rows_per_member, in)``. Inside, everything is float32 with the
-normalisation folded into the first and last layers; states come in and go out as
-float64.
+Training (:meth:`MLPEnsembleDynamics.fit`) fits each member on its own bootstrap of the
+training rows by minimising the Gaussian negative log-likelihood, with Adam and weight
+decay, as mbrl-lib's ``ModelTrainer`` does for its ``GaussianMLP``
+(:func:`~dynoplan.models.trainer.train`). Sampling, alone or for several options' models
+at once, runs on the batched engine of :mod:`dynoplan.models.ensemble_rollouts`.
 """
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -41,8 +25,12 @@ from torch.nn import functional as F
 
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import LoopStackedDynamics, StackedDynamics
-from dynoplan.models.storage import load_arrays, require, save_arrays
-from dynoplan.models.training import TrainingReport, mixture_quantile, train_gaussian_ensemble
+from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
+from dynoplan.models.evaluation import mixture_quantile
+from dynoplan.models.mlp import MLP, truncated_normal_init
+from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
+from dynoplan.models.storage import load_arrays, save_arrays
+from dynoplan.models.trainer import HoldOut, KeepBest, TrainingReport, bootstrapped, train
 from dynoplan.types import FloatArray, Generator
 
 MODEL_KIND = "mlp_ensemble_dynamics"
@@ -53,7 +41,7 @@ DEFAULT_HIDDEN = (160, 160)
 # 4 members divide the planner's default 64 samples into full blocks of 16 rows, which
 # the batched matrix products run at a higher fraction of peak than blocks of 13
 DEFAULT_MEMBERS = 4
-_MAX_LAYOUTS = 8  # work-buffer sets kept per stack (one per batch size seen, newest kept)
+_LOG_2PI = float(np.log(2.0 * np.pi))
 
 
 class GaussianEnsembleMLP(nn.Module):
@@ -63,43 +51,60 @@ class GaussianEnsembleMLP(nn.Module):
     ``(members, batch, out_size)``; member ``k`` only sees ``x[k]``. The log-variance is
     soft-bounded: ``max - softplus(max - raw)`` then ``min + softplus(. - min)``.
 
-    Weights are ``(members, in, out)`` and biases ``(members, 1, out)``, initialised
-    from a truncated normal with std ``1 / (2 sqrt(in))`` (as mbrl-lib) drawn from
-    ``generator``.
+    Weights are ``(members, in, out)`` and biases ``(members, 1, out)`` (an ensemble
+    :class:`~dynoplan.models.mlp.MLP`, bias fused into the product), initialised from a
+    truncated normal with std ``1 / (2 sqrt(in))`` (as mbrl-lib) drawn from ``generator``.
     """
 
     def __init__(self, in_size: int, out_size: int, hidden_sizes: Sequence[int], members: int,
-                 generator: torch.Generator | None = None) -> None:
+                 generator: torch.Generator) -> None:
         super().__init__()
         self.in_size = int(in_size)
         self.out_size = int(out_size)
         self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
         self.members = int(members)
-        sizes = [self.in_size, *self.hidden_sizes, 2 * self.out_size]
-        self.weights = nn.ParameterList()
-        self.biases = nn.ParameterList()
-        for fan_in, fan_out in pairwise(sizes):
-            w = torch.empty(self.members, fan_in, fan_out)
-            std = 1.0 / (2.0 * np.sqrt(fan_in))
-            nn.init.trunc_normal_(w, std=std, a=-2 * std, b=2 * std, generator=generator)
-            self.weights.append(nn.Parameter(w))
-            self.biases.append(nn.Parameter(torch.zeros(self.members, 1, fan_out)))
+        self.mlp = MLP([self.in_size, *self.hidden_sizes, 2 * self.out_size],
+                       truncated_normal_init, generator, members=self.members)
         self.min_logvar = nn.Parameter(torch.full((1, self.out_size), -10.0))
         self.max_logvar = nn.Parameter(torch.full((1, self.out_size), 0.5))
 
+    @property
+    def weights(self) -> list[torch.Tensor]:
+        """The layers' weights, ``(members, in, out)`` each."""
+        return self.mlp.weights
+
+    @property
+    def biases(self) -> list[torch.Tensor]:
+        """The layers' biases, ``(members, 1, out)`` each."""
+        return self.mlp.biases
+
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        h = x
-        last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
-            h = torch.baddbmm(b, h, w)
-            if i < last:
-                h = F.silu(h)
-        mean, raw = h.split(self.out_size, dim=-1)
+        mean, raw = self.mlp(x).split(self.out_size, dim=-1)
         return mean, bound_logvar(raw, self.min_logvar, self.max_logvar)
+
+    def loss(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A minibatch's loss (:data:`~dynoplan.models.trainer.BatchLoss`): inputs ``x``
+        ``(members, batch, in)``, targets ``y`` ``(members, batch, out)`` -> the sum over
+        members of each member's mean NLL (as mbrl-lib) plus :meth:`logvar_bound_penalty`,
+        and the mean NLL per target element."""
+        mean, logvar = self(x)
+        nll = gaussian_nll(mean, logvar, y)
+        return nll.mean(dim=(1, 2)).sum() + self.logvar_bound_penalty(), nll.detach().mean()
+
+    def holdout_nll(self, x: torch.Tensor, y: torch.Tensor) -> float:
+        """Mean NLL per target element of every member on every row: ``x`` ``(batch, in)``,
+        ``y`` ``(batch, out)``."""
+        mean, logvar = self(x.expand(self.members, *x.shape))
+        return float(gaussian_nll(mean, logvar, y.expand(self.members, *y.shape)).mean())
 
     def logvar_bound_penalty(self) -> torch.Tensor:
         """PETS's ``0.01 * (sum(max_logvar) - sum(min_logvar))``."""
         return 0.01 * (self.max_logvar.sum() - self.min_logvar.sum())
+
+
+def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Elementwise Gaussian negative log-likelihood ``0.5 (log 2pi + logvar + r^2 / var)``."""
+    return 0.5 * (_LOG_2PI + logvar + (target - mean) ** 2 * torch.exp(-logvar))
 
 
 def bound_logvar(raw: torch.Tensor, min_logvar: torch.Tensor,
@@ -278,8 +283,16 @@ class MLPEnsembleDynamics:
 
         A random ``holdout_fraction`` of the rows (chosen with ``seed``) is held out; the
         normalisers are computed from the remaining rows; each member trains on its own
-        bootstrap of them (Adam with ``weight_decay``). With ``keep_best`` the weights of
-        the epoch with the lowest held-out loss are kept.
+        bootstrap of them (Adam with ``weight_decay``, ``batch_size`` rows per member and
+        step; the bootstrap and the shuffling come from a ``torch.Generator`` seeded with
+        ``seed``). With ``keep_best`` the weights of the first epoch with the lowest
+        held-out loss are kept.
+
+        The report's losses are the Gaussian negative log-likelihood per target element
+        (with the ``0.5 * log(2 pi)`` constant), in the model's normalised target units,
+        averaged over members: the training loss is the mean over the epoch's minibatches,
+        the held-out loss is every member's on every held-out row. A model that predicts
+        the training targets' mean and variance scores about 1.42; lower is better.
 
         Args:
             states: ``(N, d)``; ``next_states``: ``(N, d)``.
@@ -299,17 +312,20 @@ class MLPEnsembleDynamics:
             n_holdout = min(max(n_holdout, 1), n - 2)
         self.std_scale = np.ones(self.state_dim)  # a new fit needs a new calibration
         perm = np.random.default_rng(seed).permutation(n)
-        train, hold = perm[n_holdout:], perm[:n_holdout]
+        fit_rows, hold_rows = perm[n_holdout:], perm[:n_holdout]
         delta = nxt - s
-        self.input_mean, self.input_std = _mean_std(s[train])
-        self.delta_mean, self.delta_std = _mean_std(delta[train])
+        self.input_mean, self.input_std = _mean_std(s[fit_rows])
+        self.delta_mean, self.delta_std = _mean_std(delta[fit_rows])
         xn = torch.from_numpy(((s - self.input_mean) / self.input_std).astype(np.float32))
         yn = torch.from_numpy(((delta - self.delta_mean) / self.delta_std).astype(np.float32))
-        tr, ho = torch.from_numpy(train), torch.from_numpy(hold)
-        report = train_gaussian_ensemble(
-            self.network, xn[tr], yn[tr], xn[ho], yn[ho], members=self.members,
-            epochs=epochs, batch_size=batch_size, lr=lr, weight_decay=weight_decay, seed=seed,
-            keep_best=keep_best, penalty=self.network.logvar_bound_penalty)
+        tr, ho = torch.from_numpy(fit_rows), torch.from_numpy(hold_rows)
+        net = self.network
+        rows = bootstrapped(self.members, len(fit_rows), torch.Generator().manual_seed(int(seed)))
+        optimiser = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay)
+        report = train(net, net.loss, xn[tr], yn[tr], optimiser, rows, epochs=epochs,
+                       batch_size=batch_size, average="batches",
+                       holdout=HoldOut(xn[ho], yn[ho], net.holdout_nll) if n_holdout else None,
+                       keep_best=KeepBest() if keep_best else None)
         self.refresh()
         return report
 
@@ -330,11 +346,7 @@ class MLPEnsembleDynamics:
     # --- storage ----------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the model to ``path`` (safetensors + JSON metadata, atomically)."""
-        arrays: dict[str, np.ndarray] = {}
-        for i, (w, b) in enumerate(zip(self.network.weights, self.network.biases,
-                                       strict=True)):
-            arrays[f"weight_{i}"] = w.detach().numpy()
-            arrays[f"bias_{i}"] = b.detach().numpy()
+        arrays = linear_arrays(self.network.mlp)
         arrays["min_logvar"] = self.network.min_logvar.detach().numpy()
         arrays["max_logvar"] = self.network.max_logvar.detach().numpy()
         arrays["input_mean"] = self.input_mean
@@ -358,236 +370,25 @@ class MLPEnsembleDynamics:
         arrays, meta = load_arrays(path, MODEL_KIND)
         d = _meta_int(meta, "state_dim", path)
         members = _meta_int(meta, "members", path)
-        hidden = meta.get("hidden_sizes")
-        if (not isinstance(hidden, list) or not hidden
-                or not all(isinstance(h, int) and h >= 1 for h in hidden)):
-            raise DynoplanError(f"{path}: metadata field 'hidden_sizes' must be a non-empty "
-                                f"list of positive integers, got {hidden!r}")
-        if meta.get("activation", "silu") != "silu":
-            raise DynoplanError(f"{path}: activation {meta.get('activation')!r} is not "
-                                "supported (expected 'silu')")
-        option = meta.get("option", "")
-        model = cls(d, hidden, members, option=str(option))
+        hidden = hidden_sizes(meta, path)
+        model = cls(d, hidden, members, option=str(meta.get("option", "")))
         net = model.network
-        sizes = [d, *hidden, 2 * d]
+        expected = load_linears(net.mlp, arrays, path)
         with torch.no_grad():
-            for i, (fan_in, fan_out) in enumerate(pairwise(sizes)):
-                w = _float32(require(arrays, f"weight_{i}", (members, fan_in, fan_out), path),
-                             f"weight_{i}", path)
-                b = _float32(require(arrays, f"bias_{i}", (members, 1, fan_out), path),
-                             f"bias_{i}", path)
-                net.weights[i].copy_(torch.from_numpy(w))
-                net.biases[i].copy_(torch.from_numpy(b))
             for name in ("min_logvar", "max_logvar"):
-                a = _float32(require(arrays, name, (1, d), path), name, path)
+                a = require_finite(arrays, name, (1, d), np.float32, path)
                 getattr(net, name).copy_(torch.from_numpy(a))
-        extra = set(arrays) - {f"weight_{i}" for i in range(len(sizes) - 1)} - {
-            f"bias_{i}" for i in range(len(sizes) - 1)} - {
-            "min_logvar", "max_logvar", "input_mean", "input_std", "delta_mean", "delta_std",
-            "std_scale"}
+        normalisers = ("input_mean", "input_std", "delta_mean", "delta_std", "std_scale")
+        extra = set(arrays) - expected - {"min_logvar", "max_logvar", *normalisers}
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "
                                 f"describes {len(hidden)} hidden layers)")
-        for name in ("input_mean", "input_std", "delta_mean", "delta_std", "std_scale"):
-            a = require(arrays, name, (d,), path)
-            if a.dtype != np.float64 or not np.isfinite(a).all():
-                raise DynoplanError(f"{path}: array '{name}' must be finite float64")
-            setattr(model, name, a.copy())
+        for name in normalisers:
+            setattr(model, name, require_finite(arrays, name, (d,), np.float64, path))
         if (model.input_std <= 0).any() or (model.delta_std <= 0).any() \
                 or (model.std_scale <= 0).any():
             raise DynoplanError(f"{path}: normalisation standard deviations must be positive")
         return model
-
-
-class StackedMLPEnsemble:
-    """Several options' ensembles of one architecture as one float32 tensor program.
-
-    ``sample(states, rng)`` maps ``(options, samples, d)`` float64 to the same shape;
-    slice ``o`` follows option ``o``'s model, with the same distribution as calling
-    ``models[o].sample(states[o], rng)``. Per call: a random permutation of every
-    option's rows, the rows gathered into ``(options * members, ceil(samples / members),
-    d)`` blocks (one block per member), one ``baddbmm`` per layer with the weights stacked
-    to ``(options * members, in, out)``, Gaussian noise, and the rows put back in order.
-    The object keeps the weights it was built with.
-
-    Attributes:
-        rows_computed: member-forward rows evaluated so far (including padding slots
-            when ``members`` does not divide ``samples``); for FLOP counts.
-    """
-
-    def __init__(self, models: Sequence[MLPEnsembleDynamics]) -> None:
-        if not models or len({m.architecture for m in models}) != 1:
-            raise ValueError("stacked ensembles must be non-empty and share one architecture")
-        self.options = len(models)
-        self.members = models[0].members
-        self.state_dim = models[0].state_dim
-        self.groups = self.options * self.members
-        self.rows_computed = 0
-        e = self.members
-        self._weights, self._biases = _folded_layers(models)
-
-        def per_group(rows: list[np.ndarray]) -> np.ndarray:
-            return np.repeat(np.stack(rows), e, axis=0)[:, None, :]  # (groups, 1, d)
-
-        with torch.no_grad():
-            lo = per_group([m.network.min_logvar.numpy()[0].astype(np.float64) for m in models])
-            hi = per_group([m.network.max_logvar.numpy()[0].astype(np.float64) for m in models])
-        log_sd = per_group([np.log(m.delta_std * m.std_scale) for m in models])
-        # logvar = lo + softplus((hi - lo) - softplus(hi - raw)), and in state units
-        # sigma = exp(0.5 * logvar + log(delta_std)) = exp(0.5 * softplus(.) + offset)
-        self._max_logvar = torch.from_numpy(hi.astype(np.float32))
-        self._logvar_span = torch.from_numpy((hi - lo).astype(np.float32))
-        self._log_std_offset = torch.from_numpy((0.5 * lo + log_sd).astype(np.float32))
-        self._layouts: dict[int, _Layout] = {}
-
-    def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
-        """``(options, samples, d)`` float64 -> next states, same shape, float64."""
-        states = np.asarray(states, dtype=np.float64)
-        o, s, d = states.shape
-        if o != self.options or d != self.state_dim:
-            raise ValueError(f"states must be ({self.options}, samples, {self.state_dim}), "
-                             f"got {states.shape}")
-        lay = self._layout(s)
-        return self._sample(states, lay, *lay.draw(rng), rng)
-
-    def trajectory_sampler(self, samples: int, rng: Generator) -> Callable[[FloatArray],
-                                                                              FloatArray]:
-        """A step function for one batch of rollouts of ``samples`` rows per option that
-        keeps every row on one ensemble member (drawn now, uniform over the members) for
-        as many steps as it is called: ``(options, samples, d) -> same shape``. The
-        Gaussian noise is fresh at every step."""
-        lay = self._layout(samples)
-        gather, scatter = lay.draw(rng)
-        o, d = self.options, self.state_dim
-
-        def step(states: FloatArray) -> FloatArray:
-            x = np.asarray(states, dtype=np.float64)
-            if x.shape != (o, samples, d):
-                raise ValueError(f"states must be {(o, samples, d)}, got {x.shape}")
-            return self._sample(x, lay, gather, scatter, rng)
-        return step
-
-    def _layout(self, samples: int) -> "_Layout":
-        lay = self._layouts.get(samples)
-        if lay is None:
-            if len(self._layouts) >= _MAX_LAYOUTS:
-                del self._layouts[next(iter(self._layouts))]
-            widths = [w.shape[2] for w in self._weights]
-            lay = self._layouts[samples] = _Layout(self.options, self.members, samples,
-                                                   self.state_dim, widths)
-        return lay
-
-    def _sample(self, states: FloatArray, lay: "_Layout", gather: np.ndarray,
-                scatter: np.ndarray, rng: Generator) -> FloatArray:
-        o, s, d = states.shape
-        noise = rng.standard_normal((self.groups, lay.slots, d), dtype=np.float32)
-        np.take(states.reshape(o * s, d), gather, axis=0, out=lay.x64)
-        lay.x32_np[...] = lay.x64_blocks
-        with torch.inference_mode():
-            x = lay.x32
-            h = x
-            for i in range(len(self._weights) - 1):
-                h = torch.baddbmm(self._biases[i], h, self._weights[i], out=lay.hidden[i])
-                F.silu(h, inplace=True)
-            out = torch.baddbmm(self._biases[-1], h, self._weights[-1], out=lay.hidden[-1])
-            t = F.softplus(torch.sub(self._max_logvar, out[..., d:], out=lay.tmp))
-            t = F.softplus(torch.sub(self._logvar_span, t, out=lay.tmp))
-            std = torch.add(self._log_std_offset, t, alpha=0.5, out=lay.tmp).exp_()
-            nxt = torch.addcmul(x, std, torch.from_numpy(noise), out=lay.next)
-            nxt.add_(out[..., :d])
-        result = np.empty((lay.result_rows, d))
-        result[scatter] = lay.next_np
-        self.rows_computed += self.groups * lay.slots
-        return result[:o * s].reshape(o, s, d)
-
-
-class _Layout:
-    """Work buffers and the random row-to-member assignment for one ``samples`` size.
-
-    Rows are taken in a random order (a permutation per option); position ``p`` of that
-    order goes to member ``(p + c) % members`` (slot ``p // members``), where the
-    rotation ``c`` is uniform (it only matters when ``members`` does not divide
-    ``samples``): every row's member is uniform over the ensemble and every member gets
-    ``ceil(samples / members)`` or one fewer rows. ``widths`` are the layers' output
-    widths.
-    """
-
-    def __init__(self, options: int, members: int, samples: int, d: int,
-                 widths: Sequence[int]) -> None:
-        self.options, self.members, self.samples = options, members, samples
-        e = members
-        m = self.slots = -(-samples // members)
-        self.padded = e * m != samples
-        n_slots = options * e * m
-        # a padded slot computes on a copy of a real row and writes to an extra result row
-        self.result_rows = options * samples + int(self.padded)
-        self._row_base = (np.arange(options) * samples)[:, None]
-        if self.padded:
-            rot = np.arange(e)[:, None, None]
-            # [c, e * m + j] -> position read by member e's slot j, or ``samples`` (padding)
-            pos = (np.arange(e)[None, :, None] - rot) % e + e * np.arange(m)[None, None, :]
-            self._pos_of_slot = np.where(pos < samples, pos, samples).reshape(e, e * m)
-            self._ext_base = (np.arange(options) * (samples + 1))[:, None]
-            self._gather_ext = np.empty((options, samples + 1), dtype=np.intp)
-            self._scatter_ext = np.empty((options, samples + 1), dtype=np.intp)
-            self._gather_ext[:, samples] = self._row_base[:, 0]  # padding reads row 0
-            self._scatter_ext[:, samples] = options * samples  # ... and writes the extra row
-        self.x64 = np.empty((n_slots, d))
-        self.x64_blocks = self.x64.reshape(options * e, m, d)
-        self.x32_np = np.empty((options * e, m, d), dtype=np.float32)
-        self.x32 = torch.from_numpy(self.x32_np)
-        self.hidden = [torch.empty(options * e, m, w) for w in widths]
-        self.tmp = torch.empty(options * e, m, d)
-        self.next = torch.empty(options * e, m, d)
-        self.next_np = self.next.numpy().reshape(n_slots, d)
-
-    def draw(self, rng: Generator) -> tuple[np.ndarray, np.ndarray]:
-        """A fresh assignment: for every block slot, ``(options * members * slots,)``, the
-        state row it reads and the result row it writes."""
-        o, e, s = self.options, self.members, self.samples
-        if not self.padded:
-            rows = np.argsort(rng.random((o, s)), axis=1)
-            rows += self._row_base
-            flat = rows.reshape(-1)  # member k of option o takes positions k*m .. k*m+m-1
-            return flat, flat
-        u = rng.random((o, s + 1))
-        rows = np.argsort(u[:, :s], axis=1)
-        rows += self._row_base
-        self._gather_ext[:, :s] = rows
-        self._scatter_ext[:, :s] = rows
-        c = (u[:, s] * e).astype(np.intp)  # rotation of every option
-        idx = self._pos_of_slot[c] + self._ext_base
-        return (np.take(self._gather_ext, idx).reshape(-1),
-                np.take(self._scatter_ext, idx).reshape(-1))
-
-
-def _folded_layers(models: Sequence[MLPEnsembleDynamics]) -> tuple[list[torch.Tensor],
-                                                                    list[torch.Tensor]]:
-    """Stack the members of all models to ``(options * members, in, out)`` float32.
-
-    The input normalisation is folded into the first layer and the mean part of the
-    output denormalisation into the last (computed in float64, then rounded once).
-    """
-    n_layers = len(models[0].network.weights)
-    weights: list[list[np.ndarray]] = [[] for _ in range(n_layers)]
-    biases: list[list[np.ndarray]] = [[] for _ in range(n_layers)]
-    with torch.no_grad():
-        for model in models:
-            d = model.state_dim
-            ws = [w.numpy().astype(np.float64) for w in model.network.weights]
-            bs = [b.numpy().astype(np.float64) for b in model.network.biases]
-            # layer 0 on (x - mu) / sd  ==  x @ (W / sd[:, None]) + (b - (mu / sd) @ W)
-            inv = 1.0 / model.input_std
-            bs[0] = bs[0] - np.einsum("i,eio->eo", model.input_mean * inv, ws[0])[:, None, :]
-            ws[0] = ws[0] * inv[None, :, None]
-            # mean outputs: delta = mean_n * delta_std + delta_mean
-            ws[-1][:, :, :d] *= model.delta_std
-            bs[-1][:, :, :d] = bs[-1][:, :, :d] * model.delta_std + model.delta_mean
-            for i in range(n_layers):
-                weights[i].append(ws[i])
-                biases[i].append(bs[i])
-    return ([torch.from_numpy(np.concatenate(w).astype(np.float32)) for w in weights],
-            [torch.from_numpy(np.concatenate(b).astype(np.float32)) for b in biases])
 
 
 def _mean_std(a: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -603,8 +404,3 @@ def _meta_int(meta: dict[str, Any], name: str, path: str | os.PathLike[str]) -> 
                             f"got {value!r}")
     return value
 
-
-def _float32(a: np.ndarray, name: str, path: str | os.PathLike[str]) -> np.ndarray:
-    if a.dtype != np.float32:
-        raise DynoplanError(f"{path}: array '{name}' is {a.dtype}, expected float32")
-    return a

@@ -29,10 +29,10 @@ from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.models.evaluation import one_step_error
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.regions import SafetyRegions
-from dynoplan.models.training import one_step_error
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination, Termination

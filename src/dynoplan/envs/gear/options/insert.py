@@ -31,9 +31,8 @@ pickle (:mod:`dynoplan.models.storage`).
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import mujoco
 import numpy as np
@@ -47,7 +46,8 @@ from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
 from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
 from dynoplan.errors import DynoplanError
-from dynoplan.models.mlp_file import hidden_sizes, load_linears, require_finite
+from dynoplan.models.mlp import MLP, uniform_weight_init
+from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
@@ -111,7 +111,7 @@ class InsertionNetwork:
         seed: seeds the weight initialisation (a local ``torch.Generator``).
 
     Attributes:
-        network: ``nn.Sequential`` of the layers.
+        network: the :class:`~dynoplan.models.mlp.MLP` (float32).
         input_mean, input_std: (20,) float64 feature standardisation.
         output_mean, output_std: (6,) float64 standardisation of the joint step.
         report: what the training measured (data, time, losses); stored in the file.
@@ -122,19 +122,8 @@ class InsertionNetwork:
             raise DynoplanError(f"the insertion network needs hidden layers of width >= 1, "
                                 f"got {tuple(hidden_sizes)}")
         self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
-        gen = torch.Generator().manual_seed(int(seed))
-        sizes = [FEATURE_DIM, *self.hidden_sizes, OUTPUT_DIM]
-        layers: list[nn.Module] = []
-        for i, (fan_in, fan_out) in enumerate(pairwise(sizes)):
-            layer = nn.Linear(fan_in, fan_out)
-            bound = 1.0 / np.sqrt(fan_in)
-            with torch.no_grad():
-                layer.weight.uniform_(-bound, bound, generator=gen)
-                layer.bias.zero_()
-            layers.append(layer)
-            if i < len(sizes) - 2:
-                layers.append(nn.SiLU())
-        self.network = nn.Sequential(*layers)
+        self.network = MLP([FEATURE_DIM, *self.hidden_sizes, OUTPUT_DIM], uniform_weight_init,
+                           torch.Generator().manual_seed(int(seed)))
         self.input_mean = np.zeros(FEATURE_DIM)
         self.input_std = np.ones(FEATURE_DIM)
         self.output_mean = np.zeros(OUTPUT_DIM)
@@ -143,7 +132,7 @@ class InsertionNetwork:
 
     @property
     def linears(self) -> list[nn.Linear]:
-        return [m for m in self.network if isinstance(m, nn.Linear)]
+        return cast(list[nn.Linear], list(self.network.linears))
 
     def set_normalisation(self, features: FloatArray, steps: FloatArray) -> None:
         """Standardise with the mean and standard deviation of ``features`` (N, 20) and
@@ -180,10 +169,7 @@ class InsertionNetwork:
     # ------------------------------------------------------------------ files
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the network to ``path`` (safetensors + JSON metadata, atomically)."""
-        arrays: dict[str, np.ndarray] = {}
-        for i, layer in enumerate(self.linears):
-            arrays[f"weight_{i}"] = layer.weight.detach().numpy().copy()
-            arrays[f"bias_{i}"] = layer.bias.detach().numpy().copy()
+        arrays = linear_arrays(self.network)
         arrays["input_mean"] = self.input_mean
         arrays["input_std"] = self.input_std
         arrays["output_mean"] = self.output_mean
@@ -211,9 +197,8 @@ class InsertionNetwork:
                                     f"dynoplan's insertion policy needs {want!r}")
         hidden = hidden_sizes(meta, path)
         model = cls(hidden)
-        sizes = [FEATURE_DIM, *hidden, OUTPUT_DIM]
         expected = {"input_mean", "input_std", "output_mean", "output_std"}
-        expected |= load_linears(model.linears, sizes, arrays, path)
+        expected |= load_linears(model.network, arrays, path)
         extra = set(arrays) - expected
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "

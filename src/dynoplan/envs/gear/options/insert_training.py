@@ -21,6 +21,7 @@ rate, whole episodes held out; the weights of the epoch with the lowest held-out
 kept.
 """
 
+import math
 import os
 import time
 from collections.abc import Sequence
@@ -45,6 +46,7 @@ from dynoplan.envs.gear.options.insert import (
 from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.task import STAGE_INDEX, relation
 from dynoplan.errors import DynoplanError
+from dynoplan.models.trainer import HoldOut, KeepBest, shuffled, train
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
 DEFAULT_EPISODES = 80
@@ -269,56 +271,44 @@ def fit_insertion(network: InsertionNetwork, demos: InsertionDemos, *,
     if epochs < 1 or batch_size < 1 or lr <= 0.0:
         raise DynoplanError(f"epochs, batch_size and lr must be positive, got {epochs}, "
                             f"{batch_size}, {lr}")
-    train, held = split_episodes(demos.episodes, held_out_fraction, seed)
-    network.set_normalisation(demos.features[train], demos.steps[train])
+    fit_rows, held = split_episodes(demos.episodes, held_out_fraction, seed)
+    network.set_normalisation(demos.features[fit_rows], demos.steps[fit_rows])
     x, y = network.normalise(demos.features, demos.steps)
     assert y is not None
-    tr, ho = torch.from_numpy(np.flatnonzero(train)), torch.from_numpy(np.flatnonzero(held))
+    tr, ho = torch.from_numpy(np.flatnonzero(fit_rows)), torch.from_numpy(np.flatnonzero(held))
     x_tr, y_tr, x_ho, y_ho = x[tr], y[tr], x[ho], y[ho]
     net = network.network
-    gen = torch.Generator().manual_seed(int(seed))
+
+    def mse(inputs: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        return torch.mean((net(inputs) - targets) ** 2)
+
+    def loss(inputs: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        batch_mse = mse(inputs, targets)
+        return batch_mse, batch_mse
+
     optimiser = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=epochs)
-    train_loss: list[float] = []
-    held_loss: list[float] = []
-    best = (np.inf, 0, [p.detach().clone() for p in net.parameters()])
-    t0 = time.perf_counter()
-    for epoch in range(epochs):
-        net.train()
-        order = torch.randperm(len(x_tr), generator=gen)
-        total = 0.0
-        for start in range(0, len(order), batch_size):
-            idx = order[start:start + batch_size]
-            optimiser.zero_grad()
-            loss = torch.mean((net(x_tr[idx]) - y_tr[idx]) ** 2)
-            loss.backward()
-            optimiser.step()
-            total += float(loss.detach()) * len(idx)
-        schedule.step()
-        train_loss.append(total / len(x_tr))
-        with torch.no_grad():
-            held_loss.append(float(torch.mean((net(x_ho) - y_ho) ** 2)))
-        if held_loss[-1] < best[0]:
-            best = (held_loss[-1], epoch, [p.detach().clone() for p in net.parameters()])
-    seconds = time.perf_counter() - t0
+    report = train(net, loss, x_tr, y_tr, optimiser,
+                   shuffled(len(x_tr), torch.Generator().manual_seed(int(seed))),
+                   epochs=epochs, batch_size=batch_size,
+                   schedule=torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=epochs),
+                   holdout=HoldOut(x_ho, y_ho, lambda inputs, targets: float(mse(inputs, targets))),
+                   keep_best=KeepBest(start=True))
     with torch.no_grad():
-        for p, saved in zip(net.parameters(), best[2], strict=True):
-            p.copy_(saved)
-    net.eval()
-    with torch.no_grad():
-        final_train = float(torch.mean((net(x_tr) - y_tr) ** 2))
+        final_train = float(mse(x_tr, y_tr))
+    # the kept epoch's held-out loss; +inf when none was finite (the starting weights)
+    final_held_out = min((h for h in report.holdout_loss if not math.isnan(h)), default=math.inf)
     return {
         "epochs": int(epochs),
-        "best_epoch": int(best[1]),
-        "train_seconds": float(seconds),
-        "train_samples": int(train.sum()),
+        "best_epoch": int(report.best_epoch),
+        "train_seconds": float(report.seconds),
+        "train_samples": int(fit_rows.sum()),
         "held_out_samples": int(held.sum()),
-        "train_episodes": len(np.unique(demos.episodes[train])),
+        "train_episodes": len(np.unique(demos.episodes[fit_rows])),
         "held_out_episodes": len(np.unique(demos.episodes[held])),
         "final_train_loss": final_train,
-        "final_held_out_loss": float(best[0]),
-        "train_loss": train_loss,
-        "held_out_loss": held_loss,
+        "final_held_out_loss": float(final_held_out),
+        "train_loss": list(report.train_loss),
+        "held_out_loss": list(report.holdout_loss),
         "loss": "mean squared error of the standardised joint step",
         "batch_size": int(batch_size),
         "lr": float(lr),

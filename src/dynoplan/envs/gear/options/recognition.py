@@ -41,9 +41,8 @@ import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -56,8 +55,10 @@ from dynoplan.envs.gear.options.pick import PickPolicy
 from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
-from dynoplan.models.mlp_file import hidden_sizes, load_linears, require_finite
+from dynoplan.models.mlp import MLP, uniform_weight_init
+from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import load_arrays, save_arrays
+from dynoplan.models.trainer import shuffled, train
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
 MODEL_KIND = "grasp_recognizer"
@@ -107,7 +108,8 @@ class GraspRecognizer:
         seed: seeds the weight initialisation (a local ``torch.Generator``).
 
     Attributes:
-        network: ``nn.Sequential`` of float32 layers, features -> one logit.
+        network: the :class:`~dynoplan.models.mlp.MLP` (float32), standardised features
+            -> one logit.
         feature_mean, feature_std: (8,) float64 standardisation.
         report: what :func:`fit_recognizer` measured (held-out accuracy, sizes, ...),
             stored in and read back from the file.
@@ -118,19 +120,8 @@ class GraspRecognizer:
             raise DynoplanError(f"the recogniser needs hidden layers of width >= 1, got "
                                 f"{tuple(hidden_sizes)}")
         self.hidden_sizes = tuple(int(h) for h in hidden_sizes)
-        gen = torch.Generator().manual_seed(int(seed))
-        sizes = [FEATURE_DIM, *self.hidden_sizes, 1]
-        layers: list[nn.Module] = []
-        for i, (fan_in, fan_out) in enumerate(pairwise(sizes)):
-            layer = nn.Linear(fan_in, fan_out)
-            bound = 1.0 / np.sqrt(fan_in)
-            with torch.no_grad():
-                layer.weight.uniform_(-bound, bound, generator=gen)
-                layer.bias.zero_()
-            layers.append(layer)
-            if i < len(sizes) - 2:
-                layers.append(nn.SiLU())
-        self.network = nn.Sequential(*layers)
+        self.network = MLP([FEATURE_DIM, *self.hidden_sizes, 1], uniform_weight_init,
+                           torch.Generator().manual_seed(int(seed)))
         self.feature_mean = np.zeros(FEATURE_DIM)
         self.feature_std = np.ones(FEATURE_DIM)
         self.report: dict[str, Any] = {}
@@ -138,7 +129,7 @@ class GraspRecognizer:
 
     @property
     def linears(self) -> list[nn.Linear]:
-        return [m for m in self.network if isinstance(m, nn.Linear)]
+        return cast(list[nn.Linear], list(self.network.linears))
 
     # ------------------------------------------------------------------ inference
     def logits(self, features: FloatArray) -> FloatArray:
@@ -164,8 +155,9 @@ class GraspRecognizer:
     # ------------------------------------------------------------------ training
     def fit(self, features: FloatArray, labels: BoolArray, epochs: int = DEFAULT_EPOCHS,
             batch_size: int = 256, learning_rate: float = 3e-3, seed: int = 0) -> list[float]:
-        """Minimise the binary cross-entropy with Adam; returns the mean loss per epoch.
-        Sets the feature standardisation from ``features`` (N, 8)."""
+        """Minimise the binary cross-entropy with Adam (minibatches in an order drawn from a
+        ``torch.Generator`` seeded with ``seed``); returns the mean loss per epoch. Sets the
+        feature standardisation from ``features`` (N, 8)."""
         x = np.asarray(features, dtype=np.float64)
         y = np.asarray(labels, dtype=bool)
         if x.ndim != 2 or x.shape[1] != FEATURE_DIM or len(x) != len(y) or len(x) == 0:
@@ -175,30 +167,22 @@ class GraspRecognizer:
         self.feature_std = np.maximum(x.std(axis=0), 1e-6)
         xt = torch.from_numpy(((x - self.feature_mean) / self.feature_std).astype(np.float32))
         yt = torch.from_numpy(y.astype(np.float32))
-        gen = torch.Generator().manual_seed(int(seed))
         optimiser = torch.optim.Adam(self.network.parameters(), lr=learning_rate)
         loss_fn = nn.BCEWithLogitsLoss()
-        losses = []
-        for _ in range(epochs):
-            order = torch.randperm(len(xt), generator=gen)
-            total = 0.0
-            for start in range(0, len(xt), batch_size):
-                idx = order[start:start + batch_size]
-                optimiser.zero_grad()
-                loss = loss_fn(self.network(xt[idx])[:, 0], yt[idx])
-                loss.backward()
-                optimiser.step()
-                total += float(loss.detach()) * len(idx)
-            losses.append(total / len(xt))
-        return losses
+
+        def loss(inputs: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            bce = loss_fn(self.network(inputs)[:, 0], targets)
+            return bce, bce
+
+        rows = shuffled(len(xt), torch.Generator().manual_seed(int(seed)))
+        report = train(self.network, loss, xt, yt, optimiser, rows, epochs=epochs,
+                       batch_size=batch_size)
+        return list(report.train_loss)
 
     # ------------------------------------------------------------------ files
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the recogniser to ``path`` (safetensors + JSON metadata, atomically)."""
-        arrays: dict[str, np.ndarray] = {}
-        for i, layer in enumerate(self.linears):
-            arrays[f"weight_{i}"] = layer.weight.detach().numpy().copy()
-            arrays[f"bias_{i}"] = layer.bias.detach().numpy().copy()
+        arrays = linear_arrays(self.network)
         arrays["feature_mean"] = self.feature_mean
         arrays["feature_std"] = self.feature_std
         meta = {"feature_names": list(FEATURE_NAMES), "hidden_sizes": list(self.hidden_sizes),
@@ -221,9 +205,8 @@ class GraspRecognizer:
                                 f"do not match this dynoplan's {list(FEATURE_NAMES)}")
         hidden = hidden_sizes(meta, path)
         model = cls(hidden)
-        sizes = [FEATURE_DIM, *hidden, 1]
         expected = {"feature_mean", "feature_std"}
-        expected |= load_linears(model.linears, sizes, arrays, path)
+        expected |= load_linears(model.network, arrays, path)
         extra = set(arrays) - expected
         if extra:
             raise DynoplanError(f"{path}: unexpected arrays {sorted(extra)} (the metadata "

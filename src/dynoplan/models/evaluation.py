@@ -1,0 +1,136 @@
+"""Evaluation of learned ensemble dynamics against held-out transitions.
+
+Both functions work on any model with a ``predict`` method returning the per-member
+Gaussian of the next state (:class:`GaussianEnsemblePredictor`), so that a learned model
+can be compared with the "state stays the same" baseline (:func:`one_step_error`) and its
+uncertainty checked against held-out transitions (:func:`calibration`).
+"""
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from scipy.special import ndtr
+
+from dynoplan.types import FloatArray
+
+
+class GaussianEnsemblePredictor(Protocol):
+    """A dynamics model that exposes its per-member Gaussian next-state prediction.
+
+    ``predict(states (batch, d))`` returns ``(means, variances)``, each
+    ``(members, batch, d)`` float64, in state units; the predictive distribution is the
+    equal-weight mixture over members.
+    """
+
+    def predict(self, states: FloatArray) -> tuple[FloatArray, FloatArray]: ...
+
+
+@dataclass(frozen=True)
+class OneStepError:
+    """Root-mean-square one-step error of the model against "the state stays the same".
+
+    Attributes:
+        model_rmse: ``(state_dim,)``, RMSE of the mixture mean per dimension.
+        baseline_rmse: ``(state_dim,)``, RMSE of predicting ``s_{t+1} = s_t``.
+        model_rmse_total: RMSE over all dimensions.
+        baseline_rmse_total: the baseline's RMSE over all dimensions.
+    """
+
+    model_rmse: FloatArray
+    baseline_rmse: FloatArray
+    model_rmse_total: float
+    baseline_rmse_total: float
+
+    @property
+    def ratio(self) -> float:
+        """``model / baseline`` over all dimensions; below 1 means the model helps."""
+        return self.model_rmse_total / max(self.baseline_rmse_total, 1e-300)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """How often true next states fall inside the predicted central interval.
+
+    The predictive distribution is the equal-weight mixture of the members' Gaussians;
+    per dimension its central ``level`` interval runs from the ``(1 - level) / 2`` to the
+    ``(1 + level) / 2`` quantile of the mixture's marginal. A calibrated model has
+    ``coverage`` close to ``level``; much higher means over-wide intervals, much lower
+    over-confident ones.
+
+    Attributes:
+        level: nominal coverage, for example 0.9.
+        coverage: fraction of (row, dimension) pairs inside their interval.
+        per_dimension: ``(state_dim,)`` coverage of each dimension.
+        mean_width: ``(state_dim,)`` mean interval width, in state units.
+    """
+
+    level: float
+    coverage: float
+    per_dimension: FloatArray
+    mean_width: FloatArray
+
+
+def one_step_error(model: GaussianEnsemblePredictor, states: FloatArray,
+                   next_states: FloatArray) -> OneStepError:
+    """One-step RMSE of the model's mixture mean vs the "no change" baseline.
+
+    Args:
+        states: ``(batch, d)`` current states; ``next_states``: ``(batch, d)`` true next states.
+    """
+    s, nxt = _pair(states, next_states)
+    means, _ = model.predict(s)
+    pred = means.mean(axis=0)
+    model_sq = (pred - nxt) ** 2
+    base_sq = (s - nxt) ** 2
+    return OneStepError(np.sqrt(model_sq.mean(axis=0)), np.sqrt(base_sq.mean(axis=0)),
+                        float(np.sqrt(model_sq.mean())), float(np.sqrt(base_sq.mean())))
+
+
+def calibration(model: GaussianEnsemblePredictor, states: FloatArray, next_states: FloatArray,
+                level: float = 0.9) -> Calibration:
+    """Coverage of the per-dimension central ``level`` interval of the member mixture.
+
+    Args:
+        states: ``(batch, d)``; ``next_states``: ``(batch, d)``.
+        level: nominal coverage in ``(0, 1)``.
+    """
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must be in (0, 1), got {level}")
+    s, nxt = _pair(states, next_states)
+    means, variances = model.predict(s)
+    std = np.sqrt(variances)
+    lo = mixture_quantile(means, std, (1.0 - level) / 2.0)
+    hi = mixture_quantile(means, std, (1.0 + level) / 2.0)
+    inside = (nxt >= lo) & (nxt <= hi)
+    return Calibration(float(level), float(inside.mean()), inside.mean(axis=0),
+                       (hi - lo).mean(axis=0))
+
+
+def mixture_quantile(means: FloatArray, stds: FloatArray, q: float,
+                     iterations: int = 60) -> FloatArray:
+    """Quantile ``q`` of an equal-weight Gaussian mixture per element, by bisection.
+
+    Args:
+        means, stds: ``(members, ...)``; the mixture is over the first axis.
+    Returns:
+        ``(...)``, the value ``x`` with ``mean_k Phi((x - mu_k) / sigma_k) = q``.
+    """
+    stds = np.maximum(stds, 1e-300)
+    lo = (means - 10.0 * stds).min(axis=0)
+    hi = (means + 10.0 * stds).max(axis=0)
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        below = ndtr((mid[None] - means) / stds).mean(axis=0) < q
+        lo = np.where(below, mid, lo)
+        hi = np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _pair(states: FloatArray, next_states: FloatArray) -> tuple[FloatArray, FloatArray]:
+    s = np.asarray(states, dtype=np.float64)
+    nxt = np.asarray(next_states, dtype=np.float64)
+    if s.ndim != 2 or s.shape != nxt.shape:
+        raise ValueError(f"states and next_states must both be (batch, d), got {s.shape} "
+                         f"and {nxt.shape}")
+    return s, nxt
