@@ -23,17 +23,11 @@ from dynoplan.experiments.gear_model_data import (
     demonstration_transitions,
     write_demonstration_transitions,
 )
-from dynoplan.experiments.gear_model_files import (
-    GOAL_FILE,
-    MANIFEST_FILE,
-    METRICS_FILE,
-    REGIONS_FILE,
-    dynamics_file,
-    load_gear_models,
-)
+from dynoplan.experiments.gear_model_files import METRICS_FILE, load_gear_models
 from dynoplan.experiments.gear_model_metrics import fit_regions_cross_validated
 from dynoplan.experiments.gear_model_settings import QUICK_SETTINGS
 from dynoplan.experiments.gear_models import train_gear_models
+from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.reports.gear_figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
@@ -84,7 +78,7 @@ def test_metrics_file_has_every_field_and_the_models_load(trained):
     assert on_disk["regions"]["far_states"]["far"] > 100
 
     models = load_gear_models(out)
-    assert models.option_names == OPTION_NAMES
+    assert models.option_names == list(OPTION_NAMES)
     states = np.zeros((5, STATE_DIM))
     mean, std = models.goal.mean_std(states)
     assert mean.shape == (5,) and np.all((mean >= 0) & (mean <= 1)) and np.all(std >= 0)
@@ -157,7 +151,7 @@ def test_missing_truncated_and_mismatched_files_are_rejected(trained, tmp_path):
     _one_line_error(folder, "not a readable manifest")
 
     for key, value in (("state_dim", 12), ("option_names", ["pick", "insert"]),
-                       ("decision_steps", 5)):
+                       ("stride", 5), ("task", "another")):
         folder = _copy(out, tmp_path / f"d-{key}")
         manifest = json.loads((folder / MANIFEST_FILE).read_text())
         manifest[key] = value
@@ -173,16 +167,27 @@ def test_missing_truncated_and_mismatched_files_are_rejected(trained, tmp_path):
     manifest["goal"]["sha256"] = hashlib.sha256((folder / GOAL_FILE).read_bytes()).hexdigest()
     (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
     _one_line_error(folder, "reads 3 features")
-    # models from an older format (feature columns instead of a named feature map)
+    # a manifest that points outside its folder
+    folder = _copy(out, tmp_path / "g")
+    manifest = json.loads((folder / MANIFEST_FILE).read_text())
+    shutil.copy(folder / GOAL_FILE, tmp_path / GOAL_FILE)
+    manifest["goal"]["file"] = f"../{GOAL_FILE}"
+    (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
+    _one_line_error(folder, "outside the models folder")
+    # models from older formats: the gear's v2 (kind gear_models), the pipeline's v1
     folder = _copy(out, tmp_path / "f")
     manifest = json.loads((folder / MANIFEST_FILE).read_text())
-    manifest["format_version"] = 1
-    manifest["regions"]["features"] = list(range(19))
+    manifest.update(kind="gear_models", format_version=2)
     (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
-    _one_line_error(folder, "train the models again")
-    manifest["format_version"] = 2
+    _one_line_error(folder, "format_version 2 is not 3.*dynoplan gear train")
+    (folder / MANIFEST_FILE).write_text(json.dumps({"format_version": 1, "option_names": ["a"]}))
+    _one_line_error(folder, "format_version 1 is not 3")
+    # a feature map this task does not define
+    folder = _copy(out, tmp_path / "h")
+    manifest = json.loads((folder / MANIFEST_FILE).read_text())
+    manifest["regions"]["features"] = "columns"
     (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
-    _one_line_error(folder, "must name a feature map")
+    _one_line_error(folder, "feature map 'columns'")
 
 
 def test_held_out_trials_must_not_repeat_the_demonstrations(data, tmp_path):
@@ -223,7 +228,7 @@ def test_models_train_on_a_transitions_dataset_at_the_decision_rate(data, tmp_pa
                                 heldout_demos=data / "heldout", quick=True, progress=False)
     assert metrics["dynamics_data"] == "option transitions"
     assert metrics["data"]["transition_episodes_heldout"] > 0
-    assert load_gear_models(tmp_path / "m").option_names == OPTION_NAMES
+    assert load_gear_models(tmp_path / "m").option_names == list(OPTION_NAMES)
 
     slower = write_demonstration_transitions(data / "demos", tmp_path / "every5", 5)
     with pytest.raises(DynoplanError, match="recorded every 5 environment steps"):

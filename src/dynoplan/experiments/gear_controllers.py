@@ -53,7 +53,6 @@ from dynoplan.envs.gear.state import (
     tool_human_distance,
 )
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_model_files import GearModels
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
@@ -67,6 +66,7 @@ from dynoplan.options.initiation import (
 )
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
+from dynoplan.pipeline.fit import FittedModels
 from dynoplan.planning import OptionPlanner, SimulatorOracle
 from dynoplan.types import BoolArray, FloatArray
 
@@ -218,7 +218,7 @@ def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | No
     return region, None
 
 
-def gear_options(env: GearAssemblyEnv, models: GearModels,
+def gear_options(env: GearAssemblyEnv, models: FittedModels,
                  factories: Mapping[str, GearPolicyFactory], regions: bool = True,
                  terminations: bool = True, dynamics_noise: float = 0.0) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``.
@@ -232,6 +232,9 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
     missing = [n for n in models.option_names if n not in factories]
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
+    learned = models.regions
+    if regions and learned is None:
+        raise DynoplanError("the gear's options need the learned safety regions")
     options = []
     far_from_goal = FarFromGoal()  # one forward-kinematics model for both moves
     for name in models.option_names:
@@ -239,9 +242,9 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
         dynamics: DynamicsModel = models.dynamics[name]
         if dynamics_noise > 0:
             dynamics = NoisyDynamics(dynamics, dynamics_noise)
-        if regions:
-            initiation, continuation = preconditions(
-                name, InRegion(models.regions, name), far_from_goal)
+        if regions and learned is not None:
+            initiation, continuation = preconditions(name, InRegion(learned, name),
+                                                     far_from_goal)
         else:
             initiation, continuation = Everywhere(), None
         options.append(Option(
@@ -251,7 +254,7 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
     return options
 
 
-def make_gear_controller(name: str, env: GearAssemblyEnv, models: GearModels,
+def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
                          factories: Mapping[str, GearPolicyFactory],
                          settings: PlannerSettings = PlannerSettings()) -> Controller:
     """The controller ``name`` (one of :data:`CONTROLLERS`) on ``env``."""

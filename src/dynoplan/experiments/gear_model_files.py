@@ -1,23 +1,20 @@
-"""A gear models folder: file names, the manifest, and reading the models back.
+"""A gear models folder: the one models format of :mod:`dynoplan.models.folder`.
 
 :func:`~dynoplan.experiments.gear_models.train_gear_models` writes one safetensors file
-per model (:data:`GOAL_FILE`, :data:`REGIONS_FILE`, :func:`dynamics_file` per option),
-``metrics.json`` and ``models.json``, the manifest (:func:`models_manifest`: kind, format
-version, state dimension, option names, decision rate, feature maps and each file's
-SHA-256). :func:`load_gear_models` reads the folder back as :class:`GearModels`, so a
-missing, truncated, modified or mismatched file is rejected with one error line.
+per model, ``metrics.json`` and the manifest ``models.json`` (:func:`models_manifest`:
+the library's format, with the gear's feature maps named and the training seed and
+settings as extra fields). :func:`load_gear_models` reads the folder back as
+:class:`~dynoplan.pipeline.fit.FittedModels` and checks that it fits this version's gear
+assembly, so a missing, truncated, modified or mismatched file is rejected with one
+error line.
 
 The goal heuristic and the regions read named feature maps of the planner state
-(:mod:`dynoplan.envs.gear.features`); the library's
-:class:`~dynoplan.models.features.GoalOnFeatures` and
-:class:`~dynoplan.models.features.RegionsOnFeatures` wrap them so that they take full
-planner states ``(batch, 22)``.
+(:mod:`dynoplan.envs.gear.features`): the loaded models take full planner states
+``(batch, 22)``.
 """
 
-import hashlib
-import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -26,157 +23,57 @@ from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_settings import GearTrainSettings
-from dynoplan.models.dynamics import StackedDynamics
-from dynoplan.models.features import FeatureMap, GoalOnFeatures, RegionsOnFeatures
-from dynoplan.models.goal_network import GoalNetwork
-from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
-from dynoplan.models.regions import SafetyRegions
+from dynoplan.models.folder import (
+    GOAL_FILE,
+    MANIFEST_FILE,
+    REGIONS_FILE,
+    dynamics_file,
+    write_manifest,
+)
+from dynoplan.pipeline.fit import FittedModels
 
-MODELS_KIND = "gear_models"
-MODELS_FORMAT_VERSION = 2
-"""2: feature maps are named (``"features": "task"``); 1 listed state columns."""
-MANIFEST_FILE = "models.json"
+TASK_NAME = "gear_assembly"
 METRICS_FILE = "metrics.json"
-GOAL_FILE = "goal.safetensors"
-REGIONS_FILE = "regions.safetensors"
 HELDOUT_DIR = "heldout-demos"
 GOAL_FEATURES = TASK
 """What the goal heuristic reads: arm joints, gripper, tool point and gear (no human)."""
-
-
-def dynamics_file(option: str) -> str:
-    """File name of option ``option``'s dynamics model inside a models folder."""
-    return f"dynamics-{option}.safetensors"
-
-
-@dataclass
-class GearModels:
-    """What :func:`load_gear_models` returns.
-
-    Attributes:
-        goal: ``G(s)`` on planner states ``(batch, 22)``.
-        regions: the options' safety regions on planner states.
-        dynamics: ``D_w`` by option name (keys in :data:`OPTION_NAMES` order), each
-            mapping planner states ``(batch, 22)`` one decision step ahead.
-        manifest: the content of ``models.json``.
-    """
-
-    goal: GoalOnFeatures
-    regions: RegionsOnFeatures
-    dynamics: dict[str, MLPEnsembleDynamics]
-    manifest: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def option_names(self) -> tuple[str, ...]:
-        return tuple(self.dynamics)
-
-    def stacked_dynamics(self) -> StackedDynamics:
-        """All options' ensembles as one ``(options, samples, 22)`` sampler."""
-        return MLPEnsembleDynamics.stack([self.dynamics[n] for n in self.option_names])
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
+RETRAIN = "train them with 'dynoplan gear train' or 'dynoplan gear run'"
 
 
 def models_manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, Any]:
-    def entry(file: str) -> dict[str, Any]:
-        return {"file": file, "sha256": file_sha256(out / file)}
-
-    return {
-        "kind": MODELS_KIND,
-        "format_version": MODELS_FORMAT_VERSION,
-        "state_dim": STATE_DIM,
-        "state_names": list(STATE_NAMES),
-        "option_names": list(OPTION_NAMES),
-        "decision_steps": DECISION_STEPS,
-        "goal": {**entry(GOAL_FILE), "features": GOAL_FEATURES.name},
-        "regions": {**entry(REGIONS_FILE), "features": cfg.region_features},
-        "dynamics": {name: entry(dynamics_file(name)) for name in OPTION_NAMES},
-        "seed": seed,
-        "settings": asdict(cfg),
-    }
+    """Write ``out/models.json`` for the model files in ``out``; return it."""
+    return write_manifest(
+        out, task=TASK_NAME, state_dim=STATE_DIM, option_names=OPTION_NAMES,
+        stride=DECISION_STEPS, use_regions=True, goal=(GOAL_FILE, GOAL_FEATURES.name),
+        regions=(REGIONS_FILE, cfg.region_features),
+        dynamics={name: dynamics_file(name) for name in OPTION_NAMES},
+        extra={"state_names": list(STATE_NAMES), "seed": seed, "settings": asdict(cfg)})
 
 
-
-def load_gear_models(folder: str | os.PathLike[str]) -> GearModels:
+def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
     """Read the models written by
     :func:`~dynoplan.experiments.gear_models.train_gear_models` from ``folder``.
 
     Raises:
-        DynoplanError: (one line) no or unreadable ``models.json``, another kind or a
-            newer format, a state dimension, option names or decision rate other than
-            this version's gear assembly, a missing file, a file whose SHA-256 differs
-            from the manifest (truncated, modified or from another run), or a model that
-            does not fit the manifest.
+        DynoplanError: (one line) see :meth:`FittedModels.load`, and a task, state
+            dimension, option names or decision rate other than this version's gear
+            assembly's, or regions that do not cover every option.
     """
-    root = Path(folder)
-    path = root / MANIFEST_FILE
-    if not path.is_file():
-        raise DynoplanError(f"{path}: not found (train models with 'dynoplan gear train')")
-    try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DynoplanError(f"{path}: not a readable manifest ({exc})") from None
-    if not isinstance(manifest, dict) or manifest.get("kind") != MODELS_KIND:
-        raise DynoplanError(f"{path}: not a gear models manifest")
-    version = manifest.get("format_version")
-    if not isinstance(version, int) or version != MODELS_FORMAT_VERSION:
-        raise DynoplanError(f"{path}: format_version {version!r} is not supported (this "
-                            f"dynoplan reads {MODELS_FORMAT_VERSION}; train the models again)")
-    expected = {"state_dim": STATE_DIM, "option_names": list(OPTION_NAMES),
-                "decision_steps": DECISION_STEPS}
+    models = FittedModels.load(folder, FEATURE_MAPS, RETRAIN)
+    path = Path(folder) / MANIFEST_FILE
+    found = {"task": models.task, "state_dim": models.state_dim,
+             "option_names": models.option_names, "stride": models.stride}
+    expected = {"task": TASK_NAME, "state_dim": STATE_DIM, "option_names": list(OPTION_NAMES),
+                "stride": DECISION_STEPS}
     for key, value in expected.items():
-        if manifest.get(key) != value:
-            raise DynoplanError(f"{path}: {key} is {manifest.get(key)!r}, this version's gear "
+        if found[key] != value:
+            raise DynoplanError(f"{path}: {key} is {found[key]!r}, this version's gear "
                                 f"assembly has {value!r}")
+    if models.regions is None or models.regions.option_names != list(OPTION_NAMES):
+        raise DynoplanError(f"{path}: the gear's safety regions must cover the options "
+                            f"{list(OPTION_NAMES)}")
+    return models
 
-    def checked(entry: Any, what: str) -> Path:
-        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
-            raise DynoplanError(f"{path}: no file given for {what}")
-        file = root / entry["file"]
-        if not file.is_file():
-            raise DynoplanError(f"{file}: model file not found ({what})")
-        if file_sha256(file) != entry.get("sha256"):
-            raise DynoplanError(f"{file}: does not match {MANIFEST_FILE} (truncated, modified "
-                                "or from another training run)")
-        return file
 
-    def features(entry: Any, what: str) -> FeatureMap:
-        name = entry.get("features") if isinstance(entry, dict) else None
-        if not isinstance(name, str) or name not in FEATURE_MAPS:
-            raise DynoplanError(f"{path}: {what} features must name a feature map "
-                                f"({', '.join(FEATURE_MAPS)})")
-        return FEATURE_MAPS[name]
-
-    goal_features = features(manifest.get("goal"), "goal")
-    network = GoalNetwork.load(checked(manifest.get("goal"), "goal heuristic"))
-    if network.state_dim != goal_features.dim:
-        raise DynoplanError(f"{root / GOAL_FILE}: reads {network.state_dim} features, the "
-                            f"manifest's '{goal_features.name}' has {goal_features.dim}")
-    region_features = features(manifest.get("regions"), "regions")
-    fitted = SafetyRegions.load(checked(manifest.get("regions"), "safety regions"))
-    if fitted.option_names != list(OPTION_NAMES) or fitted.state_dim != region_features.dim:
-        raise DynoplanError(f"{root / REGIONS_FILE}: options {fitted.option_names} on "
-                            f"{fitted.state_dim} features, expected {list(OPTION_NAMES)} on "
-                            f"{region_features.dim} ('{region_features.name}')")
-    entries = manifest.get("dynamics")
-    if not isinstance(entries, dict) or sorted(entries) != sorted(OPTION_NAMES):
-        raise DynoplanError(f"{path}: dynamics must list the options {list(OPTION_NAMES)}")
-    dynamics: dict[str, MLPEnsembleDynamics] = {}
-    for name in OPTION_NAMES:
-        file = checked(entries[name], f"dynamics of {name}")
-        model = MLPEnsembleDynamics.load(file)
-        if model.state_dim != STATE_DIM or model.option != name:
-            raise DynoplanError(f"{file}: a model of option '{model.option}' on "
-                                f"{model.state_dim} values, expected '{name}' on {STATE_DIM}")
-        dynamics[name] = model
-    return GearModels(GoalOnFeatures(network, goal_features),
-                      RegionsOnFeatures(fitted, region_features),
-                      dynamics, manifest)
-
+__all__ = ["GOAL_FEATURES", "HELDOUT_DIR", "METRICS_FILE", "RETRAIN", "TASK_NAME",
+           "load_gear_models", "models_manifest"]

@@ -27,8 +27,7 @@ with ``relative``, the regions.
 
 This module trains; the rest lives in ``gear_model_settings`` (:class:`GearTrainSettings`),
 ``gear_model_data`` (datasets to arrays, splits), ``gear_model_metrics`` (held-out
-measurements) and ``gear_model_files`` (the models folder: file names, manifest,
-:func:`load_gear_models`), whose public names are re-exported here for older imports.
+measurements) and ``gear_model_files`` (the manifest and :func:`load_gear_models`).
 """
 
 import time
@@ -47,8 +46,6 @@ from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_data import (
     CAUTIOUS,
-    HELDOUT_SEED_OFFSET,
-    TRANSITIONS_ID,
     check_disjoint,
     demo_arrays,
     demonstration_transitions,
@@ -57,22 +54,11 @@ from dynoplan.experiments.gear_model_data import (
     read_labelled,
     record_heldout,
     split_episodes,
-    write_demonstration_transitions,
 )
 from dynoplan.experiments.gear_model_files import (
     GOAL_FEATURES,
-    GOAL_FILE,
     HELDOUT_DIR,
-    MANIFEST_FILE,
     METRICS_FILE,
-    MODELS_FORMAT_VERSION,
-    MODELS_KIND,
-    REGIONS_FILE,
-    GearModels,
-    GoalOnFeatures,
-    RegionsOnFeatures,
-    dynamics_file,
-    load_gear_models,
     models_manifest,
 )
 from dynoplan.experiments.gear_model_metrics import (
@@ -87,19 +73,14 @@ from dynoplan.experiments.gear_model_settings import (
 )
 from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.models.evaluation import calibration, one_step_error
+from dynoplan.models.features import RegionsOnFeatures
+from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.progress import track
 from dynoplan.types import FloatArray, IntArray
 
-__all__ = [  # what this module exported before it was split (kept for older imports)
-    "CAUTIOUS", "DEFAULT_SETTINGS", "GOAL_FEATURES", "GOAL_FILE", "HELDOUT_DIR",
-    "HELDOUT_SEED_OFFSET", "MANIFEST_FILE", "METRICS_FILE", "MODELS_FORMAT_VERSION",
-    "MODELS_KIND", "QUICK_SETTINGS", "REGIONS_FILE", "TRANSITIONS_ID", "GearModels",
-    "GearTrainSettings", "GoalOnFeatures", "RegionsOnFeatures", "demonstration_transitions",
-    "dynamics_file", "far_states", "fit_regions_cross_validated", "load_gear_models",
-    "n_step_report", "train_gear_models", "write_demonstration_transitions",
-]
+__all__ = ["train_gear_models"]
 
 _BATCH = 256
 
@@ -182,8 +163,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         run()
         seconds[name] = round(time.perf_counter() - t0, 2)
 
-    manifest = models_manifest(out, seed, cfg)
-    write_json(out / MANIFEST_FILE, manifest)
+    models_manifest(out, seed, cfg)
     # coverage over all held-out transitions (options without any do not count)
     dyn_rows = [r for r in dyn_reports.values() if r["coverage_90"] is not None]
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)

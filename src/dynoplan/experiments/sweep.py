@@ -27,10 +27,10 @@ from typing import Any
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
-from dynoplan.experiments.gear_model_files import MANIFEST_FILE
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.experiments.sweep_config import Cell, SweepConfig, load_sweep_config
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.models.folder import MANIFEST_FILE
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds

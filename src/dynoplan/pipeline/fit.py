@@ -15,9 +15,8 @@ step with ``1 - (1 - beta(s))^k`` (:class:`StridedTermination`), the probability
 the option stops somewhere in those ``k`` steps when ``beta`` hardly changes over them.
 """
 
-import json
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -27,9 +26,18 @@ import numpy as np
 from dynoplan.adapters.spec import OptionSpec
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
-from dynoplan.io import ensure_writable_dir, write_json
-from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.io import ensure_writable_dir
+from dynoplan.models.dynamics import DynamicsModel, StackedDynamics
 from dynoplan.models.evaluation import one_step_error
+from dynoplan.models.features import FeatureMap, GoalOnFeatures, RegionsOnFeatures
+from dynoplan.models.folder import (
+    GOAL_FILE,
+    MANIFEST_FILE,
+    REGIONS_FILE,
+    dynamics_file,
+    read_manifest,
+    write_manifest,
+)
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.regions import SafetyRegions
@@ -38,9 +46,6 @@ from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination, Termination
 from dynoplan.pipeline.collect import ObservationFn, flat_state
 from dynoplan.types import FloatArray
-
-MODELS_FILE = "models.json"
-MODELS_FORMAT_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -260,27 +265,46 @@ def strided(termination: Termination, stride: int) -> Termination:
     return StridedTermination(termination, stride)
 
 
+GoalModel = GoalNetwork | GoalOnFeatures
+"""A goal heuristic as fitted: on the planner state, or on a named feature map of it."""
+RegionsModel = SafetyRegions | RegionsOnFeatures
+"""Safety regions as fitted: on the planner state, or on a named feature map of it."""
+
+
 @dataclass
 class FittedModels:
     """Everything learned: per-option dynamics, the goal heuristic, the regions.
 
+    The one in-memory form of a models folder (:mod:`dynoplan.models.folder`) for every
+    task: :meth:`save` writes it, :meth:`load` reads it back.
+
     Attributes:
         option_names: all options, in order.
-        dynamics: ``{name: D_w}``.
-        goal: the goal heuristic ``G``.
-        regions: the fitted Eq. 5 regions (``None`` when not fitted); their
-            ``option_names`` are the demonstrated options.
+        dynamics: ``{name: D_w}``, each on planner states ``(batch, state_dim)``.
+        goal: the goal heuristic ``G`` on planner states.
+        regions: the fitted Eq. 5 regions on planner states (``None`` when not fitted);
+            their ``option_names`` are the demonstrated options.
         stride: environment steps per model step.
         report: what fitting measured (transitions, errors, goal fit).
+        use_regions: whether the regions are the options' initiation sets.
+        task: the task's name (recorded in the manifest).
+        extra: further manifest fields (seed, settings, ...), kept as they are.
     """
 
     option_names: list[str]
     dynamics: dict[str, DynamicsModel]
-    goal: GoalNetwork
-    regions: SafetyRegions | None = None
+    goal: GoalModel
+    regions: RegionsModel | None = None
     stride: int = 1
     report: dict[str, Any] = field(default_factory=dict)
     use_regions: bool = True
+    task: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def state_dim(self) -> int:
+        """Size of the planner states every model is queried with."""
+        return int(self.goal.state_dim)
 
     def region(self, name: str) -> Initiation | None:
         """Option ``name``'s learned region, or ``None`` (no region, or regions unused)."""
@@ -324,83 +348,130 @@ class FittedModels:
         return run, plan
 
     def save(self, folder: str | os.PathLike[str]) -> Path:
-        """Write every model file and ``models.json`` (the index) into ``folder``.
+        """Write every model file, then ``models.json`` (the manifest) into ``folder``.
 
-        Dynamics models without a ``save`` method are listed with ``"file": null``.
+        Dynamics models without a ``save`` method are listed with ``null``.
         """
         out = ensure_writable_dir(folder)
-        dynamics: dict[str, str | None] = {}
+        files: dict[str, str | None] = {}
         for name, model in self.dynamics.items():
             save = getattr(model, "save", None)
+            files[name] = dynamics_file(name) if callable(save) else None
             if callable(save):
-                file = f"dynamics_{name}.safetensors"
-                save(out / file)
-                dynamics[name] = file
-            else:
-                dynamics[name] = None
-        self.goal.save(out / "goal.safetensors")
+                save(out / dynamics_file(name))
+        network, goal_features = _unwrap_goal(self.goal)
+        network.save(out / GOAL_FILE)
+        regions = None
         if self.regions is not None:
-            self.regions.save(out / "regions.safetensors")
-        write_json(out / MODELS_FILE, {
-            "format_version": MODELS_FORMAT_VERSION,
-            "option_names": self.option_names,
-            "stride": self.stride,
-            "use_regions": self.use_regions,
-            "dynamics": dynamics,
-            "goal": "goal.safetensors",
-            "regions": "regions.safetensors" if self.regions is not None else None,
-            "report": self.report,
-        })
+            fitted, region_features = _unwrap_regions(self.regions)
+            fitted.save(out / REGIONS_FILE)
+            regions = (REGIONS_FILE, region_features)
+        write_manifest(out, task=self.task, state_dim=self.state_dim,
+                       option_names=self.option_names, stride=self.stride,
+                       use_regions=self.use_regions, goal=(GOAL_FILE, goal_features),
+                       regions=regions, dynamics=files,
+                       extra={"report": self.report, **self.extra})
         return out
 
     @classmethod
-    def load(cls, folder: str | os.PathLike[str]) -> "FittedModels":
-        """Read a folder written by :meth:`save` (MLP-ensemble dynamics only).
+    def load(cls, folder: str | os.PathLike[str],
+             feature_maps: Mapping[str, FeatureMap] | None = None,
+             retrain: str = "train the models again") -> "FittedModels":
+        """Read a models folder (MLP-ensemble dynamics).
+
+        Args:
+            feature_maps: the task's named feature maps, for models fitted on one.
+            retrain: how to make a new folder, said when the folder is missing or old.
 
         Raises:
-            DynoplanError: a missing or malformed ``models.json`` or model file.
+            DynoplanError: one line: a missing, old or malformed manifest, a file outside
+                the folder, missing or modified, or a model that does not fit the
+                manifest (another option, state size or feature map).
         """
-        root = Path(folder)
-        index = root / MODELS_FILE
-        try:
-            doc = json.loads(index.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise DynoplanError(f"{index}: file not found (not a models folder)") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise DynoplanError(f"{index}: not readable JSON ({exc})") from None
-        version = doc.get("format_version") if isinstance(doc, dict) else None
-        if version != MODELS_FORMAT_VERSION:
-            raise DynoplanError(
-                f"{index}: format_version {version!r} is not {MODELS_FORMAT_VERSION}")
-        names, files = doc.get("option_names"), doc.get("dynamics")
-        if not isinstance(names, list) or not isinstance(files, dict):
-            raise DynoplanError(f"{index}: fields 'option_names' and 'dynamics' are required")
+        manifest = read_manifest(folder, retrain)
+        index = manifest.folder / MANIFEST_FILE
+        maps = dict(feature_maps or {})
+
+        def feature_map(name: str | None, what: str) -> FeatureMap | None:
+            if name is None:
+                return None
+            if name not in maps:
+                raise DynoplanError(f"{index}: {what} reads the feature map '{name}', which "
+                                    f"this task does not define ({', '.join(maps) or 'none'})")
+            if maps[name].state_dim != manifest.state_dim:
+                raise DynoplanError(f"{index}: feature map '{name}' reads {maps[name].state_dim}"
+                                    f" values, the manifest's state_dim is {manifest.state_dim}")
+            return maps[name]
+
+        def reads(file: Path, dim: int, fmap: FeatureMap | None) -> None:
+            if fmap is not None and dim != fmap.dim:
+                raise DynoplanError(f"{file}: reads {dim} features, the manifest's feature "
+                                    f"map '{fmap.name}' has {fmap.dim}")
+            if fmap is None and dim != manifest.state_dim:
+                raise DynoplanError(f"{file}: reads {dim} values, the manifest's state_dim "
+                                    f"is {manifest.state_dim}")
+
+        goal_map = feature_map(manifest.goal.features, "the goal heuristic")
+        network = GoalNetwork.load(manifest.goal.path)
+        reads(manifest.goal.path, network.state_dim, goal_map)
+        goal: GoalModel = network if goal_map is None else GoalOnFeatures(network, goal_map)
+        regions: RegionsModel | None = None
+        if manifest.regions is not None:
+            region_map = feature_map(manifest.regions.features, "the safety regions")
+            fitted = SafetyRegions.load(manifest.regions.path)
+            reads(manifest.regions.path, fitted.state_dim, region_map)
+            unknown = [n for n in fitted.option_names if n not in manifest.option_names]
+            if unknown:
+                raise DynoplanError(f"{manifest.regions.path}: regions of options {unknown} "
+                                    f"not in the manifest's {manifest.option_names}")
+            regions = fitted if region_map is None else RegionsOnFeatures(fitted, region_map)
         dynamics: dict[str, DynamicsModel] = {}
-        for name in names:
-            file = files.get(name)
-            if not isinstance(file, str):
+        for name, file in manifest.dynamics.items():
+            if file is None:
                 raise DynoplanError(f"{index}: option '{name}' has no dynamics model file")
-            dynamics[name] = MLPEnsembleDynamics.load(root / file)
-        regions_file = doc.get("regions")
-        regions = SafetyRegions.load(root / regions_file) if isinstance(regions_file,
-                                                                        str) else None
-        stride = doc.get("stride", 1)
-        if not isinstance(stride, int) or stride < 1:
-            raise DynoplanError(f"{index}: field 'stride' must be a positive integer")
-        return cls([str(n) for n in names], dynamics, GoalNetwork.load(root / str(doc["goal"])),
-                   regions, stride, dict(doc.get("report", {})),
-                   bool(doc.get("use_regions", True)))
+            model = MLPEnsembleDynamics.load(file)
+            if model.state_dim != manifest.state_dim or model.option != name:
+                raise DynoplanError(f"{file}: a model of option '{model.option}' on "
+                                    f"{model.state_dim} values, expected '{name}' on "
+                                    f"{manifest.state_dim}")
+            dynamics[name] = model
+        extra = dict(manifest.extra)
+        report = extra.pop("report", {})
+        return cls(manifest.option_names, dynamics, goal, regions, manifest.stride,
+                   report if isinstance(report, dict) else {}, manifest.use_regions,
+                   manifest.task, extra)
+
+    def stacked_dynamics(self) -> StackedDynamics:
+        """All options' ensembles as one ``(options, samples, state_dim)`` sampler."""
+        models = [self.dynamics[n] for n in self.option_names]
+        if not all(isinstance(m, MLPEnsembleDynamics) for m in models):
+            raise DynoplanError("stacking needs every option's dynamics to be an MLP ensemble")
+        return MLPEnsembleDynamics.stack(models)  # type: ignore[arg-type]
+
+
+def _unwrap_goal(goal: GoalModel) -> tuple[GoalNetwork, str | None]:
+    if isinstance(goal, GoalOnFeatures):
+        return goal.network, goal.features.name
+    return goal, None
+
+
+def _unwrap_regions(regions: RegionsModel) -> tuple[SafetyRegions, str | None]:
+    if isinstance(regions, RegionsOnFeatures):
+        return regions.regions, regions.features.name
+    return regions, None
 
 
 def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                demos: Sequence[Episode], settings: FitSettings, seed: int,
                state_fn: ObservationFn = flat_state,
                fitter: DynamicsFitter | None = None,
-               progress: Callable[[str], None] | None = None) -> FittedModels:
+               progress: Callable[[str], None] | None = None,
+               task: str = "") -> FittedModels:
     """Fit dynamics (on transitions and demonstrations), goal and regions (on demonstrations).
 
     Args:
         progress: called with a short message before each stage (for a status line).
+        task: the task's name, recorded in the models folder.
     """
     settings.validate()
     names = [s.name for s in specs]
@@ -418,4 +489,4 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
               "regions": None if regions is None else {
                   "components": regions.n_components, "options": regions.option_names}}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
-                        settings.regions)
+                        settings.regions, task)

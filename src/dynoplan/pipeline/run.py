@@ -229,7 +229,8 @@ def run_pipeline(
                                       seeds["exploration"], state_fn,
                                       settings.exploration_option_steps, progress=progress)
     models = fit_models(specs, transitions, demo_episodes, settings.fit, seeds["fit"],
-                        state_fn, fitter, say)
+                        state_fn, fitter, say, task.name if task is not None else
+                        _env_id(environment) or "")
     run_options, planner_options = models.build(specs)
     models_dir = models.save(folder / "models") if folder is not None else None
     say("evaluation")

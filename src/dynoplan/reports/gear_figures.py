@@ -31,7 +31,8 @@ from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_data import CAUTIOUS
 from dynoplan.experiments.gear_model_files import HELDOUT_DIR, load_gear_models
 from dynoplan.io import ensure_writable_dir, write_json, write_with
-from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
+from dynoplan.models.features import RegionsOnFeatures
+from dynoplan.pipeline.fit import GoalModel
 from dynoplan.progress import track
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
@@ -41,7 +42,7 @@ GOAL_FIGURE = "fig3a_goal_heuristic.png"
 TSNE_FIGURE = "fig3b_tsne_regions.png"
 
 
-def plot_goal_trial(goal: GoalOnFeatures, states: FloatArray, truth: FloatArray,
+def plot_goal_trial(goal: GoalModel, states: FloatArray, truth: FloatArray,
                     labels: IntArray, path: Path, title: str) -> dict[str, float]:
     """Fig. 3(a): ``G``'s mean and 90% interval against ground-truth progress.
 
@@ -175,6 +176,9 @@ def make_gear_figures(models: Path, demos: Path, heldout: Path | None, out: Path
         The content of ``figures.json``: the files and the numbers each figure shows.
     """
     loaded = load_gear_models(models)
+    if not isinstance(loaded.regions, RegionsOnFeatures):
+        raise DynoplanError(f"{models}: Fig. 3(b) needs regions fitted on a feature map")
+    regions = loaded.regions
     if heldout is None:
         heldout = models / HELDOUT_DIR
     train_set, held_set = read_dataset(demos), read_dataset(heldout)
@@ -204,7 +208,7 @@ def make_gear_figures(models: Path, demos: Path, heldout: Path | None, out: Path
 
     def fig3b() -> None:
         numbers["fig3b"] = plot_tsne_regions(
-            all_states[keep], all_labels[keep], all_flags[keep], loaded.regions,
+            all_states[keep], all_labels[keep], all_flags[keep], regions,
             out / TSNE_FIGURE, seed,
             f"t-SNE of {len(keep)} planner states from {len(pool)} trials "
             f"({sum(bool(p[2][0]) for p in pool)} with the human interfering)")
