@@ -10,9 +10,11 @@ from dynoplan.options import (
     AllOf,
     AnyOf,
     ConstantTermination,
+    Everywhere,
     FunctionPolicy,
     InitiationFromCallable,
     Option,
+    TerminationFromCallable,
 )
 from dynoplan.planning import Plan
 
@@ -136,3 +138,78 @@ def test_initiation_sets_compose_as_intersection_and_union():
     assert AnyOf(left, small).contains(states).tolist() == [True, True, True, False]
     with pytest.raises(ValueError, match="at least one"):
         AnyOf()
+
+
+_CONTINUATION_BUG = pytest.mark.xfail(
+    strict=True, reason="issue 16: a running option is judged by its initiation set")
+
+
+def _starts_below_2_continues_anywhere():
+    """Moves +1 per step; may start only at x < 2, may go on anywhere; stops at x >= 6."""
+    return Option("up", FunctionPolicy(lambda o, r: np.array([1.0])), _Identity(),
+                  TerminationFromCallable(lambda s: (s[:, 0] >= 6).astype(float)),
+                  initiation=InitiationFromCallable(lambda s: s[:, 0] < 2),
+                  continuation=Everywhere())
+
+
+@pytest.mark.parametrize("replan_every", [None, pytest.param(1, marks=_CONTINUATION_BUG)])
+def test_a_running_option_goes_on_in_its_continuation_set_beyond_its_initiation_set(
+        replan_every):
+    """Started at x = 0 (inside its initiation set x < 2), the option runs to its own end
+    at x = 6 whether or not the controller replans on the way: at a replan the running
+    option is judged by its continuation set, not by where it may start."""
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.planning import OptionPlanner
+
+    options = [_starts_below_2_continues_anywhere()]
+    controller = Controller(options, OptionPlanner(options, NoisyWalkGoal(0.0), horizon=3,
+                                                   samples=2),
+                            max_decisions=20, replan_every=replan_every)
+    trace = controller.run(Line(), np.random.default_rng(0), seed=0)
+    ran = [d for d in trace.decisions if d.option is not None]
+    assert ran[-1].state_after[0] == 6.0 and ran[-1].stop_reason == "terminated"
+    assert all(d.option == "up" and not d.outside_region for d in ran)
+    assert trace.env_steps == 6 and trace.out_of_region_starts == 0
+
+
+@_CONTINUATION_BUG
+def test_the_planner_scores_a_running_option_under_its_continuation_set():
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.planning import OptionPlanner
+
+    planner = OptionPlanner([_starts_below_2_continues_anywhere()], NoisyWalkGoal(0.0))
+    state, rng = np.array([3.0]), np.random.default_rng(0)
+    assert not planner.choose(state, rng).admissible[0]  # may not start at x = 3
+    plan = planner.choose(state, rng, running=0)  # but may go on there
+    assert plan.admissible[0] and plan.chosen == 0 and np.isfinite(plan.scores[0])
+
+
+class RestorableLine(Line):
+    """:class:`Line` that can take over another instance's state (for the oracle)."""
+
+    def copy_state_from(self, source):
+        self.x = source.x
+        return np.array([self.x]), {}
+
+
+@_CONTINUATION_BUG
+def test_the_simulator_oracle_judges_options_by_the_planners_sets():
+    """The oracle simulates a running option on through its continuation set, and may
+    start an option only in its initiation set, as the learned planner does."""
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.planning import SimulatorOracle
+
+    option = _starts_below_2_continues_anywhere()
+    live = RestorableLine()
+    live.reset(seed=0)
+    oracle = SimulatorOracle(live, [option], {"up": lambda env: option.policy},
+                             NoisyWalkGoal(0.0), RestorableLine(), lambda o: np.asarray(o),
+                             horizon=10)
+    rng = np.random.default_rng(0)
+    live.x = 1.0  # inside its initiation set: simulated to its own end at x = 6
+    plan = oracle.choose(np.array([1.0]), rng)
+    assert plan.chosen == 0 and plan.end_states[0, 0, 0] == 6.0 and plan.steps[0, 0] == 5
+    live.x = 3.0  # may not start at x = 3, but a running option goes on there
+    assert not oracle.choose(np.array([3.0]), rng).admissible[0]
+    plan = oracle.choose(np.array([3.0]), rng, running=0)
+    assert plan.admissible[0] and plan.end_states[0, 0, 0] == 6.0
