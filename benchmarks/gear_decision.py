@@ -62,16 +62,16 @@ def measure(models_dir: Path, episodes: int, every: int, samples: int, horizon: 
 
         option_names = own.option_names
 
-        def choose(self, state: np.ndarray, run_rng: Any) -> Any:
+        def choose(self, state: np.ndarray, run_rng: Any, running: int | None = None) -> Any:
             t0 = time.perf_counter()
-            plan = own.choose(state, run_rng)
+            plan = own.choose(state, run_rng, running)
             default_ms = 1e3 * (time.perf_counter() - t0)
             calls[0] += 1
             if plan.chosen is not None and calls[0] % every == 0 and calls[0] > warmup:
                 timings["learned_default"].append(default_ms)
                 for name, fn in (("learned", same.plan), ("oracle", oracle.choose)):
                     t0 = time.perf_counter()
-                    fn(state, rng)
+                    fn(state, rng, running)
                     timings[name].append(1e3 * (time.perf_counter() - t0))
             return plan
 

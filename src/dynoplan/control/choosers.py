@@ -1,7 +1,10 @@
 """Policies over options: the planner (Eq. 1) and the baselines it is compared with.
 
 An ``OptionChooser`` returns a :class:`~dynoplan.planning.Plan` for a state. The
-baselines fill only ``admissible`` and ``chosen``; their scores are NaN.
+baselines fill only ``admissible`` and ``chosen``; their scores are NaN. Every chooser
+judges a running option (``running``: the index of an option the controller interrupted
+to plan again) by its continuation set, the others by their initiation sets
+(:func:`~dynoplan.options.option.admissible`).
 """
 
 from collections.abc import Sequence
@@ -10,18 +13,20 @@ from typing import Protocol
 import numpy as np
 
 from dynoplan.errors import DynoplanError
-from dynoplan.options.option import Option
+from dynoplan.options.option import Option, admissible
 from dynoplan.planning.option_planner import Plan
 from dynoplan.types import BoolArray, FloatArray, Generator
 
 
 class OptionChooser(Protocol):
-    """``choose(state (state_dim,), rng) -> Plan``; ``option_names`` fixes the order."""
+    """``choose(state (state_dim,), rng, running) -> Plan``; ``option_names`` fixes the
+    order; ``running`` is the index of the option that is running (``None``: none)."""
 
     @property
     def option_names(self) -> tuple[str, ...]: ...
 
-    def choose(self, state: FloatArray, rng: Generator) -> Plan: ...
+    def choose(self, state: FloatArray, rng: Generator,
+               running: int | None = None) -> Plan: ...
 
 
 class _Baseline:
@@ -44,8 +49,8 @@ class _Baseline:
         return Plan(self.option_names, admissible, np.full(n, np.nan), np.full(n, np.nan),
                     np.full((n, 0, d), np.nan), np.zeros((n, 0), dtype=np.int64), chosen)
 
-    def _admissible(self, state: FloatArray) -> BoolArray:
-        return np.array([o.can_start(state) for o in self.options])
+    def _admissible(self, state: FloatArray, running: int | None) -> BoolArray:
+        return admissible(self.options, state, running)
 
 
 class FixedChoice(_Baseline):
@@ -55,18 +60,18 @@ class FixedChoice(_Baseline):
         super().__init__(options)
         self.chosen = self.index(name)
 
-    def choose(self, state: FloatArray, rng: Generator) -> Plan:
-        return self._plan(state, self._admissible(state), self.chosen)
+    def choose(self, state: FloatArray, rng: Generator, running: int | None = None) -> Plan:
+        return self._plan(state, self._admissible(state, running), self.chosen)
 
 
 class RandomChoice(_Baseline):
     """A uniformly random option among the admissible ones."""
 
-    def choose(self, state: FloatArray, rng: Generator) -> Plan:
-        admissible = self._admissible(state)
-        idx = np.flatnonzero(admissible)
+    def choose(self, state: FloatArray, rng: Generator, running: int | None = None) -> Plan:
+        may_run = self._admissible(state, running)
+        idx = np.flatnonzero(may_run)
         chosen = int(rng.choice(idx)) if idx.size else None
-        return self._plan(state, admissible, chosen)
+        return self._plan(state, may_run, chosen)
 
 
 class ScriptedSequence(_Baseline):
@@ -85,7 +90,7 @@ class ScriptedSequence(_Baseline):
     def reset(self) -> None:
         self._step = 0
 
-    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+    def choose(self, state: FloatArray, rng: Generator, running: int | None = None) -> Plan:
         chosen = self.sequence[min(self._step, len(self.sequence) - 1)]
         self._step += 1
-        return self._plan(state, self._admissible(state), chosen)
+        return self._plan(state, self._admissible(state, running), chosen)

@@ -11,8 +11,10 @@ One episode:
    becomes non-finite, ``replan_every`` steps pass, or ``max_option_steps`` is reached;
 5. repeat until the environment terminates or truncates, or ``max_decisions`` is hit.
 
-After an interruption by ``replan_every`` the running option is kept unless another
-option's score beats it by more than ``margin`` (keeps the choice from flapping).
+After an interruption by ``replan_every`` the chooser is told which option runs: that
+option competes where it may go on (its continuation set), the others where they may
+start; it is kept unless another option's score beats it by more than ``margin`` (keeps
+the choice from flapping).
 """
 
 import itertools
@@ -161,7 +163,7 @@ class Controller:
         running: int | None = None  # an option interrupted by ``replan_every``
         for k in range(self.max_decisions):
             t0 = time.perf_counter()
-            plan = self.chooser.choose(state, rng)
+            plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
             chosen = self._keep_running(plan, running)
             if chosen is None:
@@ -180,7 +182,7 @@ class Controller:
                     break
                 continue
             option = self.options[chosen]
-            outside = not option.can_start(state)
+            outside = not option.may_run(state, chosen == running)
             if chosen != running:
                 option.start(obs, rng)
             start_step, start_state = trace.env_steps, state
@@ -214,7 +216,10 @@ class Controller:
         return trace
 
     def _keep_running(self, plan: Plan, running: int | None) -> int | None:
-        """The margin rule: keep an interrupted option unless beaten by ``margin``."""
+        """The margin rule: keep an interrupted option unless beaten by ``margin``.
+
+        The chooser judged the running option by its continuation set, so
+        ``plan.admissible[running]`` says whether it may go on."""
         if running is None or plan.chosen is None or not plan.admissible[running]:
             return plan.chosen
         best, current = plan.scores[plan.chosen], plan.scores[running]

@@ -8,7 +8,13 @@ from dynoplan.options.initiation import (
     InitiationFromCallable,
     InRegion,
 )
-from dynoplan.options.option import FunctionPolicy, Option, OptionPolicy, PolicyFactory
+from dynoplan.options.option import (
+    FunctionPolicy,
+    Option,
+    OptionPolicy,
+    PolicyFactory,
+    admissible,
+)
 from dynoplan.options.termination import (
     ConstantTermination,
     StackedTermination,
@@ -32,5 +38,6 @@ __all__ = [
     "StackedTermination",
     "Termination",
     "TerminationFromCallable",
+    "admissible",
     "stack_terminations",
 ]

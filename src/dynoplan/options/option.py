@@ -5,7 +5,9 @@ Lifecycle (like a behaviour tree's ``initialise / update / terminate``):
 1. ``can_start(state)`` -- the controller only starts an option inside ``I_w``; once
    running, it stops the option when ``can_continue(state)`` turns false (the
    continuation set, ``I_w`` unless given: a precondition that only matters at the start
-   -- a move may not start at its goal -- is left out of it).
+   -- a move may not start at its goal -- is left out of it). When the controller
+   interrupts a running option to plan again, the option competes under its
+   continuation set (:func:`admissible`).
 2. ``start(observation, rng)`` -- once, when the option is chosen (a motion-planned
    option plans here; a neural one may reset a recurrent state).
 3. ``act(observation) -> action`` -- once per environment step; must not block for long.
@@ -13,7 +15,7 @@ Lifecycle (like a behaviour tree's ``initialise / update / terminate``):
    also stops when the policy says its own work is finished.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -22,7 +24,7 @@ import numpy as np
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.options.initiation import Everywhere, Initiation
 from dynoplan.options.termination import Termination
-from dynoplan.types import Generator
+from dynoplan.types import BoolArray, Generator
 
 
 class OptionPolicy:
@@ -102,9 +104,23 @@ class Option:
     def act(self, observation: Any) -> Any:
         return self.policy.act(observation)
 
+    def may_run(self, state: np.ndarray, running: bool) -> bool:
+        """Whether the option may run at ``state``: start there (``running=False``: its
+        initiation set) or go on there (``running=True``: its continuation set)."""
+        return self.can_continue(state) if running else self.can_start(state)
+
     def should_stop(self, state: np.ndarray, rng: Generator) -> bool:
         """Draw termination after a step: ``beta_w(state)``, or the policy is finished."""
         if self.policy.finished():
             return True
         beta = float(self.termination.probability(np.asarray(state, dtype=np.float64)[None])[0])
         return bool(rng.random() < beta)
+
+
+def admissible(options: Sequence[Option], state: np.ndarray,
+               running: int | None = None) -> BoolArray:
+    """``1_{I_w}(s)`` for every option, ``(options,)``: each option may start where its
+    initiation set holds, and the running one (index ``running``: an option the
+    controller interrupted to plan again) may go on where its continuation set holds."""
+    return np.array([o.may_run(state, k == running) for k, o in enumerate(options)],
+                    dtype=bool)

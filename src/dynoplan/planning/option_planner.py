@@ -23,7 +23,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import StackedDynamics, stack_dynamics, trajectory_sampler
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import Everywhere
-from dynoplan.options.option import Option
+from dynoplan.options.option import Option, admissible
 from dynoplan.options.termination import StackedTermination, stack_terminations
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
@@ -110,25 +110,30 @@ class OptionPlanner:
     def option_names(self) -> tuple[str, ...]:
         return tuple(o.name for o in self.options)
 
-    def admissible(self, state: FloatArray) -> BoolArray:
-        """``1_{I_w}(s)`` for every option, shape ``(options,)``."""
-        s = np.asarray(state, dtype=np.float64)[None]
-        return np.array([bool(o.initiation.contains(s)[0]) for o in self.options])
+    def admissible(self, state: FloatArray, running: int | None = None) -> BoolArray:
+        """``1_{I_w}(s)`` for every option, shape ``(options,)``; the running option's
+        continuation set stands for its initiation set (:func:`admissible`)."""
+        return admissible(self.options, state, running)
 
-    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+    def choose(self, state: FloatArray, rng: Generator, running: int | None = None) -> Plan:
         """Alias of :meth:`plan`, so the planner is an ``OptionChooser``."""
-        return self.plan(state, rng)
+        return self.plan(state, rng, running)
 
-    def plan(self, state: FloatArray, rng: Generator) -> Plan:
-        """Score every admissible option from ``state`` (shape ``(state_dim,)``)."""
+    def plan(self, state: FloatArray, rng: Generator, running: int | None = None) -> Plan:
+        """Score every admissible option from ``state`` (shape ``(state_dim,)``).
+
+        ``running``: the index of an option that is running (the controller interrupted
+        it to plan again); it is admissible where it may go on, not only where it may
+        start.
+        """
         s = np.asarray(state, dtype=np.float64).reshape(-1)
         n_opt, d = len(self.options), s.shape[0]
-        admissible = self.admissible(s)
+        may_run = self.admissible(s, running)
         scores = np.full(n_opt, np.nan)
         spreads = np.full(n_opt, np.nan)
         end_states = np.full((n_opt, self.samples, d), np.nan)
         steps = np.zeros((n_opt, self.samples), dtype=np.int64)
-        idx = tuple(int(i) for i in np.flatnonzero(admissible))
+        idx = tuple(int(i) for i in np.flatnonzero(may_run))
         chosen: int | None = None
         if idx:
             roll = self.rollout(idx, s, rng)
@@ -140,7 +145,7 @@ class OptionPlanner:
             end_states[list(idx)] = roll.end_states
             steps[list(idx)] = roll.steps
             chosen = idx[int(np.argmax(scores[list(idx)]))]
-        return Plan(self.option_names, admissible, scores, spreads, end_states, steps, chosen)
+        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen)
 
     def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator) -> Rollouts:
         """Roll the given options forward from ``state``: one batched step per horizon step.

@@ -19,7 +19,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.option import Option, OptionPolicy, PolicyFactory
+from dynoplan.options.option import Option, OptionPolicy, PolicyFactory, admissible
 from dynoplan.planning.option_planner import Plan
 from dynoplan.types import FloatArray, Generator
 
@@ -77,15 +77,18 @@ class SimulatorOracle:
     def option_names(self) -> tuple[str, ...]:
         return tuple(o.name for o in self.options)
 
-    def choose(self, state: FloatArray, rng: Generator) -> Plan:
+    def choose(self, state: FloatArray, rng: Generator, running: int | None = None) -> Plan:
+        """Eq. 1 by simulation; options may run as for the learned planner
+        (:func:`~dynoplan.options.option.admissible`: the running one under its
+        continuation set, the others under their initiation sets)."""
         n, s, d = len(self.options), self.samples, len(state)
-        admissible = np.array([o.can_start(state) for o in self.options])
+        may_run = admissible(self.options, state, running)
         scores = np.full(n, np.nan)
         spreads = np.full(n, np.nan)
         end_states = np.full((n, s, d), np.nan)
         steps = np.zeros((n, s), dtype=np.int64)
         for k, option in enumerate(self.options):
-            if not admissible[k]:
+            if not may_run[k]:
                 continue
             values = np.empty(s)
             for j in range(s):
@@ -93,8 +96,8 @@ class SimulatorOracle:
                 end_states[k, j], steps[k, j] = end, taken
                 values[j] = float(self.goal.sample(end[None], rng)[0])
             scores[k], spreads[k] = values.mean(), values.std()
-        chosen = int(np.nanargmax(scores)) if admissible.any() else None
-        return Plan(self.option_names, admissible, scores, spreads, end_states, steps, chosen)
+        chosen = int(np.nanargmax(scores)) if may_run.any() else None
+        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen)
 
     def _rollout(self, option: Option, rng: Generator) -> tuple[FloatArray, int]:
         """Simulate ``option`` from the live state; its end state and decisions taken."""
@@ -109,7 +112,7 @@ class SimulatorOracle:
                 if policy.finished() or terminated or truncated:
                     return self.state_fn(obs), decision
             state = self.state_fn(obs)
-            if not option.can_start(state):
+            if not option.can_continue(state):  # as the controller stops it
                 return state, decision
             beta = float(option.termination.probability(state[None])[0])
             if rng.random() < beta:
