@@ -26,6 +26,7 @@ import numpy as np
 from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.experiments.gear_collect import CollectJob, build_collection, collect_option_run
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_eval import seconds
 from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation, evaluate_episode
 from dynoplan.seeding import episode_seeds
 
@@ -65,7 +66,7 @@ def main() -> None:
         result[name] = {"tasks": n, "cpu_s_mean": round(float(np.mean([r[2] for r in rows])), 2),
                         "wall_s_mean": round(float(np.mean([r[1] for r in rows])), 2),
                         "wall_s_max": round(float(np.max([r[1] for r in rows])), 2),
-                        "simulated_s_mean": round(float(np.mean([r[0].seconds for r in rows])), 1)}
+                        "simulated_s_mean": round(float(np.mean([seconds(r[0]) for r in rows])), 1)}
     state = build_collection(CollectJob(args.models, OPTION_NAMES, 0, 30))
     rows = [timed(collect_option_run, state, (name, r)) for name in OPTION_NAMES
             for r in range(args.runs)]

@@ -11,7 +11,7 @@ Reported:
   local runtime's start), ``speedup_map = serial_s / parallel_map_s`` and ``speedup =
   serial_s / (parallel_map_s + ray_start_s)``;
 - ``identical``: every episode's metrics equal, all but the wall-clock decision
-  latencies (``EpisodeMetrics`` minus ``decision_ms``);
+  latencies (``EpisodeRecord`` minus ``decision_ms``);
 - per-episode wall times of the serial run (p50, p90, max, mean; the first includes the
   set-up), for estimating larger runs;
 - bytes a task sends (its job and seed, pickled) and returns (its metrics), and the
@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.experiments.gear_controllers import PlannerSettings
+from dynoplan.experiments.gear_eval import seconds
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.io import write_json
@@ -144,7 +145,7 @@ def main() -> None:
                       "p90": round(float(np.quantile(per_episode, 0.9)), 2),
                       "max": round(float(per_episode.max()), 2),
                       "mean": round(float(per_episode.mean()), 2)},
-        "simulated_s_mean": round(float(np.mean([m.seconds for m in serial])), 1),
+        "simulated_s_mean": round(float(np.mean([seconds(m) for m in serial])), 1),
         "task_in_bytes": len(pickle.dumps((job, seeds[0]))),
         "task_out_bytes": int(np.mean([len(pickle.dumps(m)) for m in serial])),
         "models_bytes": models_bytes,

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
 from dynoplan.control import Controller, FixedChoice
-from dynoplan.envs.gear.env import HOME_Q, RIGHT_HOLD
+from dynoplan.envs.gear.env import CONTROL_DT, HOME_Q, RIGHT_HOLD
 from dynoplan.envs.gear.features import HUMAN_DISTANCE_CAP, RELATIVE, feature_map
 from dynoplan.envs.gear.options.moves import PreInsertionBeta
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
@@ -25,10 +25,11 @@ from dynoplan.experiments.gear_controllers import (
     not_carried,
     preconditions,
 )
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS
 from dynoplan.experiments.gear_run import video_episode
 from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
+from dynoplan.pipeline.evaluate import EpisodeRecord
 
 REQUIRED = ("controller", "success_rate", "contacts", "min_human_distance",
             "out_of_region_starts", "switches", "decision_ms_p50", "decision_ms_p99")
@@ -141,7 +142,9 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
 
 def test_the_video_shows_the_shortest_successful_switch_to_the_cautious_move():
     def episode(options, mode="cross", success=True, seconds=10.0):
-        return EpisodeMetrics(0, mode, success, seconds, 0, 1.0, 0, 0, 0, (), options)
+        steps = round(seconds / CONTROL_DT)
+        return EpisodeRecord(0, success, steps, 0.0, len(options), 0, 0, 0, (), (), options,
+                             {"human_mode": mode, "contacts": 0, "min_human_distance": 1.0})
 
     fast, cautious = ("pick", "fast_move", "insert"), ("pick", "cautious_move", "insert")
     episodes = [episode(fast), episode(cautious, success=False, seconds=5.0),
@@ -198,13 +201,13 @@ def test_gear_episode_replays_an_evaluation_episode_decision_by_decision(quick_g
     assert result.exit_code == 0, result.output
     replay = json.loads((out / "summary.json").read_text())
     evaluated = json.loads((quick_gear_run / "episodes.json").read_text())["dynoplan"][2]
-    for key in ("seed", "human_mode", "success", "seconds", "contacts", "switches", "holds",
-                "out_of_region_starts", "options"):
+    for key in ("env_seed", "success", "env_steps", "switches", "no_admissible",
+                "out_of_region_starts", "options", "option_steps", "task_metrics"):
         assert replay[key] == evaluated[key], key
     with (out / "trace.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [r["option"] for r in rows] == evaluated["options"]
-    assert sum(int(r["contacts"]) for r in rows) == evaluated["contacts"]
+    assert sum(int(r["contacts"]) for r in rows) == evaluated["task_metrics"]["contacts"]
     assert {"score_pick", "score_insert", "admissible", "tool_hand_m"} <= set(rows[0])
     # the rendered episode is the same episode
     assert replay["video"]["success"] == evaluated["success"]

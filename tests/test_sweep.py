@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_eval import EpisodeMetrics
 from dynoplan.experiments.gear_jobs import EvalJob
 from dynoplan.experiments.sweep import cell_key, run_sweep
 from dynoplan.experiments.sweep_config import load_sweep_config
+from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.seeding import EpisodeSeed
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,13 +37,14 @@ def fake_setup(job: EvalJob) -> EvalJob:
     return job
 
 
-def fake_run(job: EvalJob, seed: EpisodeSeed) -> EpisodeMetrics:
+def fake_run(job: EvalJob, seed: EpisodeSeed) -> EpisodeRecord:
     """A stand-in episode: succeeds when horizon + episode index is even."""
     calls.append((job.planner.horizon, seed.index))
     if len(calls) == STOP_AT[0]:
         raise KeyboardInterrupt  # the user pressed Ctrl-C mid-sweep
-    return EpisodeMetrics(seed.env_seed, "away", (job.planner.horizon + seed.index) % 2 == 0,
-                          1.0, 0, 0.5, 0, 1, 0, (0.1,), ("pick",))
+    return EpisodeRecord(seed.env_seed, (job.planner.horizon + seed.index) % 2 == 0, 20, 0.0,
+                         1, 1, 0, 0, (0.1,), (("pick", 20),), ("pick",),
+                         {"human_mode": "away", "contacts": 0, "min_human_distance": 0.5})
 
 
 STOP_AT = [0]

@@ -318,6 +318,7 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
+    from dynoplan.experiments.gear_eval import seconds
     from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
     from dynoplan.experiments.gear_run import save_video, video_clip
     from dynoplan.io import ensure_writable_dir, write_csv, write_json
@@ -333,11 +334,12 @@ def episode(
         summary["video"] = save_video(clip, metrics, index, out / "episode.mp4")
     write_json(out / "summary.json", summary)
     events = ", ".join(human["events"]) or "away"
+    measured = metrics.task_metrics
     typer.echo(f"episode {index} ({events}): {controller} "
-               f"{'succeeded' if metrics.success else 'failed'} in {metrics.seconds:.2f} s, "
-               f"{metrics.contacts} contacts, min human distance "
-               f"{metrics.min_human_distance:.3f} m, {metrics.switches} switches, "
-               f"{metrics.holds} holds")
+               f"{'succeeded' if metrics.success else 'failed'} in {seconds(metrics):.2f} s, "
+               f"{measured['contacts']} contacts, min human distance "
+               f"{measured['min_human_distance']:.3f} m, {metrics.switches} switches, "
+               f"{metrics.no_admissible} holds")
     for row in rows:
         if row["contacts"]:
             typer.echo(f"  contact at {row['time_s']:.2f} s during {row['option']} "

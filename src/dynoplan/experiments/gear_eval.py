@@ -20,7 +20,6 @@ same metrics.
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -31,7 +30,7 @@ from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.options.initiation import RegionModel
-from dynoplan.pipeline.evaluate import quantile_or_none
+from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
 from dynoplan.progress import track
 from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray
@@ -44,51 +43,43 @@ RESULT_COLUMNS = (
 """Columns of ``results.csv``, in order."""
 
 
-@dataclass(frozen=True)
-class EpisodeMetrics:
-    """What one episode of one controller did."""
+def seconds(record: EpisodeRecord) -> float:
+    """The episode's simulated duration (s)."""
+    return record.env_steps * CONTROL_DT
 
-    seed: int
-    human_mode: str
-    success: bool
-    seconds: float
-    contacts: int
-    min_human_distance: float
-    out_of_region_starts: int
-    switches: int
-    holds: int
-    decision_ms: tuple[float, ...]
-    options: tuple[str, ...]
+
+def human_mode(record: EpisodeRecord) -> str:
+    """The human's behaviour in the episode (``away``, ``cross``, ``block``)."""
+    return str(record.task_metrics["human_mode"])
+
+
+def gear_metrics(env: GearAssemblyEnv, infos: Sequence[dict[str, Any]],
+                 min_distance: float = np.inf) -> dict[str, Any]:
+    """The gear's own measurements of an episode from its steps' ``infos``: the human's
+    behaviour, robot-human contacts and the smallest robot-human distance (m; also
+    over ``min_distance``, for example the distance at the reset)."""
+    return {"human_mode": env.schedule.mode,
+            "contacts": int(sum(int(i["human_contacts"]) for i in infos)),
+            "min_human_distance": float(min([min_distance, *(
+                float(i["min_human_distance"]) for i in infos)]))}
 
 
 def trace_metrics(trace: EpisodeTrace, env: GearAssemblyEnv, seed: int,
-                  regions: RegionModel | None = None) -> EpisodeMetrics:
-    """Metrics of a controller's episode (the trace must have ``record_infos``).
+                  regions: RegionModel | None = None) -> EpisodeRecord:
+    """The record of a controller's episode (the trace must have ``record_infos``).
 
     Option starts outside their regions are counted against ``regions`` when given (so a
     controller that ignores the regions, like the fixed script, is measured against the
     same learned regions as the others), else as the controller saw them."""
-    infos = trace.infos
-    if regions is None:
-        outside = trace.out_of_region_starts
-    else:
-        outside = sum(1 for d in trace.decisions if d.option is not None
-                      and not bool(regions.contains(d.state[None], d.option)[0]))
-    return EpisodeMetrics(
-        seed=seed, human_mode=env.schedule.mode, success=trace.success,
-        seconds=trace.env_steps * CONTROL_DT,
-        contacts=int(sum(int(i["human_contacts"]) for i in infos)),
-        min_human_distance=float(min((float(i["min_human_distance"]) for i in infos),
-                                     default=np.inf)),
-        out_of_region_starts=outside, switches=trace.switches,
-        holds=trace.no_admissible,
-        decision_ms=tuple(1e3 * s for s in trace.latencies_s),
-        options=tuple(d.option or "hold" for d in trace.decisions))
+    outside = None if regions is None else sum(
+        1 for d in trace.decisions
+        if d.option is not None and not bool(regions.contains(d.state[None], d.option)[0]))
+    return EpisodeRecord.of(trace, seed, gear_metrics(env, trace.infos), outside)
 
 
 def controller_episode(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv,
                        controller: Controller, seed: EpisodeSeed,
-                       regions: RegionModel | None = None) -> EpisodeMetrics:
+                       regions: RegionModel | None = None) -> EpisodeRecord:
     """One seeded episode of ``controller`` on ``env`` (``gear_env`` itself or a wrapper
     of it, for example a fault); out-of-region starts are counted against ``regions``
     when given (see :func:`trace_metrics`). OMPL is reseeded from the episode's seed
@@ -124,68 +115,72 @@ class _Recorder(gym.Wrapper[Any, Any, Any, Any]):
 
 def run_controller(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv, controller: Controller,
                    seeds: Sequence[EpisodeSeed], name: str, progress: bool = True,
-                   regions: RegionModel | None = None) -> list[EpisodeMetrics]:
+                   regions: RegionModel | None = None) -> list[EpisodeRecord]:
     """:func:`controller_episode` on every seed, in order, in this process."""
     return [controller_episode(env, gear_env, controller, s, regions)
             for s in track(seeds, name, total=len(seeds), enabled=progress)]
 
 
 def policy_episode(env: GearAssemblyEnv, act: Callable[[FloatArray], FloatArray],
-                   seed: EpisodeSeed) -> EpisodeMetrics:
-    """One seeded episode of a flat policy ``act(observation) -> action``; its "decision
-    latency" is the time of one ``act`` call."""
+                   seed: EpisodeSeed) -> EpisodeRecord:
+    """One seeded episode of a flat policy ``act(observation) -> action`` (no options, no
+    decisions: its "decision latency" is the time of one ``act`` call)."""
     obs, info = env.reset(seed=seed.env_seed)
-    contacts, min_d, ms = 0, float(info["min_human_distance"]), []
-    steps, done, success = 0, False, False
+    first_distance = float(info["min_human_distance"])
+    infos: list[dict[str, Any]] = []
+    ms: list[float] = []
+    reward, done, success = 0.0, False, False
     while not done:
         t0 = time.perf_counter()
         action = act(obs)
         ms.append(1e3 * (time.perf_counter() - t0))
-        obs, _, terminated, truncated, info = env.step(action)
-        steps += 1
-        contacts += int(info["human_contacts"])
-        min_d = min(min_d, float(info["min_human_distance"]))
+        obs, r, terminated, truncated, info = env.step(action)
+        infos.append(info)
+        reward += float(r)
         success = bool(info["is_success"])
         done = terminated or truncated
-    return EpisodeMetrics(seed.env_seed, env.schedule.mode, success, steps * CONTROL_DT,
-                          contacts, min_d, 0, 0, 0, tuple(ms), ())
+    return EpisodeRecord(seed.env_seed, success, len(infos), reward, 0, 0, 0, 0, tuple(ms),
+                         (), (), gear_metrics(env, infos, first_distance))
 
 
 def run_policy(env: GearAssemblyEnv, act: Callable[[FloatArray], FloatArray],
                seeds: Sequence[EpisodeSeed], name: str,
-               progress: bool = True) -> list[EpisodeMetrics]:
+               progress: bool = True) -> list[EpisodeRecord]:
     """:func:`policy_episode` on every seed, in order, in this process."""
     return [policy_episode(env, act, s)
             for s in track(seeds, name, total=len(seeds), enabled=progress)]
 
 
-def summarise(name: str, episodes: Sequence[EpisodeMetrics]) -> dict[str, Any]:
+def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
     """One row of ``results.csv`` (see :data:`RESULT_COLUMNS`) plus per-mode success."""
     ms = [m for e in episodes for m in e.decision_ms]
     ok = [e for e in episodes if e.success]
+    contacts = [int(e.task_metrics["contacts"]) for e in episodes]
     row: dict[str, Any] = {
         "controller": name,
         "episodes": len(episodes),
         "success_rate": float(np.mean([e.success for e in episodes])) if episodes else 0.0,
-        "time_to_success_s": float(np.median([e.seconds for e in ok])) if ok else None,
-        "contacts": int(sum(e.contacts for e in episodes)),
-        "episodes_with_contact": int(sum(e.contacts > 0 for e in episodes)),
-        "min_human_distance": float(min(e.min_human_distance for e in episodes)),
+        "time_to_success_s": float(np.median([seconds(e) for e in ok])) if ok else None,
+        "contacts": int(sum(contacts)),
+        "episodes_with_contact": int(sum(c > 0 for c in contacts)),
+        "min_human_distance": float(min(e.task_metrics["min_human_distance"]
+                                        for e in episodes)),
         "out_of_region_starts": int(sum(e.out_of_region_starts for e in episodes)),
         "switches": int(sum(e.switches for e in episodes)),
-        "holds": int(sum(e.holds for e in episodes)),
+        "holds": int(sum(e.no_admissible for e in episodes)),
         "decision_ms_p50": quantile_or_none(ms, 0.5),
         "decision_ms_p99": quantile_or_none(ms, 0.99),
     }
     by_mode = {}
-    for mode in sorted({e.human_mode for e in episodes}):
-        sub = [e for e in episodes if e.human_mode == mode]
+    for mode in sorted({human_mode(e) for e in episodes}):
+        sub = [e for e in episodes if human_mode(e) == mode]
         by_mode[mode] = {"episodes": len(sub),
                          "success_rate": float(np.mean([e.success for e in sub])),
-                         "contacts": int(sum(e.contacts for e in sub))}
+                         "contacts": int(sum(int(e.task_metrics["contacts"]) for e in sub))}
     row["by_human_mode"] = by_mode
     return row
 
 
-__all__ = ["RESULT_COLUMNS", "EpisodeMetrics", "controller_episode", "policy_episode",
-           "run_controller", "run_episode", "run_policy", "summarise", "trace_metrics"]
+__all__ = ["RESULT_COLUMNS", "controller_episode", "gear_metrics", "human_mode",
+           "policy_episode", "run_controller", "run_episode", "run_policy", "seconds",
+           "summarise", "trace_metrics"]

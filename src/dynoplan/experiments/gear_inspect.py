@@ -20,9 +20,10 @@ from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
-from dynoplan.experiments.gear_eval import EpisodeMetrics, run_episode, trace_metrics
+from dynoplan.experiments.gear_eval import run_episode, trace_metrics
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
+from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 TRACE_COLUMNS = (
@@ -35,7 +36,7 @@ TRACE_COLUMNS = (
 
 def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
                     planner: PlannerSettings | None = None, frames: list[Any] | None = None
-                    ) -> tuple[EpisodeMetrics, list[dict[str, Any]], dict[str, Any]]:
+                    ) -> tuple[EpisodeRecord, list[dict[str, Any]], dict[str, Any]]:
     """Replay evaluation episode ``index`` (0-based, as in ``episodes.json``) of
     ``controller`` on the models in ``models``; with ``frames``, render it offscreen and
     append one frame per step (for :func:`~dynoplan.experiments.gear_run.video_clip`).
@@ -100,7 +101,7 @@ def decision_rows(trace: EpisodeTrace, option_names: tuple[str, ...]) -> list[di
     return rows
 
 
-def episode_summary(metrics: EpisodeMetrics, controller: str, index: int, seed: int,
+def episode_summary(metrics: EpisodeRecord, controller: str, index: int, seed: int,
                     human: dict[str, Any]) -> dict[str, Any]:
     """What ``summary.json`` of ``dynoplan gear episode`` holds."""
     out = {"controller": controller, "index": index, "seed": seed, **asdict(metrics),

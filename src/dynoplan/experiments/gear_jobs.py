@@ -20,10 +20,10 @@ from dynoplan.control import Controller
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
-from dynoplan.experiments.gear_eval import EpisodeMetrics, controller_episode, policy_episode
+from dynoplan.experiments.gear_eval import controller_episode, policy_episode
 from dynoplan.options.initiation import RegionModel
 from dynoplan.parallel import SERIAL, Workers
-from dynoplan.pipeline.evaluate import evaluate_many
+from dynoplan.pipeline.evaluate import EpisodeRecord, evaluate_many
 from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray
 
@@ -84,7 +84,7 @@ class EvalState:
     act: Callable[[FloatArray], FloatArray] | None
     regions: RegionModel | None
 
-    def episode(self, seed: EpisodeSeed) -> EpisodeMetrics:
+    def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
         """:func:`evaluate_episode` on this state."""
         return evaluate_episode(self, seed)
 
@@ -119,7 +119,7 @@ def build_evaluation(job: EvalJob) -> EvalState:
     return EvalState(env, gear_env, controller, None, models.regions)
 
 
-def evaluate_episode(state: EvalState, seed: EpisodeSeed) -> EpisodeMetrics:
+def evaluate_episode(state: EvalState, seed: EpisodeSeed) -> EpisodeRecord:
     """One seeded episode on a worker's state (the ``run`` of the job)."""
     if state.controller is not None:
         return controller_episode(state.env, state.gear_env, state.controller, seed,
@@ -129,7 +129,7 @@ def evaluate_episode(state: EvalState, seed: EpisodeSeed) -> EpisodeMetrics:
 
 
 def evaluate(job: EvalJob, seeds: Sequence[EpisodeSeed], workers: Workers = SERIAL,
-             description: str | None = None, progress: bool = False) -> list[EpisodeMetrics]:
+             description: str | None = None, progress: bool = False) -> list[EpisodeRecord]:
     """``job`` on every seed, on ``workers``; one result per seed, in order."""
     return evaluate_many([(job, seeds)], workers, description or job.controller, progress)[0]
 

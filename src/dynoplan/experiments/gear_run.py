@@ -37,8 +37,9 @@ from dynoplan.envs.gear.options.catalog import NEURAL_FILES
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import (
     RESULT_COLUMNS,
-    EpisodeMetrics,
+    human_mode,
     run_episode,
+    seconds,
     summarise,
 )
 from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation
@@ -46,7 +47,7 @@ from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
 from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
-from dynoplan.pipeline.evaluate import evaluate_many
+from dynoplan.pipeline.evaluate import EpisodeRecord, evaluate_many
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -222,7 +223,7 @@ def evaluate_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          settings: GearRunSettings, flat_folder: Path | None,
                          progress: bool, workers: Workers = SERIAL,
                          names: Sequence[str] = CONTROLLERS,
-                         ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeMetrics]]]:
+                         ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
     """The controllers ``names`` (of :data:`CONTROLLERS`), and the flat policy if
     ``flat_folder``, on ``seeds``; the oracle on the first ``settings.oracle_episodes``
     of them. All their episodes are one map on ``workers`` (the oracle's first), each
@@ -265,14 +266,14 @@ def evaluate_faults(models_dir: Path, seeds: Sequence[EpisodeSeed], settings: Ge
             for fault, eps in zip(jobs, results, strict=True)]
 
 
-def video_episode(episodes: Sequence[EpisodeMetrics]) -> int:
+def video_episode(episodes: Sequence[EpisodeRecord]) -> int:
     """Which evaluated DynoPlan episode the video shows (its index in ``episodes``): one
     in which it switched to the cautious move if any, else one with the human
     interfering if any; among those, a success if any, and the shortest (the quickest to
     render), the first of equals."""
     return min(range(len(episodes)), key=lambda i: (
-        "cautious_move" not in episodes[i].options, episodes[i].human_mode == "away",
-        not episodes[i].success, episodes[i].seconds, i))
+        "cautious_move" not in episodes[i].options, human_mode(episodes[i]) == "away",
+        not episodes[i].success, seconds(episodes[i]), i))
 
 
 def render_video(models_dir: Path, seed: EpisodeSeed, planner: PlannerSettings,
@@ -302,14 +303,14 @@ def video_clip(frames: Sequence[Any], success: bool, options: Sequence[str]) -> 
     return {"mp4": mp4, "success": success, "options": _runs(options)}
 
 
-def save_video(video: dict[str, Any], evaluated: EpisodeMetrics, index: int,
+def save_video(video: dict[str, Any], evaluated: EpisodeRecord, index: int,
                path: Path) -> dict[str, Any]:
     """Write :func:`video_clip`'s file to ``path``; its entry of ``summary.json``."""
     def write(tmp: Path) -> None:
         tmp.write_bytes(video["mp4"])
 
     write_with(path, write)
-    return {"file": path.name, "episode": index, "human_mode": evaluated.human_mode,
+    return {"file": path.name, "episode": index, "human_mode": human_mode(evaluated),
             "success": video["success"], "options": video["options"]}
 
 

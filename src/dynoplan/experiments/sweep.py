@@ -25,13 +25,14 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS, EpisodeMetrics, summarise
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS, summarise
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.experiments.sweep_config import Cell, SweepConfig, load_sweep_config
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
+from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -66,7 +67,7 @@ def read_cell(path: Path, cell: Cell, models_sha256: str) -> dict[str, Any] | No
 
 
 def write_cell(path: Path, cell: Cell, models_sha256: str,
-               episodes: Sequence[EpisodeMetrics]) -> dict[str, Any]:
+               episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
     """Write ``cell``'s result atomically; return its row."""
     row = summarise(cell.controller, episodes)
     write_json(path, {"format": CELL_FORMAT, "version": CELL_VERSION,
@@ -78,7 +79,7 @@ def write_cell(path: Path, cell: Cell, models_sha256: str,
 def run_sweep(config_path: Path, out: Path, workers: Workers = SERIAL, progress: bool = True,
               log: Callable[[str], None] = lambda _: None, *,
               setup: Callable[[EvalJob], Any] = build_evaluation,
-              run: Callable[[Any, EpisodeSeed], EpisodeMetrics] = evaluate_episode,
+              run: Callable[[Any, EpisodeSeed], EpisodeRecord] = evaluate_episode,
               ) -> dict[str, Any]:
     """Run (or finish) the sweep of ``config_path`` into ``out``; return the summary.
 
@@ -114,7 +115,7 @@ def run_sweep(config_path: Path, out: Path, workers: Workers = SERIAL, progress:
         for s in episode_seeds(cell.seed + EVAL_SEED_OFFSET, cell.episodes):
             tasks.append((job, s))
             owner.append(i)
-    buffers: dict[int, dict[int, EpisodeMetrics]] = {i: {} for i in todo}
+    buffers: dict[int, dict[int, EpisodeRecord]] = {i: {} for i in todo}
     for t, metrics in imap_unordered(setup, run, tasks, workers, "sweep episodes", progress):
         i = owner[t]
         buffers[i][t] = metrics

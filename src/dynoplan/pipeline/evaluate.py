@@ -5,7 +5,7 @@ so the rows of a results table differ only by the controller.
 """
 
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -138,7 +138,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
 @dataclass(frozen=True)
 class EpisodeRecord:
     """What one episode of one controller did: small and picklable (what a worker sends
-    back) and all that :func:`summarize` reads.
+    back), the one record of an evaluated episode for every task, and all that
+    :func:`summarize` (or a task's own table) reads.
 
     Attributes:
         env_seed: the seed ``env.reset`` got.
@@ -149,6 +150,9 @@ class EpisodeRecord:
         no_admissible: decisions with no admissible option (holds).
         decision_ms: every decision's latency (ms), holds included.
         option_steps: ``(name, env steps it ran)`` per option that ran, sorted by name.
+        options: every decision's option in order (``"hold"`` where none ran).
+        task_metrics: what the task measures beyond these (JSON values; the gear: the
+            human's behaviour, contacts, the smallest robot-human distance).
     """
 
     env_seed: int
@@ -161,17 +165,31 @@ class EpisodeRecord:
     no_admissible: int
     decision_ms: tuple[float, ...]
     option_steps: tuple[tuple[str, int], ...]
+    options: tuple[str, ...] = ()
+    task_metrics: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, trace: EpisodeTrace, env_seed: int) -> "EpisodeRecord":
+    def of(cls, trace: EpisodeTrace, env_seed: int,
+           task_metrics: dict[str, Any] | None = None,
+           out_of_region_starts: int | None = None) -> "EpisodeRecord":
+        """The record of a controller's episode.
+
+        Args:
+            task_metrics: the task's own measurements of it.
+            out_of_region_starts: counted by the caller (for example against regions the
+                controller did not use); default: as the controller saw its options.
+        """
         ran: dict[str, int] = {}
         for d in trace.decisions:
             if d.option is not None:
                 ran[d.option] = ran.get(d.option, 0) + d.steps
+        outside = (trace.out_of_region_starts if out_of_region_starts is None
+                   else out_of_region_starts)
         return cls(env_seed, trace.success, trace.env_steps, trace.total_reward,
-                   trace.planning_steps, trace.switches, trace.out_of_region_starts,
-                   trace.no_admissible, tuple(1e3 * x for x in trace.latencies_s),
-                   tuple(sorted(ran.items())))
+                   trace.planning_steps, trace.switches, outside, trace.no_admissible,
+                   tuple(1e3 * x for x in trace.latencies_s), tuple(sorted(ran.items())),
+                   tuple(d.option or "hold" for d in trace.decisions),
+                   dict(task_metrics or {}))
 
 
 def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
