@@ -452,7 +452,7 @@ def test_read_invalid_json(written):
     (written / "data" / "metadata.json").write_text("{ truncated")
     with pytest.raises(DynoplanError) as exc:
         read_dataset(written)
-    assert_one_line_error(exc, "metadata.json", "not readable JSON")
+    assert_one_line_error(exc, "metadata.json", "not a readable dataset metadata file")
 
 
 # --- Minari reads our datasets, we read Minari's ---------------------------------------------

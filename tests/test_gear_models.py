@@ -148,7 +148,7 @@ def test_missing_truncated_and_mismatched_files_are_rejected(trained, tmp_path):
 
     folder = _copy(out, tmp_path / "c")
     (folder / MANIFEST_FILE).write_text("{not json")
-    _one_line_error(folder, "not a readable manifest")
+    _one_line_error(folder, "not a readable models manifest")
 
     for key, value in (("state_dim", 12), ("option_names", ["pick", "insert"]),
                        ("stride", 5), ("task", "another")):

@@ -1,6 +1,8 @@
 """Atomic output files: write to a temporary file beside the target, then rename.
 
 A reader never sees a half-written file: either the old file, or the complete new one.
+:func:`read_json_object` reads the JSON documents dynoplan writes back, with one error
+line for a missing, unreadable or malformed file.
 """
 
 import csv
@@ -85,3 +87,23 @@ def ensure_writable_dir(path: str | os.PathLike[str]) -> Path:
     except OSError as exc:
         raise DynoplanError(f"output folder {folder} is not writable: {exc.strerror}") from None
     return folder
+
+
+def read_json_object(path: str | os.PathLike[str], what: str = "file") -> dict[str, Any]:
+    """The JSON object in ``path``.
+
+    Raises:
+        DynoplanError: one line naming ``path`` (and ``what`` it should be): a missing or
+            unreadable file, invalid JSON, or a document that is not an object.
+    """
+    file = Path(path)
+    try:
+        doc = json.loads(file.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DynoplanError(f"{file}: not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DynoplanError(f"{file}: not a readable {what} ({exc})") from None
+    if not isinstance(doc, dict):
+        raise DynoplanError(f"{file}: not a {what} (expected a JSON object, got "
+                            f"{type(doc).__name__})")
+    return doc

@@ -16,7 +16,6 @@ The trained policy is saved without pickle: its ``state_dict`` as safetensors pl
 with the architecture and the training budget; loading rebuilds the same PPO policy.
 """
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from gymnasium import spaces
 
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
 from dynoplan.errors import DynoplanError
-from dynoplan.io import write_json, write_with
+from dynoplan.io import read_json_object, write_json, write_with
 from dynoplan.types import FloatArray
 
 JOINT_STEP = 0.05  # rad per decision at |a| = 1
@@ -138,11 +137,7 @@ class FlatPolicy:
 
         meta_path = folder / "flat_policy.json"
         weights = folder / "flat_policy.safetensors"
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise DynoplanError(f"{meta_path}: cannot read the flat policy's metadata "
-                                f"({exc.__class__.__name__})") from None
+        meta = read_json_object(meta_path, "flat policy's metadata")
         if meta.get("format_version") != FORMAT_VERSION:
             raise DynoplanError(f"{meta_path}: format_version {meta.get('format_version')!r}, "
                                 f"expected {FORMAT_VERSION}")

@@ -18,6 +18,7 @@ from gymnasium.envs.registration import EnvSpec
 
 from dynoplan import __version__
 from dynoplan.errors import DynoplanError
+from dynoplan.io import read_json_object
 
 FORMAT_VERSION = 1
 """Version of the ``dynoplan`` block this library writes; readers accept ``<=`` it."""
@@ -148,12 +149,7 @@ def read_metadata(file: Path) -> tuple[DatasetMetadata, int, int]:
     Raises:
         DynoplanError: unreadable JSON or a missing or malformed field (named).
     """
-    try:
-        raw = json.loads(file.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DynoplanError(f"{file}: not readable JSON ({exc})") from None
-    if not isinstance(raw, dict):
-        raise DynoplanError(f"{file}: expected a JSON object, got {type(raw).__name__}")
+    raw = read_json_object(file, "dataset metadata file")
 
     def get(doc: dict[str, Any], key: str, kind: type | tuple[type, ...], prefix: str = "") -> Any:
         if key not in doc:

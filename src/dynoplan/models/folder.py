@@ -20,7 +20,6 @@ Every problem is one :class:`~dynoplan.errors.DynoplanError` line naming the fil
 """
 
 import hashlib
-import json
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.io import write_json
+from dynoplan.io import read_json_object, write_json
 
 MANIFEST_FILE = "models.json"
 KIND = "dynoplan_models"
@@ -158,12 +157,7 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
         raise DynoplanError(f"{root}: is a file, expected a models folder")
     if not path.is_file():
         raise DynoplanError(f"{path}: not found, not a models folder ({retrain})")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DynoplanError(f"{path}: not a readable manifest ({exc})") from None
-    if not isinstance(doc, dict):
-        raise DynoplanError(f"{path}: not a models manifest (a JSON object expected)")
+    doc = read_json_object(path, "models manifest")
     kind, version = doc.get("kind"), doc.get("format_version")
     older = kind == "gear_models" or (kind is None and "option_names" in doc)
     if kind != KIND and not older:
