@@ -28,7 +28,8 @@ insertion ignore the human, so they start only with the hand clear of the tool
 (:func:`hand_clear_of_tool`); near the goal with the hand nearer, the cautious move may
 start instead and stands guard, backing away if the hand comes on (the operator's rule in
 the demonstrations, :mod:`~dynoplan.envs.gear.operator`). :func:`preconditions` composes
-them all.
+them all; the conditions live with the options
+(:mod:`~dynoplan.envs.gear.options.preconditions`).
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -44,14 +45,23 @@ from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory
-from dynoplan.envs.gear.options.moves import PreInsertionBeta
-from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
-from dynoplan.envs.gear.state import (
-    DECISION_STEPS,
-    STATE_SLICES,
-    PlannerState,
-    tool_human_distance,
+from dynoplan.envs.gear.options.preconditions import (
+    CARRIED_GEAR_HEIGHT,
+    HELD_GEAR_HEIGHT,
+    INSERT_KEEP_CLEARANCE,
+    INSERT_START_CLEARANCE,
+    MOVE_START_DISTANCE,
+    PICK_CLEARANCE,
+    FarFromGoal,
+    hand_clear_of_tool,
+    hand_near_tool,
+    holding_gear,
+    insert_may_go_on,
+    insert_may_start,
+    not_carried,
 )
+from dynoplan.envs.gear.scene import FINGER_TRAVEL
+from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_files import GearModels
 from dynoplan.models.corruption import NoisyDynamics
@@ -68,7 +78,7 @@ from dynoplan.options.initiation import (
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
 from dynoplan.planning import OptionPlanner, SimulatorOracle
-from dynoplan.types import BoolArray, FloatArray
+from dynoplan.types import FloatArray
 
 CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
 """Option-level controllers, in table order (the flat PPO policy is run separately)."""
@@ -106,85 +116,6 @@ class PlannerSettings:
 
 
 MOVES = ("fast_move", "cautious_move")
-HELD_GEAR_HEIGHT = 0.02
-"""Gear bottom above the table (m) from which the gear counts as lifted."""
-
-
-CARRIED_GEAR_HEIGHT = 0.10
-"""Gear bottom above the table (m) from which the gear counts as carried: 0.1 m into the
-pick's 0.25 m lift, below the gear seated on the peg (about 0.15 m) and every pose the
-moves carry it through."""
-
-
-def not_carried(states: FloatArray) -> BoolArray:
-    """(N, 22) planner states -> (N,): the gear is not held :data:`CARRIED_GEAR_HEIGHT`
-    above the table (where the pick has nothing left to do)."""
-    s = np.atleast_2d(states)
-    high = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + CARRIED_GEAR_HEIGHT
-    out: BoolArray = ~(holding_gear(s) & high)
-    return out
-
-
-PICK_CLEARANCE = 0.3
-"""m: the pick (which plans and moves without regard to the human) runs only while the
-human's hand is at least this far from the tool point; nearer, the robot holds still
-until the hand has gone (the operator's rule for the insertion,
-:data:`~dynoplan.envs.gear.operator.INSERT_CLEAR`)."""
-
-
-def hand_clear_of_tool(states: FloatArray, distance: float = PICK_CLEARANCE) -> BoolArray:
-    """(N, 22) planner states -> (N,): the hand at least ``distance`` (m) from the tool."""
-    out: BoolArray = tool_human_distance(np.atleast_2d(states)) >= distance
-    return out
-
-
-INSERT_START_CLEARANCE = 0.55
-"""m: the insertion (which ignores the human) starts only with the hand at least this far
-from the tool; nearer, the cautious move stands guard at the goal and backs away if the
-hand comes on. The tool point is a poor proxy of the arm: a hand crossing at the arm's
-height touched the wrist with the tool point still 0.38 m away."""
-INSERT_KEEP_CLEARANCE = INSERT_START_CLEARANCE - 0.05
-"""m: a running insertion goes on while the hand is at least this far from the tool
-(5 cm of hysteresis, so the two do not take turns at the threshold)."""
-
-
-def hand_near_tool(states: FloatArray, distance: float = INSERT_START_CLEARANCE) -> BoolArray:
-    """(N, 22) planner states -> (N,): the hand nearer than ``distance`` (m) to the tool."""
-    out: BoolArray = ~hand_clear_of_tool(states, distance)
-    return out
-
-
-def holding_gear(states: FloatArray) -> BoolArray:
-    """(N, 22) planner states -> (N,): the gripper closed and the gear lifted."""
-    s = np.atleast_2d(states)
-    closed = s[:, STATE_SLICES["gripper"].start] < 0.8 * FINGER_TRAVEL
-    lifted = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + HELD_GEAR_HEIGHT
-    out: BoolArray = closed & lifted
-    return out
-
-
-MOVE_START_DISTANCE = 0.05
-"""m: a move may start only with the gear outside the insertion corridor: farther than
-this from the pre-insertion pose sideways, or higher than this above it. Within it (and
-anywhere below the pose, down onto the peg) the insertion has the gear; a move started
-there would pull it back up off the peg (the goal heuristic scores the pre-insertion
-pose above a half-done insertion, so the planner would choose that)."""
-
-
-class FarFromGoal:
-    """Initiation of the moves: the gear outside the insertion corridor (more than
-    ``distance`` (m) from the pre-insertion pose sideways, or more than ``distance``
-    above it), ``(N, 22) -> (N,)``."""
-
-    def __init__(self, distance: float = MOVE_START_DISTANCE) -> None:
-        self.distance = distance
-        self._goal = PreInsertionBeta()
-
-    def contains(self, states: FloatArray) -> BoolArray:
-        offset = self._goal.offset(states)
-        sideways = np.hypot(offset[:, 0], offset[:, 1])
-        out: BoolArray = (sideways > self.distance) | (offset[:, 2] > self.distance)
-        return out
 
 
 def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | None = None
@@ -208,10 +139,8 @@ def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | No
             start_where = AnyOf(far, InitiationFromCallable(hand_near_tool))
         return AllOf(continuation, start_where), continuation
     if name == "insert":
-        return (AllOf(region, InitiationFromCallable(
-                    lambda s: hand_clear_of_tool(s, INSERT_START_CLEARANCE))),
-                AllOf(region, InitiationFromCallable(
-                    lambda s: hand_clear_of_tool(s, INSERT_KEEP_CLEARANCE))))
+        return (AllOf(region, InitiationFromCallable(insert_may_start)),
+                AllOf(region, InitiationFromCallable(insert_may_go_on)))
     if name == "pick":
         return AllOf(region, InitiationFromCallable(not_carried),
                      InitiationFromCallable(hand_clear_of_tool)), None
@@ -312,6 +241,7 @@ __all__ = [
     "CARRIED_GEAR_HEIGHT",
     "CONTROLLERS",
     "FIXED_SCRIPT",
+    "HELD_GEAR_HEIGHT",
     "INSERT_KEEP_CLEARANCE",
     "INSERT_START_CLEARANCE",
     "MAX_EPISODE_SECONDS",
