@@ -15,21 +15,12 @@ random        uniform among admissible options      regions      ``beta_w``
 fixed_script  pick, fast move, insert               everywhere   policy finished
 ============  ====================================  ===========  ====================
 
-Preconditions of the options themselves are intersected with the learned regions,
-because 10 demonstrations cannot teach a mixture where the task's phases begin and end:
-the two moves carry the gear, so their initiation set is their region intersected with
-:func:`holding_gear` (the gear lifted in a closed gripper) and with the states where
-the gear is outside the insertion corridor above the peg (:class:`FarFromGoal`);
-once running, a move goes on while it is in its region with the gear held (its
-continuation set) and ends at its goal when its policy reports the arm has settled
-there (an insertion started while the arm still moves misses the peg); the pick has
-nothing to do once the gear is carried (:func:`not_carried`). The pick and the
-insertion ignore the human, so they start only with the hand clear of the tool
-(:func:`hand_clear_of_tool`); near the goal with the hand nearer, the cautious move may
-start instead and stands guard, backing away if the hand comes on (the operator's rule in
-the demonstrations, :mod:`~dynoplan.envs.gear.operator`). :func:`preconditions` composes
-them all; the conditions live with the options
-(:mod:`~dynoplan.envs.gear.options.preconditions`).
+Every option's own initiation and continuation conditions (its registry record,
+:mod:`~dynoplan.envs.gear.options.catalog`; the paper's four are described in
+:mod:`~dynoplan.envs.gear.options.preconditions`) are intersected with its learned region,
+because 10 demonstrations cannot teach a mixture where the task's phases begin and end.
+An option the demonstrations do not show has no region: its own conditions alone decide
+(as :meth:`~dynoplan.pipeline.fit.FittedModels.initiation` does).
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -45,6 +36,7 @@ from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory
+from dynoplan.envs.gear.options.catalog import gear_option
 from dynoplan.envs.gear.options.preconditions import (
     CARRIED_GEAR_HEIGHT,
     HELD_GEAR_HEIGHT,
@@ -56,8 +48,6 @@ from dynoplan.envs.gear.options.preconditions import (
     hand_clear_of_tool,
     hand_near_tool,
     holding_gear,
-    insert_may_go_on,
-    insert_may_start,
     not_carried,
 )
 from dynoplan.envs.gear.scene import FINGER_TRAVEL
@@ -67,14 +57,7 @@ from dynoplan.experiments.gear_model_files import GearModels
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.initiation import (
-    AllOf,
-    AnyOf,
-    Everywhere,
-    Initiation,
-    InitiationFromCallable,
-    InRegion,
-)
+from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
 from dynoplan.planning import OptionPlanner, SimulatorOracle
@@ -115,36 +98,16 @@ class PlannerSettings:
     dynamics_noise: float = 0.0
 
 
-MOVES = ("fast_move", "cautious_move")
-
-
-def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | None = None
-                  ) -> tuple[Initiation, Initiation | None]:
+def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
     """Option ``name``'s initiation and continuation sets (``None``: the same as its
-    initiation) given its learned ``region`` (module docstring):
-
-    - moves: region, gear held, and outside the insertion corridor (:class:`FarFromGoal`)
-      to start; the cautious move may also start nearer with the hand within
-      :data:`INSERT_START_CLEARANCE` of the tool (it stands guard at the goal, backing
-      away if the hand comes on); both go on while in the region with the gear held;
-    - insert: region and the hand at least :data:`INSERT_START_CLEARANCE` from the tool
-      to start, :data:`INSERT_KEEP_CLEARANCE` to go on (it ignores the human);
-    - pick: region, gear not carried and the hand :data:`PICK_CLEARANCE` clear.
-    """
-    if name in MOVES:
-        continuation = AllOf(region, InitiationFromCallable(holding_gear))
-        far = far_from_goal or FarFromGoal()
-        start_where: Initiation = far
-        if name == "cautious_move":
-            start_where = AnyOf(far, InitiationFromCallable(hand_near_tool))
-        return AllOf(continuation, start_where), continuation
-    if name == "insert":
-        return (AllOf(region, InitiationFromCallable(insert_may_start)),
-                AllOf(region, InitiationFromCallable(insert_may_go_on)))
-    if name == "pick":
-        return AllOf(region, InitiationFromCallable(not_carried),
-                     InitiationFromCallable(hand_clear_of_tool)), None
-    return region, None
+    initiation): its registered conditions intersected with its learned ``region``
+    (``None``: the demonstrations do not show it, so it has none)."""
+    spec_initiation, spec_continuation = gear_option(name).sets()
+    if region is None:
+        return spec_initiation, spec_continuation
+    initiation = region if isinstance(spec_initiation, Everywhere) else AllOf(region,
+                                                                              spec_initiation)
+    return initiation, None if spec_continuation is None else AllOf(region, spec_continuation)
 
 
 def gear_options(env: GearAssemblyEnv, models: GearModels,
@@ -153,7 +116,8 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
     Args:
-        regions: initiation sets are the learned safety regions (else everywhere).
+        regions: initiation sets are the options' own conditions and learned safety
+            regions (:func:`preconditions`; else everywhere).
         terminations: each option's own ``beta_w`` (else 0: the option runs until its
             policy reports it is finished).
         dynamics_noise: std of Gaussian noise on every learned prediction.
@@ -162,15 +126,15 @@ def gear_options(env: GearAssemblyEnv, models: GearModels,
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
     options = []
-    far_from_goal = FarFromGoal()  # one forward-kinematics model for both moves
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
         if dynamics_noise > 0:
             dynamics = NoisyDynamics(dynamics, dynamics_noise)
         if regions:
+            shown = name in models.regions.option_names  # demonstrated: it has a region
             initiation, continuation = preconditions(
-                name, InRegion(models.regions, name), far_from_goal)
+                name, InRegion(models.regions, name) if shown else None)
         else:
             initiation, continuation = Everywhere(), None
         options.append(Option(
@@ -245,7 +209,6 @@ __all__ = [
     "INSERT_KEEP_CLEARANCE",
     "INSERT_START_CLEARANCE",
     "MAX_EPISODE_SECONDS",
-    "MOVES",
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
     "FarFromGoal",

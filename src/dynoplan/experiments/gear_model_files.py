@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.envs.gear.features import FEATURE_MAPS, TASK
+from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_settings import GearTrainSettings
 from dynoplan.models.dynamics import StackedDynamics
@@ -56,7 +56,7 @@ class GearModels:
     Attributes:
         goal: ``G(s)`` on planner states ``(batch, 22)``.
         regions: the options' safety regions on planner states.
-        dynamics: ``D_w`` by option name (keys in :data:`OPTION_NAMES` order), each
+        dynamics: ``D_w`` by option name (keys in the registered options' order), each
             mapping planner states ``(batch, 22)`` one decision step ahead.
         manifest: the content of ``models.json``.
     """
@@ -93,11 +93,11 @@ def models_manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, A
         "format_version": MODELS_FORMAT_VERSION,
         "state_dim": STATE_DIM,
         "state_names": list(STATE_NAMES),
-        "option_names": list(OPTION_NAMES),
+        "option_names": list(gear_option_names()),
         "decision_steps": DECISION_STEPS,
         "goal": {**entry(GOAL_FILE), "features": GOAL_FEATURES.name},
         "regions": {**entry(REGIONS_FILE), "features": cfg.region_features},
-        "dynamics": {name: entry(dynamics_file(name)) for name in OPTION_NAMES},
+        "dynamics": {name: entry(dynamics_file(name)) for name in gear_option_names()},
         "seed": seed,
         "settings": asdict(cfg),
     }
@@ -129,7 +129,8 @@ def load_gear_models(folder: str | os.PathLike[str]) -> GearModels:
     if not isinstance(version, int) or version != MODELS_FORMAT_VERSION:
         raise DynoplanError(f"{path}: format_version {version!r} is not supported (this "
                             f"dynoplan reads {MODELS_FORMAT_VERSION}; train the models again)")
-    expected = {"state_dim": STATE_DIM, "option_names": list(OPTION_NAMES),
+    names = list(gear_option_names())
+    expected = {"state_dim": STATE_DIM, "option_names": names,
                 "decision_steps": DECISION_STEPS}
     for key, value in expected.items():
         if manifest.get(key) != value:
@@ -161,15 +162,17 @@ def load_gear_models(folder: str | os.PathLike[str]) -> GearModels:
                             f"manifest's '{goal_features.name}' has {goal_features.dim}")
     region_features = features(manifest.get("regions"), "regions")
     fitted = SafetyRegions.load(checked(manifest.get("regions"), "safety regions"))
-    if fitted.option_names != list(OPTION_NAMES) or fitted.state_dim != region_features.dim:
+    # regions exist for the demonstrated options only, in label order
+    if fitted.option_names != [n for n in names if n in fitted.option_names] \
+            or fitted.state_dim != region_features.dim:
         raise DynoplanError(f"{root / REGIONS_FILE}: options {fitted.option_names} on "
-                            f"{fitted.state_dim} features, expected {list(OPTION_NAMES)} on "
+                            f"{fitted.state_dim} features, expected options of {names} on "
                             f"{region_features.dim} ('{region_features.name}')")
     entries = manifest.get("dynamics")
-    if not isinstance(entries, dict) or sorted(entries) != sorted(OPTION_NAMES):
-        raise DynoplanError(f"{path}: dynamics must list the options {list(OPTION_NAMES)}")
+    if not isinstance(entries, dict) or sorted(entries) != sorted(names):
+        raise DynoplanError(f"{path}: dynamics must list the options {names}")
     dynamics: dict[str, MLPEnsembleDynamics] = {}
-    for name in OPTION_NAMES:
+    for name in names:
         file = checked(entries[name], f"dynamics of {name}")
         model = MLPEnsembleDynamics.load(file)
         if model.state_dim != STATE_DIM or model.option != name:
