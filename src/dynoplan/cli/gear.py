@@ -107,8 +107,8 @@ def _ensure_neural_options(models: Path, seed: int) -> None:
 
 @gear_app.command("option")
 def option(
-    name: str = typer.Argument(..., help="pick, fast_move, cautious_move, insert, or another "
-                               "registered option."),
+    name: str = typer.Argument(..., help="pick, fast_move, cautious_move, insert, or an option "
+                               "registered by a module named in DYNOPLAN_GEAR_OPTIONS."),
     trials: int = typer.Option(100, help="Seeded trials from the option's own start region."),
     seed: int = typer.Option(0, help="Trial i uses numpy default_rng([seed, i])."),
     out: Path = typer.Option(Path("results/gear-option"), help="Output folder."),

@@ -10,7 +10,10 @@ It starts with the paper's four options, in label order:
 - ``insert`` (:mod:`.insert`): the behaviour-cloned ``insert_policy.safetensors``
   (:mod:`.insert_training`).
 
-A fifth option is a policy file and one call, :func:`register_gear_option`.
+A fifth option is a policy file and one call, :func:`register_gear_option` (see
+``docs/guide/adding-an-option.md``). Modules named in the environment variable
+:data:`PLUGINS_VARIABLE` are imported before the registry is first read, so that the
+command line and worker processes know the options they register.
 
 :func:`train_option_networks` trains the registered networks into a models folder;
 :func:`policy_factories` loads them once and returns, per option name, a factory that
@@ -48,6 +51,9 @@ from dynoplan.parallel import SERIAL, Workers, imap_unordered
 
 RECOGNIZER_FILE = "grasp_recognizer.safetensors"
 INSERT_FILE = "insert_policy.safetensors"
+PLUGINS_VARIABLE = "DYNOPLAN_GEAR_OPTIONS"
+"""Environment variable: comma-separated modules (names, or paths of ``.py`` files) to
+import before the registry is first read, for the options they register."""
 
 
 # ----------------------------------------------------------------- the paper's options
@@ -145,7 +151,7 @@ INSERT = GearOption(
 
 _PAPER = (PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT)
 assert tuple(o.name for o in _PAPER) == PAPER_OPTIONS  # the demonstrators' labels 0..3
-GEAR_OPTIONS = GearOptionRegistry(_PAPER)
+GEAR_OPTIONS = GearOptionRegistry(_PAPER, plugins=PLUGINS_VARIABLE)
 """The registry the gear pipeline reads; an option's label is its index here."""
 
 
@@ -256,6 +262,7 @@ __all__ = [
     "INSERT",
     "INSERT_FILE",
     "PICK",
+    "PLUGINS_VARIABLE",
     "RECOGNIZER_FILE",
     "GearOption",
     "GearPolicyFactory",

@@ -15,6 +15,7 @@ options from the registry (:mod:`~dynoplan.envs.gear.options.catalog` holds the 
 pipeline uses).
 """
 
+import os
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -28,6 +29,7 @@ from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.options.starts import StartConfig, at_reset
 from dynoplan.errors import DynoplanError
+from dynoplan.imports import import_user_module
 from dynoplan.options.initiation import Initiation
 from dynoplan.types import BoolArray, FloatArray, Generator
 
@@ -144,10 +146,16 @@ class GearOptionRegistry:
 
     Args:
         options: the options registered first, in order.
+        plugins: the name of an environment variable listing modules to import before the
+            registry is first read (comma-separated module names or ``.py`` files), so
+            that options registered by those modules are known to the command line and to
+            worker processes; ``None``: no plugins.
     """
 
-    def __init__(self, options: Iterable[GearOption] = ()) -> None:
+    def __init__(self, options: Iterable[GearOption] = (), plugins: str | None = None) -> None:
         self._options: dict[str, GearOption] = {}
+        self._plugins = plugins
+        self._plugins_loaded = plugins is None
         for option in options:
             self.register(option)
 
@@ -168,6 +176,12 @@ class GearOptionRegistry:
         return option
 
     def _read(self) -> dict[str, GearOption]:
+        if not self._plugins_loaded:
+            self._plugins_loaded = True
+            assert self._plugins is not None
+            for entry in os.environ.get(self._plugins, "").split(","):
+                if entry.strip():
+                    import_user_module(entry.strip(), self._plugins)
         return self._options
 
     def __iter__(self) -> Iterator[GearOption]:
@@ -192,13 +206,19 @@ class GearOptionRegistry:
         options = self._read()
         if name not in options:
             raise DynoplanError(f"unknown option {name!r}; expected one of "
-                                f"{', '.join(options)}")
+                                f"{', '.join(options)}{self._hint()}")
         return options[name]
 
     def index(self, name: str) -> int:
         """The label of option ``name`` (its index in registration order)."""
         self.get(name)
         return list(self._options).index(name)
+
+    def _hint(self) -> str:
+        if self._plugins is None:
+            return ""
+        return (f" (an option registered in a script is unknown to other processes: name "
+                f"its module in {self._plugins})")
 
     @contextmanager
     def temporary(self, *options: GearOption) -> Iterator["GearOptionRegistry"]:
