@@ -1,7 +1,8 @@
 """Every ```python block of the user guide runs, and the site builds with ``mkdocs --strict``.
 
 The blocks of one page run in order in one namespace (a page reads as one script), in a
-temporary folder. ``--8<-- "path"`` lines (pymdownx.snippets) are replaced by the file.
+temporary folder; gear options a page registers are unregistered after it. ``--8<--
+"path"`` lines (pymdownx.snippets) are replaced by the file.
 """
 
 import importlib.util
@@ -39,10 +40,14 @@ def test_the_guide_has_pages_with_examples():
 def test_every_python_example_runs(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.syspath_prepend(str(ROOT))  # examples.* import as from the repository root
+    from dynoplan.envs.gear.options import temporary_gear_options
+
     namespace: dict[str, object] = {"__name__": f"docs_{page.stem.replace('-', '_')}"}
-    for index, block in enumerate(python_blocks(page)):
-        code = compile(block, f"{page.relative_to(ROOT)} (python block {index + 1})", "exec")
-        exec(code, namespace)
+    with temporary_gear_options():  # a gear option a page registers stays on that page
+        for index, block in enumerate(python_blocks(page)):
+            code = compile(block, f"{page.relative_to(ROOT)} (python block {index + 1})",
+                           "exec")
+            exec(code, namespace)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("mkdocs") is None, reason="mkdocs not installed")

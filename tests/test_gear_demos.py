@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dynoplan.data import read_dataset
-from dynoplan.envs.gear.expert import OPTION_NAMES
+from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_demos import record_demos
 
@@ -23,7 +23,7 @@ def test_demonstrations_round_trip_with_labels_and_progress(demos):
     out, summary = demos
     dataset = read_dataset(out)
     assert len(dataset) == 2 and summary["success_rate"] == 1.0
-    assert dataset.metadata.option_names == list(OPTION_NAMES)
+    assert dataset.metadata.option_names == list(gear_option_names())
     assert dataset.metadata.env_id == "dynoplan/GearAssembly-v0"
     for episode in dataset:
         labels = episode.infos["option"]

@@ -7,7 +7,7 @@ import pytest
 from typer.testing import CliRunner
 
 from dynoplan.cli.gear import gear_app
-from dynoplan.envs.gear import OPTION_NAMES
+from dynoplan.envs.gear import PAPER_OPTIONS
 from dynoplan.envs.gear.env import ACT_DIM, OBS_DIM, GearAssemblyEnv
 from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, GearExpert
 from dynoplan.errors import DynoplanError
@@ -27,8 +27,12 @@ def env_and_expert():
 
 
 def test_option_names_are_the_papers():
-    assert OPTION_NAMES == ("pick", "fast_move", "cautious_move", "insert")
+    from dynoplan.envs.gear.options import gear_option_names
+
+    assert PAPER_OPTIONS == ("pick", "fast_move", "cautious_move", "insert")
     assert (PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT) == (0, 1, 2, 3)
+    # registered first, so the demonstrators' labels are the pipeline's
+    assert gear_option_names()[:4] == PAPER_OPTIONS
 
 
 def test_expert_assembles_the_gear_through_the_four_phases(env_and_expert):

@@ -15,8 +15,8 @@ import pytest
 
 from dynoplan.data import Episode, labelled_transitions, read_dataset
 from dynoplan.envs.gear.features import RELATIVE, TASK
+from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_demos import record_demos
 from dynoplan.experiments.gear_model_data import (
@@ -59,7 +59,7 @@ def test_metrics_file_has_every_field_and_the_models_load(trained):
                 "dynamics_coverage_90"):
         assert np.isfinite(on_disk[key]), key
     assert on_disk["dynamics_data"] == "demonstrations subsampled"
-    assert set(on_disk["dynamics"]) == set(OPTION_NAMES)
+    assert set(on_disk["dynamics"]) == set(gear_option_names())
     for row in on_disk["dynamics"].values():
         assert row["one_step_rmse"] > 0 and row["one_step_no_change_rmse"] > 0
         assert row["coverage_90"] > 0.4  # an over-confident model covers next to nothing
@@ -78,11 +78,11 @@ def test_metrics_file_has_every_field_and_the_models_load(trained):
     assert on_disk["regions"]["far_states"]["far"] > 100
 
     models = load_gear_models(out)
-    assert models.option_names == list(OPTION_NAMES)
+    assert models.option_names == list(gear_option_names())
     states = np.zeros((5, STATE_DIM))
     mean, std = models.goal.mean_std(states)
     assert mean.shape == (5,) and np.all((mean >= 0) & (mean <= 1)) and np.all(std >= 0)
-    assert models.regions.contains_all(states).shape == (5, len(OPTION_NAMES))
+    assert models.regions.contains_all(states).shape == (5, len(gear_option_names()))
     nxt = models.stacked_dynamics().sample(np.zeros((4, 8, STATE_DIM)), np.random.default_rng(0))
     assert nxt.shape == (4, 8, STATE_DIM) and np.isfinite(nxt).all()
 
@@ -114,7 +114,7 @@ def test_save_and_load_round_trip_bit_exactly(trained, tmp_path):
     models.regions.regions.save(tmp_path / REGIONS_FILE)
     for name, model in models.dynamics.items():
         model.save(tmp_path / dynamics_file(name))
-    for file in [GOAL_FILE, REGIONS_FILE, *(dynamics_file(n) for n in OPTION_NAMES)]:
+    for file in [GOAL_FILE, REGIONS_FILE, *(dynamics_file(n) for n in gear_option_names())]:
         assert (tmp_path / file).read_bytes() == (out / file).read_bytes(), file
     again = load_gear_models(out)
     states = np.random.default_rng(0).normal(size=(20, STATE_DIM))
@@ -219,7 +219,7 @@ def test_demonstrations_become_decision_rate_runs_of_one_option(tmp_path):
 def test_models_train_on_a_transitions_dataset_at_the_decision_rate(data, tmp_path):
     path = write_demonstration_transitions(data / "demos", tmp_path / "transitions")
     dataset = read_dataset(path)
-    assert dataset.metadata.option_names == list(OPTION_NAMES)
+    assert dataset.metadata.option_names == list(gear_option_names())
     assert dataset.metadata.extra["decision_steps"] == DECISION_STEPS
     for episode in dataset:
         assert (episode.actions == episode.options).all()
@@ -228,7 +228,7 @@ def test_models_train_on_a_transitions_dataset_at_the_decision_rate(data, tmp_pa
                                 heldout_demos=data / "heldout", quick=True, progress=False)
     assert metrics["dynamics_data"] == "option transitions"
     assert metrics["data"]["transition_episodes_heldout"] > 0
-    assert load_gear_models(tmp_path / "m").option_names == list(OPTION_NAMES)
+    assert load_gear_models(tmp_path / "m").option_names == list(gear_option_names())
 
     slower = write_demonstration_transitions(data / "demos", tmp_path / "every5", 5)
     with pytest.raises(DynoplanError, match="recorded every 5 environment steps"):

@@ -87,9 +87,10 @@ def render(
 
 def _ensure_networks(name: str, models: Path, seed: int) -> dict[str, object] | None:
     """Train ``name``'s network into ``models`` if it is not there yet; its report."""
-    from dynoplan.envs.gear.options.catalog import NEURAL_FILES, train_option_networks
+    from dynoplan.envs.gear.options.catalog import network_files, train_option_networks
 
-    if name not in NEURAL_FILES or (models / NEURAL_FILES[name]).is_file():
+    files = network_files()
+    if name not in files or (models / files[name]).is_file():
         return None
     typer.echo(f"training the {name} network into {models} ...")
     report: dict[str, object] = train_option_networks(models, seed, only=(name,))[name]
@@ -98,22 +99,23 @@ def _ensure_networks(name: str, models: Path, seed: int) -> dict[str, object] | 
 
 def _ensure_neural_options(models: Path, seed: int) -> None:
     """Train every neural option's network missing from ``models`` (:func:`_ensure_networks`)."""
-    from dynoplan.envs.gear.options.catalog import NEURAL_FILES
+    from dynoplan.envs.gear.options.catalog import network_files
 
-    for name in NEURAL_FILES:
+    for name in network_files():
         _ensure_networks(name, models, seed)
 
 
 @gear_app.command("option")
 def option(
-    name: str = typer.Argument(..., help="pick, fast_move, cautious_move or insert."),
+    name: str = typer.Argument(..., help="pick, fast_move, cautious_move, insert, or an option "
+                               "registered by a module named in DYNOPLAN_GEAR_OPTIONS."),
     trials: int = typer.Option(100, help="Seeded trials from the option's own start region."),
     seed: int = typer.Option(0, help="Trial i uses numpy default_rng([seed, i])."),
     out: Path = typer.Option(Path("results/gear-option"), help="Output folder."),
     models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
-    human: str | None = typer.Option(None, help="Human mode (default: block for "
-                                     "cautious_move, away otherwise)."),
+    human: str | None = typer.Option(None, help="Human mode (default: the option's own; "
+                                     "block for cautious_move, away for the others)."),
     max_steps: int = typer.Option(600, help="Env steps per trial before giving up."),
     video: bool = typer.Option(False, "--video", help="Also render trial 0 to OUT/NAME.mp4."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -122,22 +124,17 @@ def option(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from dynoplan.envs.gear.options.catalog import policy_factory
-    from dynoplan.envs.gear.options.moves import CAUTIOUS_SAFETY_DISTANCE
-    from dynoplan.envs.gear.task import OPTION_NAMES
-    from dynoplan.errors import DynoplanError
+    from dynoplan.envs.gear.options.catalog import gear_option
     from dynoplan.experiments.gear_options import run_option_trials
 
-    if name not in OPTION_NAMES:
-        raise DynoplanError(f"unknown option {name!r}; expected one of {', '.join(OPTION_NAMES)}")
+    registered = gear_option(name)
     torch.set_num_threads(1)
     extra: dict[str, object] = {}
     trained = _ensure_networks(name, models, seed)
     if trained is not None:
         extra["network_training"] = trained
-    if name == "cautious_move":
-        extra["safety_distance"] = CAUTIOUS_SAFETY_DISTANCE
-    summary = run_option_trials(name, policy_factory(name, models), trials, seed, out,
+    extra.update(registered.trial_notes)
+    summary = run_option_trials(name, registered.factory(models), trials, seed, out,
                                 human_mode=human, max_steps=max_steps, video=video,
                                 progress=not quiet, extra=extra)
     plan = summary["plan_ms_p50"]

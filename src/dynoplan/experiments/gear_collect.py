@@ -25,11 +25,10 @@ from dynoplan.envs import GEAR_ASSEMBLY_ID
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.envs.gear.options.base import GearPolicyFactory
-from dynoplan.envs.gear.options.catalog import policy_factories
+from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS, policy_factories
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import DECISION_STEPS
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.types import FloatArray, Generator
@@ -50,7 +49,7 @@ def collect_run(env: GearAssemblyEnv, policy: Any, option: str, rng: Generator,
     if perturb:
         obs, info = _perturb(env, rng, held=int(info["pads_on_gear"]) >= 2)
     policy.reset(obs, rng)
-    label = OPTION_NAMES.index(option)
+    label = GEAR_OPTIONS.index(option)
     observations: list[FloatArray] = [obs]
     contacts: list[int] = [0]
     for _ in range(max_decisions * DECISION_STEPS):
@@ -119,7 +118,7 @@ def collect_option_run(state: CollectState, run: tuple[str, int]) -> tuple[str, 
     episodes. Every random choice (and OMPL) is seeded from ``[seed, option's index,
     index]`` alone, so a run gives the same episodes on any worker, after any other run."""
     name, index = run
-    key = [state.job.seed, OPTION_NAMES.index(name), index]
+    key = [state.job.seed, GEAR_OPTIONS.index(name), index]
     reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
     rng = np.random.default_rng(key)
     mode = HUMAN_MODES[int(rng.integers(len(HUMAN_MODES)))]
@@ -135,22 +134,23 @@ def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_
     dataset folder ``out``; return a summary (runs, transitions per option).
 
     ``factories`` is either the option policies' factories or a models folder (every
-    option, built by :func:`~dynoplan.envs.gear.options.catalog.policy_factories`); runs
+    registered option, built by :func:`~dynoplan.envs.gear.options.catalog.policy_factories`); runs
     on several ``workers`` need the folder (workers rebuild the policies from files). The
     runs are written in the same order, so the dataset is the same for one worker or many.
     """
+    registered = GEAR_OPTIONS.names()
     if isinstance(factories, Path):
         models: Path | None = factories
-        names: tuple[str, ...] = OPTION_NAMES
+        names: tuple[str, ...] = registered
         given = None
     else:
-        unknown = set(factories) - set(OPTION_NAMES)
+        unknown = set(factories) - set(registered)
         if unknown:
-            raise DynoplanError(f"unknown options {sorted(unknown)}; expected {OPTION_NAMES}")
+            raise DynoplanError(f"unknown options {sorted(unknown)}; expected {registered}")
         if workers.parallel:
             raise DynoplanError("collection on several workers needs the models folder, "
                                 "not policy factories")
-        models, names, given = None, tuple(n for n in OPTION_NAMES if n in factories), factories
+        models, names, given = None, tuple(n for n in registered if n in factories), factories
     if runs_per_option < 1 or max_decisions < 1:
         raise DynoplanError("--runs and --max-decisions must be >= 1")
     if models is not None:
@@ -168,7 +168,7 @@ def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_
     env.close()
     assert isinstance(obs_space, gym.spaces.Box)
     metadata = DatasetMetadata(
-        dataset_id=DATASET_ID, env_id=GEAR_ASSEMBLY_ID, option_names=list(OPTION_NAMES),
+        dataset_id=DATASET_ID, env_id=GEAR_ASSEMBLY_ID, option_names=list(registered),
         seed=seed,
         extra={"decision_steps": DECISION_STEPS, "human_modes": modes,
                "actions": "the option's index (one run of one option per episode)",
@@ -177,7 +177,7 @@ def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_
     write_dataset(out, episodes, metadata)
     counts: Counter[str] = Counter()
     for e in episodes:
-        counts[OPTION_NAMES[int(e.actions[0])]] += len(e)
+        counts[registered[int(e.actions[0])]] += len(e)
     return {"dataset": str(out), "runs": len(runs), "episodes": len(episodes),
             "transitions": dict(counts),
             "human_modes": dict(Counter(modes))}

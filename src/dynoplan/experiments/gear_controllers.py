@@ -15,20 +15,12 @@ random        uniform among admissible options      regions      ``beta_w``
 fixed_script  pick, fast move, insert               everywhere   policy finished
 ============  ====================================  ===========  ====================
 
-Preconditions of the options themselves are intersected with the learned regions,
-because 10 demonstrations cannot teach a mixture where the task's phases begin and end:
-the two moves carry the gear, so their initiation set is their region intersected with
-:func:`holding_gear` (the gear lifted in a closed gripper) and with the states where
-the gear is outside the insertion corridor above the peg (:class:`FarFromGoal`);
-once running, a move goes on while it is in its region with the gear held (its
-continuation set) and ends at its goal when its policy reports the arm has settled
-there (an insertion started while the arm still moves misses the peg); the pick has
-nothing to do once the gear is carried (:func:`not_carried`). The pick and the
-insertion ignore the human, so they start only with the hand clear of the tool
-(:func:`hand_clear_of_tool`); near the goal with the hand nearer, the cautious move may
-start instead and stands guard, backing away if the hand comes on (the operator's rule in
-the demonstrations, :mod:`~dynoplan.envs.gear.operator`). :func:`preconditions` composes
-them all.
+Every option's own initiation and continuation conditions (its registry record,
+:mod:`~dynoplan.envs.gear.options.catalog`; the paper's four are described in
+:mod:`~dynoplan.envs.gear.options.preconditions`) are intersected with its learned region,
+because 10 demonstrations cannot teach a mixture where the task's phases begin and end.
+An option the demonstrations do not show has no region: its own conditions alone decide
+(as :meth:`~dynoplan.pipeline.fit.FittedModels.initiation` does).
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -44,31 +36,32 @@ from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory
-from dynoplan.envs.gear.options.moves import PreInsertionBeta
-from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
-from dynoplan.envs.gear.state import (
-    DECISION_STEPS,
-    STATE_SLICES,
-    PlannerState,
-    tool_human_distance,
+from dynoplan.envs.gear.options.catalog import gear_option
+from dynoplan.envs.gear.options.preconditions import (
+    CARRIED_GEAR_HEIGHT,
+    HELD_GEAR_HEIGHT,
+    INSERT_KEEP_CLEARANCE,
+    INSERT_START_CLEARANCE,
+    MOVE_START_DISTANCE,
+    PICK_CLEARANCE,
+    FarFromGoal,
+    hand_clear_of_tool,
+    hand_near_tool,
+    holding_gear,
+    not_carried,
 )
+from dynoplan.envs.gear.scene import FINGER_TRAVEL
+from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.initiation import (
-    AllOf,
-    AnyOf,
-    Everywhere,
-    Initiation,
-    InitiationFromCallable,
-    InRegion,
-)
+from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
 from dynoplan.pipeline.fit import FittedModels
 from dynoplan.planning import OptionPlanner, SimulatorOracle
-from dynoplan.types import BoolArray, FloatArray
+from dynoplan.types import FloatArray
 
 CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
 """Option-level controllers, in table order (the flat PPO policy is run separately)."""
@@ -105,117 +98,16 @@ class PlannerSettings:
     dynamics_noise: float = 0.0
 
 
-MOVES = ("fast_move", "cautious_move")
-HELD_GEAR_HEIGHT = 0.02
-"""Gear bottom above the table (m) from which the gear counts as lifted."""
-
-
-CARRIED_GEAR_HEIGHT = 0.10
-"""Gear bottom above the table (m) from which the gear counts as carried: 0.1 m into the
-pick's 0.25 m lift, below the gear seated on the peg (about 0.15 m) and every pose the
-moves carry it through."""
-
-
-def not_carried(states: FloatArray) -> BoolArray:
-    """(N, 22) planner states -> (N,): the gear is not held :data:`CARRIED_GEAR_HEIGHT`
-    above the table (where the pick has nothing left to do)."""
-    s = np.atleast_2d(states)
-    high = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + CARRIED_GEAR_HEIGHT
-    out: BoolArray = ~(holding_gear(s) & high)
-    return out
-
-
-PICK_CLEARANCE = 0.3
-"""m: the pick (which plans and moves without regard to the human) runs only while the
-human's hand is at least this far from the tool point; nearer, the robot holds still
-until the hand has gone (the operator's rule for the insertion,
-:data:`~dynoplan.envs.gear.operator.INSERT_CLEAR`)."""
-
-
-def hand_clear_of_tool(states: FloatArray, distance: float = PICK_CLEARANCE) -> BoolArray:
-    """(N, 22) planner states -> (N,): the hand at least ``distance`` (m) from the tool."""
-    out: BoolArray = tool_human_distance(np.atleast_2d(states)) >= distance
-    return out
-
-
-INSERT_START_CLEARANCE = 0.55
-"""m: the insertion (which ignores the human) starts only with the hand at least this far
-from the tool; nearer, the cautious move stands guard at the goal and backs away if the
-hand comes on. The tool point is a poor proxy of the arm: a hand crossing at the arm's
-height touched the wrist with the tool point still 0.38 m away."""
-INSERT_KEEP_CLEARANCE = INSERT_START_CLEARANCE - 0.05
-"""m: a running insertion goes on while the hand is at least this far from the tool
-(5 cm of hysteresis, so the two do not take turns at the threshold)."""
-
-
-def hand_near_tool(states: FloatArray, distance: float = INSERT_START_CLEARANCE) -> BoolArray:
-    """(N, 22) planner states -> (N,): the hand nearer than ``distance`` (m) to the tool."""
-    out: BoolArray = ~hand_clear_of_tool(states, distance)
-    return out
-
-
-def holding_gear(states: FloatArray) -> BoolArray:
-    """(N, 22) planner states -> (N,): the gripper closed and the gear lifted."""
-    s = np.atleast_2d(states)
-    closed = s[:, STATE_SLICES["gripper"].start] < 0.8 * FINGER_TRAVEL
-    lifted = s[:, STATE_SLICES["gear_pos"].stop - 1] > TABLE_TOP_Z + HELD_GEAR_HEIGHT
-    out: BoolArray = closed & lifted
-    return out
-
-
-MOVE_START_DISTANCE = 0.05
-"""m: a move may start only with the gear outside the insertion corridor: farther than
-this from the pre-insertion pose sideways, or higher than this above it. Within it (and
-anywhere below the pose, down onto the peg) the insertion has the gear; a move started
-there would pull it back up off the peg (the goal heuristic scores the pre-insertion
-pose above a half-done insertion, so the planner would choose that)."""
-
-
-class FarFromGoal:
-    """Initiation of the moves: the gear outside the insertion corridor (more than
-    ``distance`` (m) from the pre-insertion pose sideways, or more than ``distance``
-    above it), ``(N, 22) -> (N,)``."""
-
-    def __init__(self, distance: float = MOVE_START_DISTANCE) -> None:
-        self.distance = distance
-        self._goal = PreInsertionBeta()
-
-    def contains(self, states: FloatArray) -> BoolArray:
-        offset = self._goal.offset(states)
-        sideways = np.hypot(offset[:, 0], offset[:, 1])
-        out: BoolArray = (sideways > self.distance) | (offset[:, 2] > self.distance)
-        return out
-
-
-def preconditions(name: str, region: Initiation, far_from_goal: FarFromGoal | None = None
-                  ) -> tuple[Initiation, Initiation | None]:
+def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
     """Option ``name``'s initiation and continuation sets (``None``: the same as its
-    initiation) given its learned ``region`` (module docstring):
-
-    - moves: region, gear held, and outside the insertion corridor (:class:`FarFromGoal`)
-      to start; the cautious move may also start nearer with the hand within
-      :data:`INSERT_START_CLEARANCE` of the tool (it stands guard at the goal, backing
-      away if the hand comes on); both go on while in the region with the gear held;
-    - insert: region and the hand at least :data:`INSERT_START_CLEARANCE` from the tool
-      to start, :data:`INSERT_KEEP_CLEARANCE` to go on (it ignores the human);
-    - pick: region, gear not carried and the hand :data:`PICK_CLEARANCE` clear.
-    """
-    if name in MOVES:
-        continuation = AllOf(region, InitiationFromCallable(holding_gear))
-        far = far_from_goal or FarFromGoal()
-        start_where: Initiation = far
-        if name == "cautious_move":
-            start_where = AnyOf(far, InitiationFromCallable(hand_near_tool))
-        return AllOf(continuation, start_where), continuation
-    if name == "insert":
-        return (AllOf(region, InitiationFromCallable(
-                    lambda s: hand_clear_of_tool(s, INSERT_START_CLEARANCE))),
-                AllOf(region, InitiationFromCallable(
-                    lambda s: hand_clear_of_tool(s, INSERT_KEEP_CLEARANCE))))
-    if name == "pick":
-        return AllOf(region, InitiationFromCallable(not_carried),
-                     InitiationFromCallable(hand_clear_of_tool)), None
-    return region, None
+    initiation): its registered conditions intersected with its learned ``region``
+    (``None``: the demonstrations do not show it, so it has none)."""
+    spec_initiation, spec_continuation = gear_option(name).sets()
+    if region is None:
+        return spec_initiation, spec_continuation
+    initiation = region if isinstance(spec_initiation, Everywhere) else AllOf(region,
+                                                                              spec_initiation)
+    return initiation, None if spec_continuation is None else AllOf(region, spec_continuation)
 
 
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
@@ -224,7 +116,8 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
     Args:
-        regions: initiation sets are the learned safety regions (else everywhere).
+        regions: initiation sets are the options' own conditions and learned safety
+            regions (:func:`preconditions`; else everywhere).
         terminations: each option's own ``beta_w`` (else 0: the option runs until its
             policy reports it is finished).
         dynamics_noise: std of Gaussian noise on every learned prediction.
@@ -236,15 +129,15 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
     if regions and learned is None:
         raise DynoplanError("the gear's options need the learned safety regions")
     options = []
-    far_from_goal = FarFromGoal()  # one forward-kinematics model for both moves
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
         if dynamics_noise > 0:
             dynamics = NoisyDynamics(dynamics, dynamics_noise)
         if regions and learned is not None:
-            initiation, continuation = preconditions(name, InRegion(learned, name),
-                                                     far_from_goal)
+            shown = name in learned.option_names  # demonstrated: it has a region
+            initiation, continuation = preconditions(
+                name, InRegion(learned, name) if shown else None)
         else:
             initiation, continuation = Everywhere(), None
         options.append(Option(
@@ -315,10 +208,10 @@ __all__ = [
     "CARRIED_GEAR_HEIGHT",
     "CONTROLLERS",
     "FIXED_SCRIPT",
+    "HELD_GEAR_HEIGHT",
     "INSERT_KEEP_CLEARANCE",
     "INSERT_START_CLEARANCE",
     "MAX_EPISODE_SECONDS",
-    "MOVES",
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
     "FarFromGoal",

@@ -15,7 +15,7 @@ import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, write_dataset
 from dynoplan.envs import GEAR_ASSEMBLY_ID
-from dynoplan.envs.gear.expert import OPTION_NAMES
+from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.experiments.gear_expert import record_expert_episodes
 from dynoplan.io import ensure_writable_dir
 from dynoplan.parallel import SERIAL, Workers
@@ -59,7 +59,7 @@ def record_demos(n: int, seed: int, out: Path, progress: bool = True,
             dataset_id=DATASET_ID,
             env_id=GEAR_ASSEMBLY_ID,
             env_spec=spec,
-            option_names=list(OPTION_NAMES),
+            option_names=list(gear_option_names()),
             seed=seed,
             extra={"human_modes": modes, "demonstrator": demonstrator,
                    "state": "observations[:, 0:12] (arm joint angles)",
@@ -77,6 +77,6 @@ def record_demos(n: int, seed: int, out: Path, progress: bool = True,
         "steps": int(sum(len(e) for e in episodes)),
         "success_rate": float(np.mean(successes)),
         "human_modes": dict(Counter(modes)),
-        "option_steps": {OPTION_NAMES[k]: int(v) for k, v in sorted(Counter(
+        "option_steps": {gear_option_names()[k]: int(v) for k, v in sorted(Counter(
             int(o) for e in episodes for o in e.infos["option"]).items())},
     }

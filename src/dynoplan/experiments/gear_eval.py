@@ -29,6 +29,7 @@ from dynoplan.control import Controller
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.options.motion import reseed_ompl
+from dynoplan.errors import DynoplanError
 from dynoplan.options.initiation import RegionModel
 from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
 from dynoplan.progress import track
@@ -70,11 +71,21 @@ def trace_metrics(trace: EpisodeTrace, env: GearAssemblyEnv, seed: int,
 
     Option starts outside their regions are counted against ``regions`` when given (so a
     controller that ignores the regions, like the fixed script, is measured against the
-    same learned regions as the others), else as the controller saw them."""
+    same learned regions as the others; an option without a region, not demonstrated,
+    never starts outside it), else as the controller saw them."""
     outside = None if regions is None else sum(
         1 for d in trace.decisions
-        if d.option is not None and not bool(regions.contains(d.state[None], d.option)[0]))
+        if d.option is not None and _has_region(regions, d.option)
+        and not bool(regions.contains(d.state[None], d.option)[0]))
     return EpisodeRecord.of(trace, seed, gear_metrics(env, trace.infos), outside)
+
+
+def _has_region(regions: RegionModel, option: str) -> bool:
+    try:
+        regions.option_index(option)
+    except DynoplanError:
+        return False
+    return True
 
 
 def controller_episode(env: gym.Env[Any, Any], gear_env: GearAssemblyEnv,

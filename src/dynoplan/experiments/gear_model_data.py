@@ -26,14 +26,15 @@ from dynoplan.data import (
     write_dataset,
 )
 from dynoplan.envs.gear.env import OBS_DIM
+from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
-from dynoplan.envs.gear.task import OPTION_NAMES
+from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 from dynoplan.types import FloatArray, Generator, IntArray
 
 HELDOUT_SEED_OFFSET = 1000
 """Held-out trials are recorded from ``seed + HELDOUT_SEED_OFFSET`` (disjoint episodes)."""
-CAUTIOUS = OPTION_NAMES.index("cautious_move")
+CAUTIOUS = PAPER_OPTIONS.index("cautious_move")
 TRANSITIONS_ID = "dynoplan/gear-assembly/demo-transitions-v0"
 
 
@@ -96,8 +97,9 @@ def write_demonstration_transitions(demos: Path, out: Path,
 def read_labelled(path: Path, what: str) -> Dataset:
     dataset = read_dataset(path)
     names = list(dataset.metadata.option_names)
-    if names != list(OPTION_NAMES):
-        raise DynoplanError(f"{path}: {what} name options {names}, expected {list(OPTION_NAMES)}")
+    registered = list(gear_option_names())
+    if not names or names != registered[:len(names)]:  # labels index the registered options
+        raise DynoplanError(f"{path}: {what} name options {names}, expected {registered}")
     for i, episode in enumerate(dataset):
         if episode.options is None:
             raise DynoplanError(f"{path}: {what} episode {i} has no infos['option'] labels")

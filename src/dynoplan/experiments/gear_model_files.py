@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.envs.gear.features import FEATURE_MAPS, TASK
+from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_settings import GearTrainSettings
 from dynoplan.models.folder import (
@@ -42,11 +42,12 @@ RETRAIN = "train them with 'dynoplan gear train' or 'dynoplan gear run'"
 
 def models_manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, Any]:
     """Write ``out/models.json`` for the model files in ``out``; return it."""
+    names = gear_option_names()
     return write_manifest(
-        out, task=TASK_NAME, state_dim=STATE_DIM, option_names=OPTION_NAMES,
+        out, task=TASK_NAME, state_dim=STATE_DIM, option_names=names,
         stride=DECISION_STEPS, use_regions=True, goal=(GOAL_FILE, GOAL_FEATURES.name),
         regions=(REGIONS_FILE, cfg.region_features),
-        dynamics={name: dynamics_file(name) for name in OPTION_NAMES},
+        dynamics={name: dynamics_file(name) for name in names},
         extra={"state_names": list(STATE_NAMES), "seed": seed, "settings": asdict(cfg)})
 
 
@@ -57,21 +58,23 @@ def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
     Raises:
         DynoplanError: (one line) see :meth:`FittedModels.load`, and a task, state
             dimension, option names or decision rate other than this version's gear
-            assembly's, or regions that do not cover every option.
+            assembly's with the registered options, or no regions.
     """
     models = FittedModels.load(folder, FEATURE_MAPS, RETRAIN)
     path = Path(folder) / MANIFEST_FILE
     found = {"task": models.task, "state_dim": models.state_dim,
              "option_names": models.option_names, "stride": models.stride}
-    expected = {"task": TASK_NAME, "state_dim": STATE_DIM, "option_names": list(OPTION_NAMES),
+    names = list(gear_option_names())
+    expected = {"task": TASK_NAME, "state_dim": STATE_DIM, "option_names": names,
                 "stride": DECISION_STEPS}
     for key, value in expected.items():
         if found[key] != value:
-            raise DynoplanError(f"{path}: {key} is {found[key]!r}, this version's gear "
-                                f"assembly has {value!r}")
-    if models.regions is None or models.regions.option_names != list(OPTION_NAMES):
-        raise DynoplanError(f"{path}: the gear's safety regions must cover the options "
-                            f"{list(OPTION_NAMES)}")
+            raise DynoplanError(f"{path}: {key} is {found[key]!r}, the registered gear "
+                                f"options give {value!r}")
+    if models.regions is None or models.regions.option_names != [
+            n for n in names if n in models.regions.option_names]:
+        raise DynoplanError(f"{path}: the gear's safety regions must be those of the "
+                            f"demonstrated options among {names}, in that order")
     return models
 
 

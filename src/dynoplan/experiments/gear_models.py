@@ -9,8 +9,10 @@ with, and measures it on held-out data:
 - the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`): a
   Gaussian mixture with ``M`` chosen by BIC on the demonstration states, components
   assigned to options by their states' labels, and per-option thresholds calibrated on
-  the demonstrations by leave-one-demonstration-out (:func:`fit_regions_cross_validated`);
-- one dynamics model ``D_w`` per option (:class:`~dynoplan.models.neural_dynamics.
+  the demonstrations by leave-one-demonstration-out (:func:`fit_regions_cross_validated`),
+  for the options the demonstrations show (as :func:`~dynoplan.pipeline.fit.fit_regions`;
+  an option registered after the paper's four has no region unless demonstrated);
+- one dynamics model ``D_w`` per registered option (:class:`~dynoplan.models.neural_dynamics.
   MLPEnsembleDynamics`) on transitions at the decision rate (one step =
   :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps), from the option
   transitions collected by ``dynoplan gear collect`` or, without them, from the
@@ -41,8 +43,8 @@ from scipy import stats
 
 from dynoplan.data import Episode, labelled_transitions
 from dynoplan.envs.gear.features import feature_map
+from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_data import (
     CAUTIOUS,
@@ -153,7 +155,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
             regions=_train_regions(train, held, out, cfg, seed))),
     ]
     dyn_reports: dict[str, Any] = {}
-    for k, name in enumerate(OPTION_NAMES):
+    for k, name in enumerate(gear_option_names()):
         def fit_option(k: int = k, name: str = name) -> None:
             dyn_reports[name] = _train_dynamics(k, name, dyn_train, dyn_held, planner, out,
                                                 cfg, seed)
@@ -187,7 +189,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                  "transition_episodes_train": len(dyn_train),
                  "transition_episodes_heldout": len(dyn_held)},
         "state_dim": STATE_DIM,
-        "option_names": list(OPTION_NAMES),
+        "option_names": list(gear_option_names()),
         "decision_steps": DECISION_STEPS,
         "task_features": list(GOAL_FEATURES.names),
         "region_features": list(feature_map(cfg.region_features).names),
@@ -248,25 +250,32 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                    held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
                    cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
     features = feature_map(cfg.region_features)
+    names = gear_option_names()
     s = np.concatenate([st[:-1] for st, _, _ in train])
     y = np.concatenate([lab for _, _, lab in train])
     g = np.concatenate([np.full(len(lab), i) for i, (_, _, lab) in enumerate(train)])
+    # regions for the demonstrated options only (as pipeline.fit.fit_regions); ``column``
+    # maps an option's label to its region, -1 for none
+    shown = [k for k in range(len(names)) if np.any(y == k)]
+    column = np.full(len(names), -1)
+    column[shown] = np.arange(len(shown))
     fitted, info = fit_regions_cross_validated(
-        features(s), y, g, OPTION_NAMES, reg_covar=cfg.region_reg_covar,
+        features(s), column[y], g, [names[k] for k in shown], reg_covar=cfg.region_reg_covar,
         max_components=cfg.region_max_components, coverage=cfg.region_coverage,
         cv_coverage=cfg.region_cv_coverage, seed=seed)
     fitted.save(out / REGIONS_FILE)
     regions = RegionsOnFeatures(fitted, features)
     sh = np.concatenate([st[:-1] for st, _, _ in held])
     yh = np.concatenate([lab for _, _, lab in held])
-    member = regions.contains_all(sh)
-    own = member[np.arange(len(sh)), yh]
-    by_option = {n: (float(own[yh == k].mean()) if (yh == k).any() else None)
-                 for k, n in enumerate(OPTION_NAMES)}
+    member = regions.contains_all(sh)  # (states, options with a region)
+    mine = np.flatnonzero(column[yh] >= 0)  # held-out states of options with a region
+    own = member[mine, column[yh[mine]]]
+    by_option = {n: (float(own[yh[mine] == k].mean()) if (yh == k).any() else None)
+                 for k, n in enumerate(names) if column[k] >= 0}
     # how specific each region is: held-out states of the other options inside it
-    others = {n: float(member[yh != k, k].mean()) if (yh != k).any() else None
-              for k, n in enumerate(OPTION_NAMES)}
-    train_own = regions.contains_all(s)[np.arange(len(s)), y]
+    others = {n: float(member[yh != k, column[k]].mean()) if (yh != k).any() else None
+              for k, n in enumerate(names) if column[k] >= 0}
+    train_own = regions.contains_all(s)[np.arange(len(s)), column[y]]
     far, far_info = far_states(s, sh, np.random.default_rng([seed, 2]), cfg.far_states,
                                cfg.region_reg_covar, features)
     far_outside = float((~regions.contains_all(far).any(axis=1)).mean()) if len(far) else None
@@ -297,7 +306,8 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     sh, nxth = sh[labels_h == k], nxth[labels_h == k]
     if len(s) < 10:
         raise DynoplanError(f"option '{name}': only {len(s)} transitions to learn its "
-                            "dynamics from (need >= 10); record more episodes")
+                            "dynamics from (need >= 10); record more episodes (an option "
+                            "the demonstrations do not show needs `dynoplan gear collect`)")
     model = MLPEnsembleDynamics(STATE_DIM, cfg.dynamics_hidden, cfg.dynamics_members,
                                 option=name, seed=seed + k)
     batches = -(-round(0.9 * len(s)) // _BATCH)  # fit holds out 10% of the rows

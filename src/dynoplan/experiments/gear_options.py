@@ -18,8 +18,8 @@ import numpy.typing as npt
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
+from dynoplan.envs.gear.options.catalog import gear_option
 from dynoplan.envs.gear.options.starts import reach_start
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.pipeline.evaluate import quantile_or_none
@@ -107,10 +107,9 @@ def run_option_trials(option: str, factory: GearPolicyFactory, trials: int, seed
                       video: bool = False, progress: bool = True,
                       extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run ``trials`` seeded trials of ``option``; write ``out/summary.json`` and, with
-    ``video``, ``out/{option}.mp4`` of trial 0. Returns the summary."""
-    if option not in OPTION_NAMES:
-        raise DynoplanError(f"unknown option {option!r}; expected one of "
-                            f"{', '.join(OPTION_NAMES)}")
+    ``video``, ``out/{option}.mp4`` of trial 0. Returns the summary; ``option`` must be
+    registered (:mod:`~dynoplan.envs.gear.options.catalog`)."""
+    gear_option(option)
     if trials < 1:
         raise DynoplanError(f"--trials must be >= 1, got {trials}")
     if max_steps < 1:

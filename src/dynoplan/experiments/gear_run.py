@@ -2,8 +2,8 @@
 
 Stages (each timed in ``summary.json``):
 
-1. ``networks``: the pick option's grasp recogniser and the insertion network
-   (``models/``);
+1. ``networks``: the registered options' networks (the pick option's grasp recogniser
+   and the insertion network; ``models/``);
 2. ``demos``: 10 demonstrations by an operator chaining the options
    (:class:`~dynoplan.envs.gear.operator.OptionOperator`), and as many held-out ones
    from other seeds (``demos/``, ``heldout/``);
@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
-from dynoplan.envs.gear.options.catalog import NEURAL_FILES
+from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import (
     RESULT_COLUMNS,
@@ -161,7 +161,7 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     flat = (start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
             if workers.parallel else None)
     quick = settings.quick_models
-    missing = tuple(n for n, f in NEURAL_FILES.items() if not (models_dir / f).is_file())
+    missing = tuple(n for n, f in network_files().items() if not (models_dir / f).is_file())
     # the option networks always train on full settings (160 data episodes, about 35 s
     # on one core, and 10 s of fits): quick ones fail too often for ten successful
     # demonstrations

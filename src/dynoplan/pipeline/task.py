@@ -9,17 +9,14 @@ options and the controller from it and from the models folder.
 (``dynoplan pipeline --env ID --options MODULE:FUNCTION``).
 """
 
-import importlib
-import importlib.util
-import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Protocol
 
 import gymnasium as gym
 
 from dynoplan.adapters.spec import OptionSpec, as_spec
 from dynoplan.errors import DynoplanError
+from dynoplan.imports import import_user_module
 
 
 class Task(Protocol):
@@ -90,28 +87,7 @@ def load_object(reference: str) -> Any:
     if not sep or not module_name or not attr:
         raise DynoplanError(
             f"'{reference}': expected MODULE:NAME, e.g. examples.mountain_car.options:make_options")
-    try:
-        if module_name.endswith(".py"):
-            path = Path(module_name)
-            if not path.is_file():
-                raise DynoplanError(f"'{reference}': file {path} not found")
-            spec = importlib.util.spec_from_file_location(path.stem, path)
-            if spec is None or spec.loader is None:
-                raise DynoplanError(f"'{reference}': cannot load {path}")
-            module = importlib.util.module_from_spec(spec)
-            spec.loader.exec_module(module)
-        else:
-            if "" not in sys.path and str(Path.cwd()) not in sys.path:
-                sys.path.insert(0, str(Path.cwd()))
-            module = importlib.import_module(module_name)
-    except DynoplanError:
-        raise
-    except ImportError as exc:
-        raise DynoplanError(f"'{reference}': cannot import module '{module_name}' ({exc})") \
-            from None
-    except Exception as exc:  # the user's module raised while importing
-        raise DynoplanError(
-            f"'{reference}': importing failed: {type(exc).__name__}: {exc}") from None
+    module = import_user_module(module_name, f"'{reference}'")
     try:
         return getattr(module, attr)
     except AttributeError:

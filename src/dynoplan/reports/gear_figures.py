@@ -8,6 +8,7 @@
 - :func:`make_gear_figures` -- both, from a models folder and the demonstration datasets.
 """
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +26,8 @@ from threadpoolctl import threadpool_limits
 
 from dynoplan.data import Dataset, read_dataset
 from dynoplan.envs.gear.env import CONTROL_DT
+from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
 from dynoplan.envs.gear.state import PlannerState
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_data import CAUTIOUS
 from dynoplan.experiments.gear_model_files import HELDOUT_DIR, load_gear_models
@@ -36,22 +37,39 @@ from dynoplan.pipeline.fit import GoalModel
 from dynoplan.progress import track
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
-OPTION_COLORS = ("#c51bc5", "#2ca02c", "#7fbf3f", "#1f5fbf")
-"""Per option, as in the paper: magenta pick, greens for the two moves, blue insert."""
+SPARE_COLORS = ("#ff7f0e", "#8c564b", "#17becf", "#bcbd22", "#7f7f7f", "#d62728")
+"""Colours of registered options that do not name one (the paper's four do: magenta
+pick, greens for the two moves, blue insert)."""
+
+
+def option_colors(names: Sequence[str]) -> list[str]:
+    """Each registered option's colour in figures, in the order of ``names``."""
+    out, spare = [], 0
+    for name in names:
+        color = gear_option(name).color
+        if color is None:
+            color, spare = SPARE_COLORS[spare % len(SPARE_COLORS)], spare + 1
+        out.append(color)
+    return out
+
 GOAL_FIGURE = "fig3a_goal_heuristic.png"
 TSNE_FIGURE = "fig3b_tsne_regions.png"
 
 
 def plot_goal_trial(goal: GoalModel, states: FloatArray, truth: FloatArray,
-                    labels: IntArray, path: Path, title: str) -> dict[str, float]:
+                    labels: IntArray, path: Path, title: str,
+                    option_names: Sequence[str] | None = None) -> dict[str, float]:
     """Fig. 3(a): ``G``'s mean and 90% interval against ground-truth progress.
 
     Args:
         states: ``(T+1, 22)`` planner states of one trial; ``truth``: ``(T+1,)`` its
             progress; ``labels``: ``(T,)`` the option run at each step (the background).
+        option_names: what the labels index (default: the registered options).
     Returns:
         The trial's Spearman correlation and mean absolute error.
     """
+    names = list(option_names or gear_option_names())
+    colors = option_colors(names)
     mean, _ = goal.mean_std(states)
     lo, hi = goal.interval(states, 0.9)
     t = np.arange(len(truth)) * CONTROL_DT
@@ -61,13 +79,13 @@ def plot_goal_trial(goal: GoalModel, states: FloatArray, truth: FloatArray,
     starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
     ends = np.r_[starts[1:], len(labels)]
     for a, b in zip(starts, ends, strict=True):
-        ax.axvspan(t[a], t[b], color=OPTION_COLORS[int(labels[a])], alpha=0.12, lw=0)
+        ax.axvspan(t[a], t[b], color=colors[int(labels[a])], alpha=0.12, lw=0)
     ax.fill_between(t, lo, hi, color="tab:red", alpha=0.25, lw=0, label="G(s): 90% interval")
     ax.plot(t, mean, color="tab:red", lw=2, label="G(s): mean")
     ax.plot(t, truth, color="black", ls="--", lw=1.5, label="ground-truth progress")
     handles, _ = ax.get_legend_handles_labels()
     shown = sorted({int(x) for x in labels})
-    handles += [Patch(color=OPTION_COLORS[k], alpha=0.3, label=OPTION_NAMES[k]) for k in shown]
+    handles += [Patch(color=colors[k], alpha=0.3, label=names[k]) for k in shown]
     ax.legend(handles=handles, fontsize=8, loc="upper left")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("progress")
@@ -82,7 +100,8 @@ def plot_goal_trial(goal: GoalModel, states: FloatArray, truth: FloatArray,
 
 def plot_tsne_regions(states: FloatArray, labels: IntArray, interrupted: BoolArray,
                       regions: RegionsOnFeatures, path: Path, seed: int,
-                      title: str = "") -> dict[str, Any]:
+                      title: str = "", option_names: Sequence[str] | None = None
+                      ) -> dict[str, Any]:
     """Fig. 3(b): t-SNE of planner states, coloured by option, over the shaded regions.
 
     The embedding is of the columns the regions read, each scaled by its spread. A
@@ -93,10 +112,17 @@ def plot_tsne_regions(states: FloatArray, labels: IntArray, interrupted: BoolArr
     Args:
         states: ``(N, 22)``; labels: ``(N,)`` option that ran; interrupted: ``(N,)`` the
             state comes from a trial in which the human made the robot give way.
+        option_names: what the labels index (default: the registered options); the
+            regions cover those the demonstrations show.
     Returns:
         ``{"points", "region_share"}``: number of points and, per option, the share of
-        points inside its region.
+        points inside its region (``None`` without points or without a region).
     """
+    names = list(option_names or gear_option_names())
+    colors = option_colors(names)
+    region_colors = [colors[names.index(n)] for n in regions.option_names]
+    column = np.array([regions.option_names.index(n) if n in regions.option_names else -1
+                       for n in names])  # label -> region column, -1: no region
     x = regions.features(states)
     scale = np.maximum(x.std(axis=0), 1e-3)
     z = (x - x.mean(axis=0)) / scale
@@ -122,14 +148,14 @@ def plot_tsne_regions(states: FloatArray, labels: IntArray, interrupted: BoolArr
     for o in range(member.shape[1]):
         share = member[idx, o].mean(axis=1)
         share = np.where(near, share, 0.0).reshape(gx.shape)
-        ax.contourf(gx, gy, share, levels=[0.5, 1.01], colors=[OPTION_COLORS[o]], alpha=0.12)
-        ax.contour(gx, gy, share, levels=[0.5], colors=[OPTION_COLORS[o]], linewidths=1.0)
+        ax.contourf(gx, gy, share, levels=[0.5, 1.01], colors=[region_colors[o]], alpha=0.12)
+        ax.contour(gx, gy, share, levels=[0.5], colors=[region_colors[o]], linewidths=1.0)
     for flag, marker in ((False, "o"), (True, "^")):
         rows = interrupted == flag
         ax.scatter(emb[rows, 0], emb[rows, 1], s=7, marker=marker, linewidths=0,
-                   c=[OPTION_COLORS[int(o)] for o in labels[rows]], alpha=0.85)
-    handles: list[Any] = [Patch(color=OPTION_COLORS[o], alpha=0.5, label=f"{name} (region)")
-                          for o, name in enumerate(OPTION_NAMES)]
+                   c=[colors[int(o)] for o in labels[rows]], alpha=0.85)
+    handles: list[Any] = [Patch(color=region_colors[o], alpha=0.5, label=f"{name} (region)")
+                          for o, name in enumerate(regions.option_names)]
     handles += [Line2D([], [], ls="", marker="o", color="gray", label="human away"),
                 Line2D([], [], ls="", marker="^", color="gray", label="human interferes")]
     ax.legend(handles=handles, fontsize=7, loc="best")
@@ -141,10 +167,12 @@ def plot_tsne_regions(states: FloatArray, labels: IntArray, interrupted: BoolArr
     fig.tight_layout()
     write_with(path, lambda tmp: fig.savefig(tmp, dpi=150))
     plt.close(fig)
-    own = member[np.arange(len(labels)), labels]
+    mine = np.flatnonzero(column[labels] >= 0)  # points of options with a region
+    own = member[mine, column[labels[mine]]]
     return {"points": len(labels),
-            "region_share": {n: float(own[labels == o].mean()) if (labels == o).any() else None
-                             for o, n in enumerate(OPTION_NAMES)}}
+            "region_share": {n: float(own[labels[mine] == o].mean())
+                             if column[o] >= 0 and (labels == o).any() else None
+                             for o, n in enumerate(names)}}
 
 
 def _trial_arrays(dataset: Dataset, planner: PlannerState
@@ -204,14 +232,16 @@ def make_gear_figures(models: Path, demos: Path, heldout: Path | None, out: Path
     def fig3a() -> None:
         numbers["fig3a"] = plot_goal_trial(
             loaded.goal, states, truth, labels, out / GOAL_FIGURE,
-            f"goal heuristic on held-out trial {trial} (env seed {seed_of}, human {mode})")
+            f"goal heuristic on held-out trial {trial} (env seed {seed_of}, human {mode})",
+            loaded.option_names)
 
     def fig3b() -> None:
         numbers["fig3b"] = plot_tsne_regions(
             all_states[keep], all_labels[keep], all_flags[keep], regions,
             out / TSNE_FIGURE, seed,
             f"t-SNE of {len(keep)} planner states from {len(pool)} trials "
-            f"({sum(bool(p[2][0]) for p in pool)} with the human interfering)")
+            f"({sum(bool(p[2][0]) for p in pool)} with the human interfering)",
+            loaded.option_names)
 
     for draw in track([fig3a, fig3b], "gear figures", total=2, enabled=progress):
         draw()

@@ -5,6 +5,6 @@
 """
 
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.task import OPTION_NAMES, STAGES
+from dynoplan.envs.gear.task import PAPER_OPTIONS, STAGES
 
-__all__ = ["OBS_SLICES", "OPTION_NAMES", "STAGES", "GearAssemblyEnv"]
+__all__ = ["OBS_SLICES", "PAPER_OPTIONS", "STAGES", "GearAssemblyEnv"]

@@ -1,6 +1,7 @@
 """A scripted expert with privileged state that demonstrates the gear assembly.
 
-It solves the task through the paper's four options and labels every action with one:
+It solves the task through the paper's four options (:data:`~dynoplan.envs.gear.task.
+PAPER_OPTIONS`) and labels every action with one:
 
 - ``pick`` (0): move above the gear, descend, close the gripper, lift;
 - ``fast_move`` (1): carry the gear to an offset above the peg (a joint-space path,
@@ -29,11 +30,12 @@ from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, HOME_Q, GearAss
 from dynoplan.envs.gear.grasp import ik_gear_at
 from dynoplan.envs.gear.kinematics import ArmKinematics, downward_tool_rotation
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
-from dynoplan.envs.gear.task import OPTION_NAMES, STAGE_INDEX
+from dynoplan.envs.gear.task import PAPER_OPTIONS, STAGE_INDEX
 from dynoplan.envs.gear.trajectory import JointPath
 from dynoplan.types import FloatArray
 
-PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT = range(4)
+PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT = range(len(PAPER_OPTIONS))
+"""The labels of the paper's options (indices into :data:`PAPER_OPTIONS`)."""
 
 _STEP_OPTION = {"approach": PICK, "descend": PICK, "close": PICK, "lift": PICK,
                 "transport": FAST_MOVE, "insert": INSERT, "done": INSERT, "failed": PICK}
@@ -377,4 +379,4 @@ class GearExpert:
         return self.checker.human_distance_along(qs, hands, schedule.quaternion(hands), cap=0.5)
 
 
-__all__ = ["OPTION_NAMES", "ExpertAction", "ExpertConfig", "GearExpert"]
+__all__ = ["ExpertAction", "ExpertConfig", "GearExpert"]

@@ -1,4 +1,4 @@
-"""Demonstrations as the paper records them: an operator chaining the four options.
+"""Demonstrations as the paper records them: an operator chaining the paper's four options.
 
 The paper's demonstrations come from a person choosing which option runs; the states
 they visit are therefore the options' own. :class:`OptionOperator` is that person, with
@@ -16,7 +16,9 @@ Every step is labelled with the running option, so the safety regions and the go
 heuristic learned from these demonstrations describe where the real options go (the
 scripted :class:`~dynoplan.envs.gear.expert.GearExpert` moves along its own paths, which
 the planning options do not follow). It has the expert's interface: ``reset()`` and
-``act(observation, info) -> ExpertAction``.
+``act(observation, info) -> ExpertAction``. Options registered after the paper's four
+are not demonstrated (the regions then leave them out; their data comes from
+``dynoplan gear collect``).
 """
 
 from collections.abc import Mapping
@@ -29,7 +31,7 @@ from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, Ex
 from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState, tool_human_distance
-from dynoplan.envs.gear.task import OPTION_NAMES
+from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 from dynoplan.types import FloatArray
 
@@ -45,15 +47,17 @@ MAX_PICK_ATTEMPTS = 3
 
 
 class OptionOperator:
-    """Chains the option policies built by ``factories`` on ``env`` (module docstring)."""
+    """Chains the paper's option policies built by ``factories`` on ``env`` (module
+    docstring); labels are indices into :data:`~dynoplan.envs.gear.task.PAPER_OPTIONS`,
+    the first registered options."""
 
     def __init__(self, env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory],
                  seed: int = 0) -> None:
-        missing = [n for n in OPTION_NAMES if n not in factories]
+        missing = [n for n in PAPER_OPTIONS if n not in factories]
         if missing:
             raise DynoplanError(f"the operator needs every option; missing {', '.join(missing)}")
         self.env = env
-        self.policies = [factories[name](env) for name in OPTION_NAMES]
+        self.policies = [factories[name](env) for name in PAPER_OPTIONS]
         self.state_fn = PlannerState()
         self.rng = np.random.default_rng(seed)
         self.reset()

@@ -1,4 +1,4 @@
-"""Task geometry: the gear's pose relative to the peg, stages, success, option names.
+"""Task geometry: the gear's pose relative to the peg, stages, success, the paper's options.
 
 Everything here is read from the simulator's state (site and body poses, contacts); no
 flag is ever set by hand.
@@ -34,8 +34,10 @@ STAGES = ("on_table", "in_hand", "near_peg", "on_peg", "seated", "loose")
 """
 STAGE_INDEX = {name: i for i, name in enumerate(STAGES)}
 
-OPTION_NAMES = ("pick", "fast_move", "cautious_move", "insert")
-"""The paper's four options, in label order: an option label is an index into this tuple."""
+PAPER_OPTIONS = ("pick", "fast_move", "cautious_move", "insert")
+"""The paper's four options, which the demonstrators use, in label order. They are
+registered first, so they keep the labels 0..3; the options the pipeline runs (these and
+any registered after them) are :func:`~dynoplan.envs.gear.options.catalog.gear_option_names`."""
 
 
 @dataclass(frozen=True)

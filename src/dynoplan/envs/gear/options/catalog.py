@@ -1,32 +1,188 @@
-"""The four gear options by name: training their networks and building their policies.
+"""The gear options the pipeline uses: the paper's four, registered first, and any others.
 
-The two neural parts live in one models folder:
+:data:`GEAR_OPTIONS` is the registry every stage reads (demonstrations, collection,
+training, the models folder, the controllers, the figures, ``dynoplan gear option``).
+It starts with the paper's four options, in label order:
 
-- ``grasp_recognizer.safetensors``: the pick option's grasp recogniser
-  (:mod:`.recognition`);
-- ``insert_policy.safetensors``: the behaviour-cloned insertion network (:mod:`.insert`).
+- ``pick`` (:mod:`.pick`): its grasp recogniser is a network,
+  ``grasp_recognizer.safetensors`` (:mod:`.recognition`);
+- ``fast_move`` and ``cautious_move`` (:mod:`.moves`): planned, no network;
+- ``insert`` (:mod:`.insert`): the behaviour-cloned ``insert_policy.safetensors``
+  (:mod:`.insert_training`).
 
+A fifth option is a policy file and one call, :func:`register_gear_option` (see
+``docs/guide/adding-an-option.md``). Modules named in the environment variable
+:data:`PLUGINS_VARIABLE` are imported before the registry is first read, so that the
+command line and worker processes know the options they register.
+
+:func:`train_option_networks` trains the registered networks into a models folder;
 :func:`policy_factories` loads them once and returns, per option name, a factory that
 builds that option's policy on a given environment.
 """
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory
-from dynoplan.envs.gear.task import OPTION_NAMES
-from dynoplan.errors import DynoplanError
+from dynoplan.envs.gear.options.moves import (
+    CAUTIOUS_SAFETY_DISTANCE,
+    CautiousMovePolicy,
+    FastMovePolicy,
+)
+from dynoplan.envs.gear.options.preconditions import (
+    FarFromGoal,
+    hand_clear_of_tool,
+    hand_near_tool,
+    holding_gear,
+    insert_may_go_on,
+    insert_may_start,
+    not_carried,
+)
+from dynoplan.envs.gear.options.registry import GearOption, GearOptionRegistry, OptionNetwork
+from dynoplan.envs.gear.options.starts import after_pick, at_reset, before_insertion
+from dynoplan.envs.gear.task import PAPER_OPTIONS
+from dynoplan.options.initiation import AllOf, AnyOf, InitiationFromCallable
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 
 RECOGNIZER_FILE = "grasp_recognizer.safetensors"
 INSERT_FILE = "insert_policy.safetensors"
-NEURAL_FILES = {"pick": RECOGNIZER_FILE, "insert": INSERT_FILE}
+PLUGINS_VARIABLE = "DYNOPLAN_GEAR_OPTIONS"
+"""Environment variable: comma-separated modules (names, or paths of ``.py`` files) to
+import before the registry is first read, for the options they register."""
 
 
+# ----------------------------------------------------------------- the paper's options
+def _load_pick(path: Path) -> GearPolicyFactory:
+    from dynoplan.envs.gear.options.pick import PickPolicy
+    from dynoplan.envs.gear.options.recognition import GraspRecognizer
 
+    recognizer = GraspRecognizer.load(path)
+    return lambda env: PickPolicy(env, recognizer)
+
+
+def _pick_data_actor(env: GearAssemblyEnv) -> Any:
+    from dynoplan.envs.gear.options.pick import PickPolicy
+
+    return PickPolicy(env, recognizer=None)
+
+
+def _pick_data_episode(env: GearAssemblyEnv, actor: Any, seed: int, episode: int) -> Any:
+    from dynoplan.envs.gear.options.recognition import grasp_episode
+
+    return grasp_episode(env, actor, seed, episode)
+
+
+def _fit_recognizer(path: Path, episodes: list[Any], seed: int, quick: bool) -> dict[str, Any]:
+    from dynoplan.envs.gear.options.recognition import grasp_data, train_recognizer
+
+    report: dict[str, Any] = train_recognizer(path, grasp_data(episodes), seed=seed,
+                                              epochs=100 if quick else 150)
+    return report
+
+
+def _load_insert(path: Path) -> GearPolicyFactory:
+    from dynoplan.envs.gear.options.insert import InsertionNetwork, InsertPolicy
+
+    network = InsertionNetwork.load(path)
+    return lambda env: InsertPolicy(env, network)
+
+
+def _insert_data_actor(env: GearAssemblyEnv) -> Any:
+    from dynoplan.envs.gear.options.insert_training import ScriptedInserter
+
+    return ScriptedInserter()
+
+
+def _insert_data_episode(env: GearAssemblyEnv, actor: Any, seed: int, episode: int) -> Any:
+    from dynoplan.envs.gear.options.insert_training import insertion_episode
+
+    return insertion_episode(env, actor, seed, episode)
+
+
+def _fit_insertion(path: Path, episodes: list[Any], seed: int, quick: bool) -> dict[str, Any]:
+    from dynoplan.envs.gear.options.insert_training import (
+        DEFAULT_NOISE_STD,
+        insertion_demos,
+        train_insertion,
+    )
+
+    report: dict[str, Any] = train_insertion(
+        path, insertion_demos(episodes, seed, DEFAULT_NOISE_STD), seed=seed)
+    return report
+
+
+_FAR_FROM_GOAL = FarFromGoal()  # one forward-kinematics model for both moves
+_MOVE_GOES_ON = InitiationFromCallable(holding_gear)
+
+PICK = GearOption(
+    "pick", start=at_reset,
+    initiation=AllOf(InitiationFromCallable(not_carried),
+                     InitiationFromCallable(hand_clear_of_tool)),
+    network=OptionNetwork(RECOGNIZER_FILE, _load_pick, _pick_data_actor, _pick_data_episode,
+                          _fit_recognizer),
+    color="#c51bc5")
+"""Paper option 1: OMPL to a pre-grasp pose, approach, close; a recognition network
+decides "grasped". Starts with the gear not carried and the hand clear of the tool."""
+FAST_MOVE = GearOption(
+    "fast_move", FastMovePolicy, start=after_pick,
+    initiation=AllOf(_MOVE_GOES_ON, _FAR_FROM_GOAL), continuation=_MOVE_GOES_ON,
+    color="#2ca02c")
+"""Paper option 2: one OMPL plan to the pre-insertion pose that ignores the human."""
+CAUTIOUS_MOVE = GearOption(
+    "cautious_move", CautiousMovePolicy, start=after_pick,
+    initiation=AllOf(_MOVE_GOES_ON, AnyOf(_FAR_FROM_GOAL, InitiationFromCallable(hand_near_tool))),
+    continuation=_MOVE_GOES_ON, human_mode="block", color="#7fbf3f",
+    trial_notes={"safety_distance": CAUTIOUS_SAFETY_DISTANCE})
+"""Paper option 3: the same goal, keeping clearance from the human (see
+:data:`~dynoplan.envs.gear.options.moves.CAUTIOUS_SAFETY_DISTANCE`)."""
+INSERT = GearOption(
+    "insert", start=before_insertion,
+    initiation=insert_may_start, continuation=insert_may_go_on,
+    network=OptionNetwork(INSERT_FILE, _load_insert, _insert_data_actor, _insert_data_episode,
+                          _fit_insertion),
+    color="#1f5fbf")
+"""Paper option 4: the behaviour-cloned insertion network."""
+
+
+_PAPER = (PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT)
+assert tuple(o.name for o in _PAPER) == PAPER_OPTIONS  # the demonstrators' labels 0..3
+GEAR_OPTIONS = GearOptionRegistry(_PAPER, plugins=PLUGINS_VARIABLE)
+"""The registry the gear pipeline reads; an option's label is its index here."""
+
+
+def register_gear_option(option: GearOption) -> GearOption:
+    """Add ``option`` to :data:`GEAR_OPTIONS` (label: the next index); returns it."""
+    return GEAR_OPTIONS.register(option)
+
+
+def gear_option(name: str) -> GearOption:
+    """The registered option ``name`` (:class:`DynoplanError` if there is none)."""
+    return GEAR_OPTIONS.get(name)
+
+
+def gear_option_names() -> tuple[str, ...]:
+    """The registered options' names, in label order."""
+    return GEAR_OPTIONS.names()
+
+
+@contextmanager
+def temporary_gear_options(*options: GearOption) -> Iterator[GearOptionRegistry]:
+    """Register ``options`` for the ``with`` block only (:meth:`GearOptionRegistry.temporary`)."""
+    with GEAR_OPTIONS.temporary(*options) as registry:
+        yield registry
+
+
+def network_files() -> dict[str, str]:
+    """The registered neural options' network file names, by option name."""
+    return {o.name: o.network.file for o in GEAR_OPTIONS if o.network is not None}
+
+
+# ----------------------------------------------------------------- training the networks
 @dataclass(frozen=True)
 class NetworkData:
     """The training episodes of ``option``'s network (``pick``: the grasp recogniser's
@@ -39,48 +195,38 @@ class NetworkData:
 
 def build_network_data(job: NetworkData) -> tuple[NetworkData, GearAssemblyEnv, Any]:
     """The job, a data environment and what acts in it (once per process)."""
-    from dynoplan.envs.gear.options.insert_training import ScriptedInserter
-    from dynoplan.envs.gear.options.pick import PickPolicy
     from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS
 
+    network = gear_option(job.option).network
+    assert network is not None
     env = GearAssemblyEnv(max_episode_steps=DATA_EPISODE_STEPS)
-    actor = PickPolicy(env, recognizer=None) if job.option == "pick" else ScriptedInserter()
-    return job, env, actor
+    return job, env, network.data_actor(env)
 
 
 def network_data_episode(state: tuple[NetworkData, GearAssemblyEnv, Any], episode: int) -> Any:
-    """Training episode ``episode`` of the job: what
-    :func:`~dynoplan.envs.gear.options.recognition.grasp_episode` or
-    :func:`~dynoplan.envs.gear.options.insert_training.insertion_episode` returns (it
-    depends on the seed and the index alone)."""
-    from dynoplan.envs.gear.options.insert_training import insertion_episode
-    from dynoplan.envs.gear.options.recognition import grasp_episode
-
+    """Training episode ``episode`` of the job (the network's ``data_episode``; it depends
+    on the seed and the index alone)."""
     job, env, actor = state
-    if job.option == "pick":
-        return grasp_episode(env, actor, job.seed, episode)
-    return insertion_episode(env, actor, job.seed, episode)
+    network = gear_option(job.option).network
+    assert network is not None
+    return network.data_episode(env, actor, job.seed, episode)
 
 
 def train_option_networks(models: Path, seed: int, quick: bool = False,
-                          only: tuple[str, ...] = ("pick", "insert"),
+                          only: tuple[str, ...] | None = None,
                           workers: Workers = SERIAL) -> dict[str, Any]:
-    """Generate data and train the recogniser and/or the insertion network into
-    ``models``; returns each one's training report by option name.
+    """Generate data and train the registered options' networks (those named in
+    ``only``, default all) into ``models``; returns each one's training report by option
+    name.
 
-    The data episodes of both networks are one map on ``workers`` (each episode depends on
+    The data episodes of all networks are one map on ``workers`` (each episode depends on
     the seed and its index alone, so the data, and the networks, are the same on one
-    worker or many); the two fits run here, one after the other. The reports'
-    ``data_seconds`` is then the map's wall time, shared by both."""
-    from dynoplan.envs.gear.options.insert_training import (
-        DEFAULT_NOISE_STD,
-        insertion_demos,
-        train_insertion,
-    )
-    from dynoplan.envs.gear.options.recognition import grasp_data, train_recognizer
-
+    worker or many); the fits run here, one after the other. The reports'
+    ``data_seconds`` is then the map's wall time, shared by all."""
     models.mkdir(parents=True, exist_ok=True)
-    sizes = {name: 24 if quick else 80 for name in ("pick", "insert") if name in only}
+    networks = {o.name: o.network for o in GEAR_OPTIONS
+                if o.network is not None and (only is None or o.name in only)}
+    sizes = {name: n.quick_episodes if quick else n.episodes for name, n in networks.items()}
     tasks = [(NetworkData(name, seed), e) for name, n in sizes.items() for e in range(n)]
     t0 = time.perf_counter()
     episodes: list[Any] = [None] * len(tasks)
@@ -89,14 +235,11 @@ def train_option_networks(models: Path, seed: int, quick: bool = False,
         episodes[i] = episode
     data_seconds = time.perf_counter() - t0
     reports: dict[str, Any] = {}
-    if "pick" in sizes:
-        reports["pick"] = train_recognizer(models / RECOGNIZER_FILE,
-                                           grasp_data(episodes[:sizes["pick"]]), seed=seed,
-                                           epochs=100 if quick else 150)
-    if "insert" in sizes:
-        reports["insert"] = train_insertion(
-            models / INSERT_FILE, insertion_demos(episodes[-sizes["insert"]:], seed,
-                                                  DEFAULT_NOISE_STD), seed=seed)
+    first = 0
+    for name, network in networks.items():
+        own = episodes[first:first + sizes[name]]
+        first += sizes[name]
+        reports[name] = network.fit(models / network.file, own, seed, quick)
     for report in reports.values():
         report["data_seconds"] = round(data_seconds, 2)
     return reports
@@ -104,46 +247,35 @@ def train_option_networks(models: Path, seed: int, quick: bool = False,
 
 def policy_factory(name: str, models: Path | None) -> GearPolicyFactory:
     """A factory of ``name``'s policy; neural options read their network from ``models``."""
-    from dynoplan.envs.gear.options.moves import CautiousMovePolicy, FastMovePolicy
-
-    if name not in OPTION_NAMES:
-        raise DynoplanError(f"unknown option {name!r}; expected one of {', '.join(OPTION_NAMES)}")
-    if name == "fast_move":
-        return FastMovePolicy
-    if name == "cautious_move":
-        return CautiousMovePolicy
-    if models is None:
-        raise DynoplanError(f"option {name!r} needs a models folder with {NEURAL_FILES[name]}")
-    path = models / NEURAL_FILES[name]
-    if not path.is_file():
-        raise DynoplanError(f"{path}: no such model file (train it with `dynoplan gear "
-                            f"option {name} --train` or `dynoplan gear run`)")
-    if name == "pick":
-        from dynoplan.envs.gear.options.pick import PickPolicy
-        from dynoplan.envs.gear.options.recognition import GraspRecognizer
-
-        recognizer = GraspRecognizer.load(path)
-        return lambda env: PickPolicy(env, recognizer)
-    from dynoplan.envs.gear.options.insert import InsertionNetwork, InsertPolicy
-
-    network = InsertionNetwork.load(path)
-    return lambda env: InsertPolicy(env, network)
+    return gear_option(name).factory(models)
 
 
 def policy_factories(models: Path | None) -> dict[str, GearPolicyFactory]:
-    """:func:`policy_factory` of every option, in :data:`OPTION_NAMES` order."""
-    return {name: policy_factory(name, models) for name in OPTION_NAMES}
+    """:func:`policy_factory` of every registered option, in label order."""
+    return {option.name: option.factory(models) for option in GEAR_OPTIONS}
 
 
 __all__ = [
+    "CAUTIOUS_MOVE",
+    "FAST_MOVE",
+    "GEAR_OPTIONS",
+    "INSERT",
     "INSERT_FILE",
-    "NEURAL_FILES",
+    "PICK",
+    "PLUGINS_VARIABLE",
     "RECOGNIZER_FILE",
+    "GearOption",
     "GearPolicyFactory",
     "NetworkData",
+    "OptionNetwork",
     "build_network_data",
+    "gear_option",
+    "gear_option_names",
     "network_data_episode",
+    "network_files",
     "policy_factories",
     "policy_factory",
+    "register_gear_option",
+    "temporary_gear_options",
     "train_option_networks",
 ]

@@ -1,14 +1,20 @@
 """Seeded starting states of each gear option (its "own starting region").
 
-- ``pick``: a fresh reset (random gear pose), the gripper open at the home pose;
-- ``fast_move`` and ``cautious_move``: the gear grasped and lifted, where the expert
-  would start carrying it (:data:`CARRY_STEP`);
-- ``insert``: the gear held at the pre-insertion offset above the peg, with the arm
-  displaced by a random joint offset (a "noisy pre-insertion pose").
+An option's start sampler (:attr:`~dynoplan.envs.gear.options.registry.GearOption.start`)
+drives an env just reset (with the human away) to where the option starts:
+
+- :func:`at_reset` (``pick``): a fresh reset (random gear pose), the gripper open at the
+  home pose;
+- :func:`after_pick` (``fast_move`` and ``cautious_move``): the gear grasped and lifted,
+  where the expert would start carrying it (:data:`CARRY_STEP`);
+- :func:`before_insertion` (``insert``): the gear held at the pre-insertion offset above
+  the peg, with the arm displaced by a random joint offset (a "noisy pre-insertion
+  pose").
 
 The scripted expert (with the human kept away) drives the robot to the start; then the
-human's schedule is replaced by one of the requested mode whose first event begins
-within ``event_delay`` seconds, so that the option meets the human while it runs.
+human's schedule is replaced by one of the requested mode (default: the option's
+``human_mode``) whose first event begins within ``event_delay`` seconds, so that the
+option meets the human while it runs.
 """
 
 from dataclasses import dataclass
@@ -19,15 +25,11 @@ import numpy as np
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, GearAssemblyEnv
 from dynoplan.envs.gear.expert import GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES, HumanSchedule, sample_schedule
-from dynoplan.envs.gear.task import OPTION_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.types import FloatArray, Generator
 
 CARRY_STEP = "transport"
 INSERT_STEP = "insert"
-DEFAULT_HUMAN_MODE = {"pick": "away", "fast_move": "away", "cautious_move": "block",
-                      "insert": "away"}
-"""The human schedule each option's trials use unless told otherwise."""
 DATA_EPISODE_STEPS = 10_000
 """``max_episode_steps`` of the environments the option networks' training data is
 generated in (the data's own episodes end far sooner)."""
@@ -76,31 +78,44 @@ def shifted_schedule(env: GearAssemblyEnv, mode: str, rng: Generator,
                          events=base.events)
 
 
+def at_reset(env: GearAssemblyEnv, rng: Generator, config: StartConfig) -> bool:
+    """Start where the env was reset: the gear on the table, the arm at home."""
+    return True
+
+
+def after_pick(env: GearAssemblyEnv, rng: Generator, config: StartConfig) -> bool:
+    """Start with the gear grasped and lifted: the expert runs until it would start
+    carrying it (:data:`CARRY_STEP`)."""
+    return _run_expert_until(env, CARRY_STEP, config.max_expert_steps) is not None
+
+
+def before_insertion(env: GearAssemblyEnv, rng: Generator, config: StartConfig) -> bool:
+    """Start at a noisy pre-insertion pose: the expert runs until it would insert
+    (:data:`INSERT_STEP`), then the left arm is held at a random joint offset
+    (``config.insert_noise``) for ``config.settle_steps`` steps with the gear held."""
+    if _run_expert_until(env, INSERT_STEP, config.max_expert_steps) is None:
+        return False
+    return _displace(env, rng, config) is not None
+
+
 def reach_start(env: GearAssemblyEnv, option: str, rng: Generator,
                 human_mode: str | None = None,
                 config: StartConfig | None = None) -> OptionStart:
-    """Reset ``env`` and drive it to a start state of ``option``; all randomness from
-    ``rng``. Raises :class:`DynoplanError` if no attempt reaches it."""
-    if option not in OPTION_NAMES:
-        raise DynoplanError(f"unknown option {option!r}; expected one of {OPTION_NAMES}")
+    """Reset ``env`` and drive it to a start state of the registered option ``option``
+    (its ``start`` sampler); all randomness from ``rng``. Raises :class:`DynoplanError`
+    if no attempt reaches it."""
+    from dynoplan.envs.gear.options.catalog import gear_option
+
+    record = gear_option(option)
     cfg = config or StartConfig()
-    mode = human_mode or DEFAULT_HUMAN_MODE[option]
+    mode = human_mode or record.human_mode
     if mode not in HUMAN_MODES:
         raise DynoplanError(f"human mode must be one of {HUMAN_MODES}, got {mode!r}")
     for _ in range(cfg.attempts):
         seed = int(rng.integers(2**31 - 1))
-        obs, info = env.reset(seed=seed, options={"human_mode": "away"})
-        if option != "pick":
-            target = INSERT_STEP if option == "insert" else CARRY_STEP
-            reached = _run_expert_until(env, target, cfg.max_expert_steps)
-            if reached is None:
-                continue
-            obs, info = reached
-            if option == "insert":
-                displaced = _displace(env, rng, cfg)
-                if displaced is None:
-                    continue
-                obs, info = displaced
+        env.reset(seed=seed, options={"human_mode": "away"})
+        if not record.start(env, rng, cfg):
+            continue
         obs, info = env.set_human_schedule(shifted_schedule(env, mode, rng, cfg.event_delay))
         return OptionStart(observation=obs, info=info, env_seed=seed, human_mode=mode)
     raise DynoplanError(f"could not reach a start state of {option!r} in {cfg.attempts} "
@@ -143,5 +158,5 @@ def _displace(env: GearAssemblyEnv, rng: Generator,
     return obs, info
 
 
-__all__ = ["DATA_EPISODE_STEPS", "DEFAULT_HUMAN_MODE", "OptionStart", "StartConfig", "reach_start",
-           "shifted_schedule"]
+__all__ = ["CARRY_STEP", "DATA_EPISODE_STEPS", "INSERT_STEP", "OptionStart", "StartConfig",
+           "after_pick", "at_reset", "before_insertion", "reach_start", "shifted_schedule"]
