@@ -152,7 +152,7 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     assert manifest["option_names"] == [*PAPER_OPTIONS, "lift"]
     assert manifest["dynamics"]["lift"]["file"] == "dynamics-lift.safetensors"
     loaded = load_gear_models(models)
-    assert loaded.option_names == (*PAPER_OPTIONS, "lift")
+    assert loaded.option_names == [*PAPER_OPTIONS, "lift"]
     assert loaded.regions.option_names == list(PAPER_OPTIONS)
     assert "lift" not in metrics["regions"]["inside_rate_by_option"]
 
