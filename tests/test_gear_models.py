@@ -16,6 +16,7 @@ import pytest
 from dynoplan.data import Episode, labelled_transitions, read_dataset
 from dynoplan.envs.gear.features import RELATIVE, TASK
 from dynoplan.envs.gear.options import gear_option_names
+from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_demos import record_demos
@@ -23,10 +24,11 @@ from dynoplan.experiments.gear_model_data import (
     demonstration_transitions,
     write_demonstration_transitions,
 )
-from dynoplan.experiments.gear_model_files import METRICS_FILE, load_gear_models
+from dynoplan.experiments.gear_model_files import HELDOUT_DIR, METRICS_FILE, load_gear_models
 from dynoplan.experiments.gear_model_metrics import fit_regions_cross_validated
 from dynoplan.experiments.gear_model_settings import QUICK_SETTINGS
 from dynoplan.experiments.gear_models import train_gear_models
+from dynoplan.experiments.gear_stages import learned_models
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
@@ -188,6 +190,22 @@ def test_missing_truncated_and_mismatched_files_are_rejected(trained, tmp_path):
     manifest["regions"]["features"] = "columns"
     (folder / MANIFEST_FILE).write_text(json.dumps(manifest))
     _one_line_error(folder, "feature map 'columns'")
+
+
+def test_train_records_missing_held_out_trials_by_the_demonstrations_demonstrator(data,
+                                                                                  tmp_path):
+    """``gear train`` without ``--heldout``: the settings' held-out trials (quick: 3) from
+    seed + 1000 in MODELS/heldout-demos, by whoever recorded the demonstrations (here the
+    scripted expert, which needs no option network), and kept for the next fit."""
+    out = tmp_path / "models"
+    metrics = learned_models(data / "demos", None, out, 0, None, quick=True, progress=False)
+    held = read_dataset(out / HELDOUT_DIR)
+    assert len(held) == QUICK_SETTINGS.heldout_episodes == metrics["data"]["heldout_episodes"]
+    assert held.metadata.seed == 1000 and held.metadata.extra["demonstrator"] == "expert"
+    assert not any((out / f).exists() for f in network_files().values())
+    recorded = (out / HELDOUT_DIR / "data" / "main_data.hdf5").stat().st_mtime_ns
+    learned_models(data / "demos", None, out, 0, None, quick=True, progress=False)
+    assert (out / HELDOUT_DIR / "data" / "main_data.hdf5").stat().st_mtime_ns == recorded
 
 
 def test_held_out_trials_must_not_repeat_the_demonstrations(data, tmp_path):

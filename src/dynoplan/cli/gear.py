@@ -36,36 +36,50 @@ def expert(
     )
 
 
+QUICK_STAGE_HELP = "Sizes of gear run --quick instead of gear run's."
+
+
 @gear_app.command("demos")
 def demos(
-    n: int = typer.Option(10, "--n", help="Demonstrations to record (the paper: 10)."),
+    n: int | None = typer.Option(None, "--n", help="Demonstrations to record (default: gear "
+                                 "run's, 10 as in the paper)."),
     seed: int = typer.Option(0, help="Seed from which every episode's seed is derived."),
     out: Path = typer.Option(Path("results/gear-demos"), help="Dataset folder to write."),
+    heldout: bool = typer.Option(False, "--heldout", help="Record the held-out trials "
+                                 "instead (gear run's OUT/heldout): episodes of seeds "
+                                 "disjoint from the demonstrations'."),
     human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
-    demonstrator: str = typer.Option("expert", help="expert (the scripted expert, with "
-                                     "privileged state) or options (an operator chaining "
-                                     "the four option policies, as gear run records)."),
+    demonstrator: str | None = typer.Option(None, help="options (the default, as gear run: "
+                                            "an operator chaining the four option "
+                                            "policies) or expert (the scripted expert, "
+                                            "with privileged state)."),
     models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
                                 "for --demonstrator options (trained there first if "
                                 "missing)."),
+    quick: bool = typer.Option(False, "--quick", help=QUICK_STAGE_HELP),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
-    """Record demonstrations with option labels and progress as a dataset."""
+    """Record demonstrations with option labels and progress as a dataset (gear run's
+    demos stage)."""
     import torch
 
-    from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.parallel import parse_workers
+    from dynoplan.experiments.gear_run import run_settings
+    from dynoplan.experiments.gear_stages import DEMONSTRATOR, demonstrations
+    from dynoplan.parallel import parse_workers, ray_session
 
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
-    if demonstrator == "options":
-        _ensure_neural_options(models, seed)
-    summary = record_demos(n, seed, out, progress=not quiet, human_mode=human,
-                           demonstrator=demonstrator, models=models, workers=pool)
+    count = run_settings(quick).demos if n is None else n
+    demonstrator = demonstrator or DEMONSTRATOR
+    with ray_session(pool):
+        summary = demonstrations(count, seed, out, models, heldout=heldout,
+                                 demonstrator=demonstrator, human_mode=human,
+                                 progress=not quiet, workers=pool, log=typer.echo)
     modes = ", ".join(f"{k} {v}" for k, v in summary["human_modes"].items())
-    typer.echo(f"{summary['episodes']} demonstrations, {summary['steps']} steps, success "
+    typer.echo(f"{summary['episodes']} {'held-out trials' if heldout else 'demonstrations'} "
+               f"({demonstrator}), {summary['steps']} steps, success "
                f"{summary['success_rate']:.0%}, human: {modes} -> {out}")
 
 
@@ -83,26 +97,6 @@ def render(
 
     written = render_scene(out, seed=seed, video=video, human_mode=human)
     typer.echo(" ".join(str(p) for p in written.values()))
-
-
-def _ensure_networks(name: str, models: Path, seed: int) -> dict[str, object] | None:
-    """Train ``name``'s network into ``models`` if it is not there yet; its report."""
-    from dynoplan.envs.gear.options.catalog import network_files, train_option_networks
-
-    files = network_files()
-    if name not in files or (models / files[name]).is_file():
-        return None
-    typer.echo(f"training the {name} network into {models} ...")
-    report: dict[str, object] = train_option_networks(models, seed, only=(name,))[name]
-    return report
-
-
-def _ensure_neural_options(models: Path, seed: int) -> None:
-    """Train every neural option's network missing from ``models`` (:func:`_ensure_networks`)."""
-    from dynoplan.envs.gear.options.catalog import network_files
-
-    for name in network_files():
-        _ensure_networks(name, models, seed)
 
 
 @gear_app.command("option")
@@ -126,13 +120,14 @@ def option(
 
     from dynoplan.envs.gear.options.catalog import gear_option
     from dynoplan.experiments.gear_options import run_option_trials
+    from dynoplan.experiments.gear_stages import option_networks
 
     registered = gear_option(name)
     torch.set_num_threads(1)
     extra: dict[str, object] = {}
-    trained = _ensure_networks(name, models, seed)
-    if trained is not None:
-        extra["network_training"] = trained
+    trained = option_networks(models, seed, only=(name,), log=typer.echo)
+    if trained:
+        extra["network_training"] = trained[name]
     extra.update(registered.trial_notes)
     summary = run_option_trials(name, registered.factory(models), trials, seed, out,
                                 human_mode=human, max_steps=max_steps, video=video,
@@ -146,27 +141,34 @@ def option(
 
 @gear_app.command("collect")
 def collect(
-    runs: int = typer.Option(60, help="Runs per option."),
+    runs: int | None = typer.Option(None, help="Runs per option (default: gear run's)."),
     seed: int = typer.Option(0, help="Run r of option k uses default_rng([seed, k, r])."),
     out: Path = typer.Option(Path("results/gear-transitions"), help="Dataset folder."),
     models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
-    max_decisions: int = typer.Option(30, help="Decisions (0.5 s each) per run at most."),
+    max_decisions: int | None = typer.Option(None, help="Decisions (0.5 s each) per run at "
+                                             "most (default: gear run's)."),
+    quick: bool = typer.Option(False, "--quick", help=QUICK_STAGE_HELP),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
-    """Collect option transitions at the decision rate (for the dynamics models)."""
+    """Collect option transitions at the decision rate for the dynamics models (gear run's
+    collect stage)."""
     import torch
 
-    from dynoplan.experiments.gear_collect import collect_transitions
-    from dynoplan.parallel import parse_workers
+    from dynoplan.experiments.gear_run import run_settings
+    from dynoplan.experiments.gear_stages import option_transitions
+    from dynoplan.parallel import parse_workers, ray_session
 
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
-    _ensure_neural_options(models, seed)
-    summary = collect_transitions(models, runs, seed, out, max_decisions=max_decisions,
-                                  progress=not quiet, workers=pool)
+    sizes = run_settings(quick)
+    with ray_session(pool):
+        summary = option_transitions(
+            models, sizes.collect_runs if runs is None else runs, seed, out,
+            sizes.collect_max_decisions if max_decisions is None else max_decisions,
+            progress=not quiet, workers=pool, log=typer.echo)
     counts = ", ".join(f"{k} {v}" for k, v in summary["transitions"].items())
     typer.echo(f"{summary['runs']} runs, transitions: {counts} -> {out}")
 
@@ -176,20 +178,31 @@ def train(
     demos: Path = typer.Option(Path("results/gear-demos"), help="Demonstrations dataset."),
     transitions: Path | None = typer.Option(None, help="Option transitions dataset "
                                             "(default: the demonstrations subsampled)."),
-    heldout: Path | None = typer.Option(None, help="Held-out expert trials (default: "
-                                        "recorded into OUT/heldout-demos)."),
-    out: Path = typer.Option(DEFAULT_MODELS, help="Models folder (metrics.json too)."),
+    heldout: Path | None = typer.Option(None, help="Held-out trials (gear demos --heldout; "
+                                        "default: recorded into OUT/heldout-demos by the "
+                                        "demonstrations' demonstrator)."),
+    out: Path = typer.Option(DEFAULT_MODELS, help="Models folder (metrics.json too; the "
+                             "option networks too, trained there first if the held-out "
+                             "trials need them)."),
     seed: int = typer.Option(0, help="Seed of every fit."),
-    quick: bool = typer.Option(False, "--quick", help="Small settings (CI)."),
+    quick: bool = typer.Option(False, "--quick", help="Small settings (those of gear run "
+                               "--quick)."),
+    workers: str = workers_option(),
+    ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
-    """Fit the goal heuristic, the safety regions and the per-option dynamics."""
+    """Fit the goal heuristic, the safety regions and the per-option dynamics (gear run's
+    train stage)."""
     import torch
 
-    from dynoplan.experiments.gear_models import train_gear_models
+    from dynoplan.experiments.gear_stages import learned_models
+    from dynoplan.parallel import parse_workers, ray_session
 
+    pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
-    m = train_gear_models(demos, transitions, out, seed, heldout, quick, progress=not quiet)
+    with ray_session(pool):
+        m = learned_models(demos, transitions, out, seed, heldout, quick, progress=not quiet,
+                           workers=pool, log=typer.echo)
     typer.echo(f"goal spearman {m['goal_spearman']:.3f}, mae {m['goal_mae']:.3f}; regions "
                f"inside {m['region_inside_rate']:.3f}, far outside "
                f"{m['region_far_outside_rate']:.3f}; dynamics coverage_90 "
@@ -205,16 +218,19 @@ def figures(
     out: Path = typer.Option(Path("results/gear-figures"), help="Output folder."),
     seed: int = typer.Option(0, help="t-SNE seed."),
     trial: int = typer.Option(0, help="Held-out trial drawn in Fig. 3(a)."),
-    points: int = typer.Option(1500, help="States embedded by t-SNE at most."),
+    points: int | None = typer.Option(None, help="States embedded by t-SNE at most "
+                                      "(default: gear run's)."),
+    quick: bool = typer.Option(False, "--quick", help=QUICK_STAGE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
-    """Draw Fig. 3(a) (goal heuristic vs truth) and Fig. 3(b) (t-SNE with regions)."""
-    from dynoplan.reports.gear_figures import make_gear_figures
+    """Draw Fig. 3(a) (goal heuristic vs truth) and Fig. 3(b) (t-SNE with regions), as gear
+    run's figures stage."""
+    from dynoplan.experiments.gear_stages import figures as draw_figures
 
-    info = make_gear_figures(models, demos, heldout, out, seed=seed, trial=trial,
-                             max_points=points, progress=not quiet)
-    typer.echo(" ".join(str(v) for k, v in info.items() if str(v).endswith(".png"))
-               or str(out))
+    info = draw_figures(models, demos, heldout, out, seed, quick, trial=trial, points=points,
+                        progress=not quiet)
+    typer.echo(" ".join(str(v["file"]) for v in info.values()
+                        if isinstance(v, dict) and "file" in v) or str(out))
 
 
 @gear_app.command("run")
@@ -238,12 +254,12 @@ def run(
     os.environ.setdefault("MUJOCO_GL", "egl")  # the video renders offscreen
 
     from dynoplan.errors import DynoplanError
-    from dynoplan.experiments.gear_run import QUICK_RUN, GearRunSettings, run_gear_pipeline
+    from dynoplan.experiments.gear_run import run_gear_pipeline, run_settings
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
 
-    settings = QUICK_RUN if quick else GearRunSettings()
+    settings = run_settings(quick)
     if episodes is not None:
         settings = replace(settings, episodes=episodes)
     if oracle_episodes is not None:

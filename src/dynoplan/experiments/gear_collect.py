@@ -127,6 +127,12 @@ def collect_option_run(state: CollectState, run: tuple[str, int]) -> tuple[str, 
                              state.job.max_decisions)
 
 
+def check_collection(runs_per_option: int, max_decisions: int) -> None:
+    """One error line for a collection that cannot run (before any work is done)."""
+    if runs_per_option < 1 or max_decisions < 1:
+        raise DynoplanError("--runs and --max-decisions must be >= 1")
+
+
 def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_per_option: int,
                         seed: int, out: Path, max_decisions: int = 30,
                         progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
@@ -151,8 +157,7 @@ def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_
             raise DynoplanError("collection on several workers needs the models folder, "
                                 "not policy factories")
         models, names, given = None, tuple(n for n in registered if n in factories), factories
-    if runs_per_option < 1 or max_decisions < 1:
-        raise DynoplanError("--runs and --max-decisions must be >= 1")
+    check_collection(runs_per_option, max_decisions)
     if models is not None:
         policy_factories(models)  # a missing or broken network: one error here, not per run
     job = CollectJob(models, names, seed, max_decisions, given)
@@ -197,5 +202,5 @@ def _perturb(env: GearAssemblyEnv, rng: Generator,
     return obs, info
 
 
-__all__ = ["DATASET_ID", "CollectJob", "CollectState", "build_collection", "collect_option_run",
-           "collect_run", "collect_transitions"]
+__all__ = ["DATASET_ID", "CollectJob", "CollectState", "build_collection", "check_collection",
+           "collect_option_run", "collect_run", "collect_transitions"]

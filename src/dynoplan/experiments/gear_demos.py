@@ -1,8 +1,10 @@
-"""Expert demonstrations of the gear assembly, saved in the project's dataset format.
+"""Demonstrations of the gear assembly, saved in the project's dataset format.
 
-``record_demos`` runs the scripted expert (:mod:`dynoplan.experiments.gear_expert`) on
-seeded episodes, with the human schedule drawn per episode (away, crossing or blocking),
-and writes them with option labels and progress as a Minari-layout dataset
+``record_demos`` runs a demonstrator (:mod:`dynoplan.experiments.gear_expert`: the
+scripted expert, or the operator chaining the option policies, which ``gear run`` and
+``gear demos`` use, :func:`dynoplan.experiments.gear_stages.demonstrations`) on seeded
+episodes, with the human schedule drawn per episode (away, crossing or blocking), and
+writes them with option labels and progress as a Minari-layout dataset
 (``docs/dataset-format.md``).
 """
 

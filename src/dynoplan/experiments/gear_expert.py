@@ -42,11 +42,18 @@ def episode_seeds(seed: int, episodes: int) -> list[int]:
     return [s.env_seed for s in derive_episode_seeds(seed, episodes)]
 
 
-def _check(episodes: int, human_mode: str | None) -> None:
+def check_request(episodes: int, human_mode: str | None, demonstrator: str = "expert",
+                  count_flag: str = "--episodes") -> None:
+    """One error line for a request that cannot run (before any work is done): fewer than
+    one episode (the command's flag ``count_flag``), an unknown human mode or an unknown
+    demonstrator (:data:`DEMONSTRATORS`)."""
     if episodes < 1:
-        raise DynoplanError(f"--episodes must be >= 1, got {episodes}")
+        raise DynoplanError(f"{count_flag} must be >= 1, got {episodes}")
     if human_mode is not None and human_mode not in HUMAN_MODES:
         raise DynoplanError(f"--human must be one of {', '.join(HUMAN_MODES)}, got {human_mode!r}")
+    if demonstrator not in DEMONSTRATORS:
+        raise DynoplanError(f"unknown demonstrator {demonstrator!r}; expected one of "
+                            f"{', '.join(DEMONSTRATORS)}")
 
 
 class Demonstrator(Protocol):
@@ -192,10 +199,7 @@ def record_expert_episodes(n: int, seed: int, progress: bool = False,
     ``demonstrator`` is one of :data:`DEMONSTRATORS`. The episodes run on ``workers``;
     each depends on its own seed and mode alone (:func:`demonstrated_episode`), so the
     list is the same on one worker or many."""
-    _check(n, human_mode)
-    if demonstrator not in DEMONSTRATORS:
-        raise DynoplanError(f"unknown demonstrator {demonstrator!r}; expected one of "
-                            f"{', '.join(DEMONSTRATORS)}")
+    check_request(n, human_mode, demonstrator)
     job = DemoJob(demonstrator, models)
     if demonstrator == "expert":
         return parallel_map(build_demonstrator, demonstrated_episode, job,
@@ -289,7 +293,7 @@ def summarise(episodes: list[Episode], seed: int, wall_seconds: float) -> dict[s
 def run_expert(episodes: int, seed: int, out: Path, progress: bool = True,
                human_mode: str | None = None) -> dict[str, Any]:
     """Run the expert for ``episodes`` seeded episodes; write ``out/summary.json``."""
-    _check(episodes, human_mode)
+    check_request(episodes, human_mode)
     folder = ensure_writable_dir(out)
     t0 = time.perf_counter()
     eps = record_expert_episodes(episodes, seed, progress=progress, human_mode=human_mode)
@@ -304,7 +308,7 @@ def render_scene(out: Path, seed: int = 0, video: bool = True, human_mode: str |
     ``out/episode.mp4`` (the expert's episode at 20 frames per second)."""
     import imageio.v2 as imageio
 
-    _check(1, human_mode)
+    check_request(1, human_mode)
     folder = ensure_writable_dir(out)
     env = GearAssemblyEnv(render_mode="rgb_array", width=width, height=height)
     written: dict[str, Path] = {}

@@ -2,8 +2,9 @@
 
 - :func:`read_demos` / :func:`read_labelled`: datasets of the gear assembly with option
   labels (``infos["option"]``) and, for demonstrations, ``infos["progress"]``;
-  :func:`record_heldout` records held-out expert trials from
-  ``seed + HELDOUT_SEED_OFFSET`` and :func:`check_disjoint` rejects shared seeds.
+  held-out trials come from ``seed + HELDOUT_SEED_OFFSET``
+  (:func:`~dynoplan.experiments.gear_stages.demonstrations`) and :func:`check_disjoint`
+  rejects shared seeds with the demonstrations.
 - :func:`demo_arrays`: per demonstration, planner states ``(T+1, 22)``, progress
   ``(T+1,)`` and option labels ``(T,)``.
 - :func:`demonstration_transitions`: option transitions at the decision rate cut from
@@ -129,22 +130,6 @@ def demo_arrays(dataset: Dataset, planner: PlannerState
         labels = episode.options
         assert labels is not None
         out.append((states, truth, labels))
-    return out
-
-
-def record_heldout(n: int, seed: int, out: Path, progress: bool) -> Path:
-    """``n`` expert trials from ``seed + HELDOUT_SEED_OFFSET`` in ``out`` (kept if there)."""
-    from dynoplan.experiments.gear_demos import record_demos
-
-    held_seed = seed + HELDOUT_SEED_OFFSET
-    if (out / "data").is_dir():
-        try:
-            existing = read_dataset(out)
-            if existing.metadata.seed == held_seed and len(existing) == n:
-                return out
-        except DynoplanError:
-            pass  # unreadable: record again
-    record_demos(n, held_seed, out, progress=progress)
     return out
 
 

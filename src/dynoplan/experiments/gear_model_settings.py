@@ -40,7 +40,9 @@ class GearTrainSettings:
             options with runs from fewer than 4 seeds are not calibrated.
         n_step: decision steps of the n-step report.
         rollouts: Monte-Carlo rollouts per start state in the n-step report.
-        heldout_episodes: held-out expert trials recorded when none are given.
+        heldout_episodes: held-out trials ``dynoplan gear train`` records when none are
+            given (:func:`~dynoplan.experiments.gear_stages.learned_models`; ``gear run``
+            records as many as demonstrations).
         far_states: candidate far-away states for ``region_far_outside_rate``.
         region_features: name of the feature map the regions read
             (:data:`~dynoplan.envs.gear.features.FEATURE_MAPS`).

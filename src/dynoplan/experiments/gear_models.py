@@ -54,12 +54,10 @@ from dynoplan.experiments.gear_model_data import (
     option_trajectories,
     read_demos,
     read_labelled,
-    record_heldout,
     split_episodes,
 )
 from dynoplan.experiments.gear_model_files import (
     GOAL_FEATURES,
-    HELDOUT_DIR,
     METRICS_FILE,
     models_manifest,
 )
@@ -88,7 +86,7 @@ _BATCH = 256
 
 
 def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: int,
-                      heldout_demos: Path | None, quick: bool, progress: bool,
+                      heldout_demos: Path, quick: bool, progress: bool,
                       settings: GearTrainSettings | None = None) -> dict[str, Any]:
     """Fit the goal heuristic, the safety regions and one dynamics model per option.
 
@@ -100,9 +98,10 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
             ``None``: the demonstrations subsampled (:func:`demonstration_transitions`).
         out: folder for the models, ``models.json`` and ``metrics.json``.
         seed: seeds every fit, split and evaluation draw.
-        heldout_demos: expert trials not among ``demos`` for the goal and region
-            metrics; ``None``: ``settings.heldout_episodes`` trials are recorded from
-            ``seed + 1000`` into ``out/heldout-demos`` (or reused when already there).
+        heldout_demos: held-out trials, not among ``demos``, for the goal and region
+            metrics (``dynoplan gear demos --heldout``; ``dynoplan gear train`` records
+            them when none are given:
+            :func:`~dynoplan.experiments.gear_stages.learned_models`).
         quick: :data:`QUICK_SETTINGS` instead of :data:`DEFAULT_SETTINGS`.
         progress: progress bars on stderr.
         settings: overrides ``quick``.
@@ -122,11 +121,6 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     train_set = read_demos(demos, "demonstrations")
     seconds: dict[str, float] = {}
 
-    t0 = time.perf_counter()
-    if heldout_demos is None:
-        heldout_demos = record_heldout(cfg.heldout_episodes, seed, out / HELDOUT_DIR,
-                                        progress)
-        seconds["record_heldout"] = round(time.perf_counter() - t0, 2)
     held_set = read_demos(heldout_demos, "held-out trials")
     check_disjoint(train_set, held_set, heldout_demos)
     if transitions is None:

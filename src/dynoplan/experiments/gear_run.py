@@ -17,6 +17,10 @@ Stages (each timed in ``summary.json``):
 8. ``faults``: DynoPlan under corrupted dynamics, observation noise and a grasp slip;
 9. ``video``: one DynoPlan episode with the human interfering (``episode.mp4``).
 
+Stages 1-5 are the functions of :mod:`dynoplan.experiments.gear_stages`, which the
+commands ``gear demos``, ``gear collect``, ``gear train`` and ``gear figures`` call too
+(the first two train the networks when they are missing).
+
 On one worker the stages run one after another in this process. On several (Ray), the
 stages made of independent episodes (the networks' data, the demonstrations, collection,
 evaluation, faults) spread them over the workers, and two stages run beside the others
@@ -33,7 +37,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
-from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import (
     RESULT_COLUMNS,
@@ -43,7 +46,6 @@ from dynoplan.experiments.gear_eval import (
     summarise,
 )
 from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation
-from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
 from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
@@ -101,6 +103,12 @@ QUICK_RUN = GearRunSettings(
 """``--quick``: every stage on small settings (CI, a first look)."""
 
 
+def run_settings(quick: bool) -> GearRunSettings:
+    """The sizes of ``gear run`` (:data:`QUICK_RUN` with ``quick``), which the standalone
+    stage commands (``gear demos``, ``gear collect``) take as their defaults too."""
+    return QUICK_RUN if quick else GearRunSettings()
+
+
 def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = GearRunSettings(),
                       progress: bool = True, log: Callable[[str], None] = lambda _: None,
                       workers: Workers = SERIAL) -> dict[str, Any]:
@@ -123,12 +131,13 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     import torch
 
     from dynoplan.baselines.flat_policy import fit_flat_policy, save_flat_policy
-    from dynoplan.envs.gear.options.catalog import train_option_networks
-    from dynoplan.experiments.gear_collect import collect_transitions
-    from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.experiments.gear_model_settings import DEFAULT_SETTINGS, QUICK_SETTINGS
-    from dynoplan.experiments.gear_models import train_gear_models
-    from dynoplan.reports.gear_figures import make_gear_figures
+    from dynoplan.experiments.gear_stages import (
+        demonstrations,
+        figures,
+        learned_models,
+        option_networks,
+        option_transitions,
+    )
 
     torch.set_num_threads(1)
     ensure_writable_dir(out)
@@ -161,28 +170,22 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     flat = (start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
             if workers.parallel else None)
     quick = settings.quick_models
-    missing = tuple(n for n, f in network_files().items() if not (models_dir / f).is_file())
-    # the option networks always train on full settings (160 data episodes, about 35 s
-    # on one core, and 10 s of fits): quick ones fail too often for ten successful
-    # demonstrations
-    summary["networks"] = stage("networks", lambda: train_option_networks(
-        models_dir, seed, quick=False, only=missing, workers=workers) if missing else {})
+    summary["networks"] = stage("networks", lambda: option_networks(
+        models_dir, seed, workers=workers))
     summary["demos"] = stage("demos", lambda: [
-        record_demos(settings.demos, seed, out / "demos", progress, demonstrator="options",
-                     models=models_dir, workers=workers),
-        record_demos(settings.demos, seed + HELDOUT_SEED_OFFSET, out / "heldout", progress,
-                     demonstrator="options", models=models_dir, workers=workers)])
-    summary["collect"] = stage("collect", lambda: collect_transitions(
+        demonstrations(settings.demos, seed, out / "demos", models_dir, progress=progress,
+                       workers=workers),
+        demonstrations(settings.demos, seed, out / "heldout", models_dir, heldout=True,
+                       progress=progress, workers=workers)])
+    summary["collect"] = stage("collect", lambda: option_transitions(
         models_dir, settings.collect_runs, seed, out / "transitions",
-        max_decisions=settings.collect_max_decisions, progress=progress, workers=workers))
-    base = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
-    metrics = stage("train", lambda: train_gear_models(
+        settings.collect_max_decisions, progress=progress, workers=workers))
+    metrics = stage("train", lambda: learned_models(
         out / "demos", out / "transitions", models_dir, seed, out / "heldout", quick,
-        progress=progress, settings=base))
+        progress=progress, workers=workers))
     summary["model_metrics"] = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
-    summary["figures"] = stage("figures", lambda: make_gear_figures(
-        models_dir, out / "demos", out / "heldout", out / "figures", seed=seed,
-        max_points=400 if quick else 1500))
+    summary["figures"] = stage("figures", lambda: figures(
+        models_dir, out / "demos", out / "heldout", out / "figures", seed, quick))
     if flat is None:
         flat = start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
     summary["flat_ppo"] = save_flat_policy(flat(), out / "flat_ppo")
@@ -358,5 +361,5 @@ def _mode_cell(entry: dict[str, Any] | None) -> str:
 
 __all__ = ["EVAL_SEED_OFFSET", "ORACLE_FIRST", "QUICK_RUN", "GearRunSettings",
            "evaluate_controllers", "evaluate_faults", "render_video", "results_markdown",
-           "run_gear_pipeline", "save_video", "video_clip", "video_episode"]
+           "run_gear_pipeline", "run_settings", "save_video", "video_clip", "video_episode"]
 
