@@ -15,7 +15,11 @@ from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
 from dynoplan.experiments.gear_jobs import FLAT_POLICY
-from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET, GearRunSettings, evaluate_controllers
+from dynoplan.experiments.gear_run import (
+    EVAL_SEED_OFFSET,
+    GearRunSettings,
+    evaluate_gear_controllers,
+)
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.reports.tables import markdown_table
@@ -53,7 +57,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     flat = flat_folder if FLAT_POLICY in controllers else None
     t0 = time.perf_counter()
     with ray_session(workers):
-        rows, per_episode = evaluate_controllers(models, seeds, settings, flat, progress,
+        rows, per_episode = evaluate_gear_controllers(models, seeds, settings, flat, progress,
                                                  workers, names)
     wall = time.perf_counter() - t0
     summary = {"models": str(models), "seed": seed, "episodes": episodes,

@@ -192,7 +192,7 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
 
     load_gear_models(models_dir)  # checked here once: workers load it again
     seeds = episode_seeds(seed + EVAL_SEED_OFFSET, settings.episodes)
-    rows, episodes = stage("evaluate", lambda: evaluate_controllers(
+    rows, episodes = stage("evaluate", lambda: evaluate_gear_controllers(
         models_dir, seeds, settings, out / "flat_ppo", progress, workers))
     summary["results"] = rows
     write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
@@ -222,7 +222,7 @@ ORACLE_FIRST = ("oracle",)
 others'), so that no long episode is left running alone at the end of the stage."""
 
 
-def evaluate_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
+def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          settings: GearRunSettings, flat_folder: Path | None,
                          progress: bool, workers: Workers = SERIAL,
                          names: Sequence[str] = CONTROLLERS,
@@ -359,7 +359,19 @@ def _mode_cell(entry: dict[str, Any] | None) -> str:
     return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
 
 
-__all__ = ["EVAL_SEED_OFFSET", "ORACLE_FIRST", "QUICK_RUN", "GearRunSettings",
-           "evaluate_controllers", "evaluate_faults", "render_video", "results_markdown",
-           "run_gear_pipeline", "run_settings", "save_video", "video_clip", "video_episode"]
+__all__ = [
+    "EVAL_SEED_OFFSET",
+    "ORACLE_FIRST",
+    "QUICK_RUN",
+    "GearRunSettings",
+    "evaluate_faults",
+    "evaluate_gear_controllers",
+    "render_video",
+    "results_markdown",
+    "run_gear_pipeline",
+    "run_settings",
+    "save_video",
+    "video_clip",
+    "video_episode",
+]
 
