@@ -54,7 +54,7 @@ def serial(job: EvalJob) -> list[Any]:
 def test_gear_evaluation_is_identical_on_one_and_two_workers(ray_runtime, job, serial):
     parallel = evaluate(job, episode_seeds(7, EPISODES), Workers(2))
     assert [_comparable(m) for m in parallel] == [_comparable(m) for m in serial]
-    assert [m.seed for m in parallel] == [s.env_seed for s in episode_seeds(7, EPISODES)]
+    assert [m.env_seed for m in parallel] == [s.env_seed for s in episode_seeds(7, EPISODES)]
 
 
 def test_a_worker_dying_mid_episode_is_retried_without_losing_or_repeating_one(
