@@ -48,7 +48,8 @@ class OptionSpec:
                       self.continuation)
 
 
-def _check_name(name: Any) -> str:
+def check_option_name(name: Any) -> str:
+    """``name`` if it is a valid option name (non-empty, no spaces); else one clear error."""
     if not isinstance(name, str) or not name or any(c.isspace() for c in name):
         raise DynoplanError(f"an option name must be a non-empty string without spaces, "
                             f"got {name!r}")
@@ -71,7 +72,7 @@ def option_spec(name: str, policy: Any, termination: Any = None,
             its initiation set (give one when a condition only matters at the start, for
             example "a move may not start at its goal").
     """
-    return OptionSpec(_check_name(name), policy_from(policy), termination_from(termination),
+    return OptionSpec(check_option_name(name), policy_from(policy), termination_from(termination),
                       initiation_from(initiation, name),
                       None if continuation is None else initiation_from(continuation, name))
 
@@ -105,7 +106,7 @@ def check_unique_names(items: Sequence[Option | OptionSpec]) -> list[str]:
     """The names, in order; raises when empty or when a name repeats."""
     if not items:
         raise DynoplanError("no options given")
-    names = [_check_name(item.name) for item in items]
+    names = [check_option_name(item.name) for item in items]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise DynoplanError(f"option names must be unique; repeated: {', '.join(repeated)}")

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.adapters.initiation import initiation_from
-from dynoplan.adapters.spec import _check_name
+from dynoplan.adapters.spec import check_option_name
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.envs.gear.options.base import GearPolicyFactory
@@ -104,7 +104,7 @@ class GearOption:
     trial_notes: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _check_name(self.name)
+        check_option_name(self.name)
         if (self.policy is None) == (self.network is None):
             raise DynoplanError(f"gear option {self.name!r}: give exactly one of policy "
                                 "(a factory env -> policy) and network (a trained file)")
