@@ -245,13 +245,9 @@ def train_option_networks(models: Path, seed: int, quick: bool = False,
     return reports
 
 
-def policy_factory(name: str, models: Path | None) -> GearPolicyFactory:
-    """A factory of ``name``'s policy; neural options read their network from ``models``."""
-    return gear_option(name).factory(models)
-
-
 def policy_factories(models: Path | None) -> dict[str, GearPolicyFactory]:
-    """:func:`policy_factory` of every registered option, in label order."""
+    """Every registered option's policy factory (:meth:`GearOption.factory`), by name in
+    label order; neural options read their network from ``models``."""
     return {option.name: option.factory(models) for option in GEAR_OPTIONS}
 
 
@@ -274,7 +270,6 @@ __all__ = [
     "network_data_episode",
     "network_files",
     "policy_factories",
-    "policy_factory",
     "register_gear_option",
     "temporary_gear_options",
     "train_option_networks",

@@ -129,8 +129,9 @@ class GearOption:
                                 f"{self.network.file}")
         path = models / self.network.file
         if not path.is_file():
-            raise DynoplanError(f"{path}: no such model file (train it with `dynoplan gear "
-                                f"option {self.name} --train` or `dynoplan gear run`)")
+            raise DynoplanError(f"{path}: no such model file (`dynoplan gear option "
+                                f"{self.name} --models {models}` or `dynoplan gear run` "
+                                "train the missing networks)")
         return self.network.load(path)
 
     def sets(self) -> tuple[Initiation, Initiation | None]:
@@ -186,12 +187,6 @@ class GearOptionRegistry:
 
     def __iter__(self) -> Iterator[GearOption]:
         return iter(tuple(self._read().values()))
-
-    def __len__(self) -> int:
-        return len(self._read())
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._read()
 
     def names(self) -> tuple[str, ...]:
         """The options' names in label order."""
