@@ -297,12 +297,12 @@ def evaluate(
     """Evaluate controllers on trained models only; writes results and the wall time."""
     from dataclasses import replace
 
-    from dynoplan.experiments.gear_controllers import PlannerSettings
+    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
-    planner = PlannerSettings()
+    planner = GEAR_CONTROL
     if horizon is not None:
         planner = replace(planner, horizon=horizon)
     if samples is not None:

@@ -28,7 +28,6 @@ rate too: the learned models step at the decision rate.
 """
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -53,12 +52,12 @@ from dynoplan.envs.gear.options.preconditions import (
 from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
+from dynoplan.pipeline.evaluate import ControllerSettings, with_dynamics_noise
 from dynoplan.pipeline.fit import FittedModels
 from dynoplan.planning import OptionPlanner, SimulatorOracle
 from dynoplan.types import FloatArray
@@ -73,29 +72,22 @@ MAX_EPISODE_SECONDS = 40.0
 """Simulated seconds an episode may last (the env's own limit)."""
 
 
-@dataclass(frozen=True)
-class PlannerSettings:
-    """Eq. 1's ``n`` and ``S``, and the controller's switching margin.
+MAX_EPISODE_STEPS = round(MAX_EPISODE_SECONDS / CONTROL_DT)
 
-    Attributes:
-        horizon: decisions (0.5 s each) a learned rollout may take.
-        samples: Monte-Carlo rollouts per option.
-        oracle_horizon: decisions the simulator oracle simulates per rollout (it pays
-            real simulation time, so it may be shorter).
-        oracle_samples: simulated rollouts per option.
-        margin: score advantage another option needs to replace a running one (0.1:
-            near the peg the goal heuristic's estimates of the moves and the insertion
-            differ by less than their noise, and a smaller margin lets them take turns).
-        dynamics_noise: std of Gaussian noise added to every learned prediction (a
-            fault; 0 for none).
-    """
+GEAR_CONTROL = ControllerSettings(
+    horizon=10, samples=64, margin=0.1, replan_every=DECISION_STEPS,
+    max_decisions=MAX_EPISODE_STEPS, max_option_steps=MAX_EPISODE_STEPS, oracle_horizon=10,
+    oracle_samples=1)
+"""How the gear's controllers plan and run (``gear run``'s defaults):
 
-    horizon: int = 10
-    samples: int = 64
-    oracle_horizon: int = 10
-    oracle_samples: int = 1
-    margin: float = 0.1
-    dynamics_noise: float = 0.0
+- ``horizon``, ``samples``: Eq. 1's ``n`` (decisions of 0.5 s) and ``S``;
+- ``margin`` 0.1: near the peg the goal heuristic's estimates of the moves and the
+  insertion differ by less than their noise, and a smaller margin lets them take turns;
+- ``replan_every``: the choosers that replan (all but the fixed script) plan again every
+  decision period (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps);
+- ``oracle_horizon``, ``oracle_samples``: the simulator oracle's (it pays real simulation
+  time);
+- an episode and an option may run as long as the environment's limit."""
 
 
 def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
@@ -112,7 +104,7 @@ def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Ini
 
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
                  factories: Mapping[str, GearPolicyFactory], regions: bool = True,
-                 terminations: bool = True, dynamics_noise: float = 0.0) -> list[Option]:
+                 terminations: bool = True) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
     Args:
@@ -120,7 +112,6 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
             regions (:func:`preconditions`; else everywhere).
         terminations: each option's own ``beta_w`` (else 0: the option runs until its
             policy reports it is finished).
-        dynamics_noise: std of Gaussian noise on every learned prediction.
     """
     missing = [n for n in models.option_names if n not in factories]
     if missing:
@@ -132,8 +123,6 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
-        if dynamics_noise > 0:
-            dynamics = NoisyDynamics(dynamics, dynamics_noise)
         if regions and learned is not None:
             shown = name in learned.option_names  # demonstrated: it has a region
             initiation, continuation = preconditions(
@@ -149,19 +138,20 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
 
 def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
                          factories: Mapping[str, GearPolicyFactory],
-                         settings: PlannerSettings = PlannerSettings()) -> Controller:
+                         settings: ControllerSettings = GEAR_CONTROL) -> Controller:
     """The controller ``name`` (one of :data:`CONTROLLERS`) on ``env``."""
     if name not in CONTROLLERS:
         raise DynoplanError(f"unknown controller {name!r}; expected one of "
                             f"{', '.join(CONTROLLERS)}")
+    settings.validate()
     scripted = name == "fixed_script"
     options = gear_options(env, models, factories, regions=not scripted,
-                           terminations=not scripted,
-                           dynamics_noise=settings.dynamics_noise if name == "dynoplan" else 0.0)
+                           terminations=not scripted)
     chooser: OptionChooser
     if name == "dynoplan":
-        chooser = OptionPlanner(options, models.goal, horizon=settings.horizon,
-                                samples=settings.samples)
+        chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
+                                models.goal, horizon=settings.horizon,
+                                samples=settings.samples, risk=settings.risk)
     elif name == "oracle":
         chooser = gear_oracle(env, options, factories, models.goal,
                               settings.oracle_horizon, settings.oracle_samples)
@@ -169,11 +159,12 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
         chooser = RandomChoice(options)
     else:
         chooser = ScriptedSequence(options, FIXED_SCRIPT)
-    max_steps = round(MAX_EPISODE_SECONDS / CONTROL_DT)
-    return Controller(options, chooser, state_fn=PlannerState(), max_decisions=max_steps,
-                      max_option_steps=max_steps,
-                      replan_every=None if scripted else DECISION_STEPS,
-                      margin=settings.margin, hold_action=HoldStill(env), record_infos=True,
+    hold = HoldStill(env) if settings.hold_action is None else settings.hold_action
+    return Controller(options, chooser, state_fn=PlannerState(),
+                      max_decisions=settings.max_decisions,
+                      max_option_steps=settings.max_option_steps,
+                      replan_every=None if scripted else settings.replan_every,
+                      margin=settings.margin, hold_action=hold, record_infos=True,
                       termination_every=1 if scripted else DECISION_STEPS)
 
 
@@ -208,15 +199,16 @@ __all__ = [
     "CARRIED_GEAR_HEIGHT",
     "CONTROLLERS",
     "FIXED_SCRIPT",
+    "GEAR_CONTROL",
     "HELD_GEAR_HEIGHT",
     "INSERT_KEEP_CLEARANCE",
     "INSERT_START_CLEARANCE",
     "MAX_EPISODE_SECONDS",
+    "MAX_EPISODE_STEPS",
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
     "FarFromGoal",
     "HoldStill",
-    "PlannerSettings",
     "gear_options",
     "gear_oracle",
     "hand_clear_of_tool",

@@ -14,7 +14,7 @@ seeds over one models folder, read from TOML or JSON.
     dynamics_noise = [0.0, 0.02]
     seed = [0, 1]
 
-Grid keys: the fields of :class:`~dynoplan.experiments.gear_controllers.PlannerSettings`
+Grid keys: fields of :class:`~dynoplan.pipeline.evaluate.ControllerSettings`
 (``horizon``, ``samples``, ``oracle_horizon``, ``oracle_samples``, ``margin``,
 ``dynamics_noise``), ``controller`` and ``seed``. Any mistake is one
 :class:`~dynoplan.errors.DynoplanError` naming the file and the field.
@@ -29,8 +29,9 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
-from dynoplan.experiments.gear_jobs import FLAT_POLICY
+from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.experiments.gear_task import FLAT_POLICY
+from dynoplan.pipeline.evaluate import ControllerSettings
 
 INT_KEYS = ("horizon", "samples", "oracle_horizon", "oracle_samples")
 """Grid keys of positive integers."""
@@ -50,7 +51,7 @@ class Cell:
     controller: str
     seed: int
     episodes: int
-    planner: PlannerSettings
+    planner: ControllerSettings
 
     def settings(self) -> dict[str, Any]:
         """Everything that determines the cell's result, as plain JSON values."""
@@ -87,7 +88,7 @@ class SweepConfig:
         out = []
         for values in itertools.product(*(v for _, v in self.grid)):
             chosen = dict(zip(self.swept, values, strict=True))
-            planner = replace(PlannerSettings(), **{k: v for k, v in chosen.items()
+            planner = replace(GEAR_CONTROL, **{k: v for k, v in chosen.items()
                                                     if k in INT_KEYS + FLOAT_KEYS})
             out.append(Cell(chosen.get("controller", self.controller),
                             chosen.get("seed", self.seed), self.episodes, planner))

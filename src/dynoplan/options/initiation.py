@@ -65,6 +65,11 @@ class RegionModel(Protocol):
     """What :class:`InRegion` needs of a region model (for example
     :class:`~dynoplan.models.regions.SafetyRegions`)."""
 
+    @property
+    def option_names(self) -> list[str]:
+        """The options that have a region, in order."""
+        ...
+
     def option_index(self, option: str | int) -> int: ...
 
     def contains(self, states: FloatArray, option: str | int) -> BoolArray: ...
