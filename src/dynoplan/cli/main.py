@@ -4,6 +4,7 @@ User mistakes (bad arguments, unreadable files, unknown names) print one line,
 ``dynoplan: error: ...``, and exit with status 2; no traceback.
 """
 
+import signal
 import sys
 from pathlib import Path
 
@@ -11,8 +12,16 @@ import typer
 
 from dynoplan.cli.gear import gear_app
 from dynoplan.cli.generic import generic_app
+from dynoplan.cli.params import folder
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.errors import DynoplanError
+from dynoplan.limits import (
+    HORIZON_MAX,
+    RANDOM_WALK_EPISODES_MAX,
+    SAMPLES_MAX,
+    SEED_MAX,
+    STEPS_MAX,
+)
 
 app = typer.Typer(
     name="dynoplan",
@@ -30,14 +39,17 @@ def _root() -> None:
 
 @app.command("random-walk")
 def random_walk(
-    out: Path = typer.Option(Path("results/random-walk"), help="Output folder."),
-    episodes: int = typer.Option(1000, help="Episodes per controller and noise level."),
+    out: Path = typer.Option(Path("results/random-walk"), callback=folder, help="Output folder."),
+    episodes: int = typer.Option(1000, min=1, max=RANDOM_WALK_EPISODES_MAX,
+                                 help="Episodes per controller and noise level."),
     noise: float = typer.Option(0.2, help="Misprediction probability of the models."),
-    seed: int = typer.Option(0, help="Seed of every random choice."),
-    horizon: int = typer.Option(20, help="Rollout horizon n (steps)."),
-    samples: int = typer.Option(128, help="Monte-Carlo rollouts per option."),
-    max_decisions: int = typer.Option(50, help="Planning steps before an episode fails."),
-    start_state: int = typer.Option(0, help="Start state of the walk (0..19)."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of every random choice."),
+    horizon: int = typer.Option(20, min=1, max=HORIZON_MAX, help="Rollout horizon n (steps)."),
+    samples: int = typer.Option(128, min=1, max=SAMPLES_MAX,
+                                help="Monte-Carlo rollouts per option."),
+    max_decisions: int = typer.Option(50, min=1, max=STEPS_MAX,
+                                      help="Planning steps before an episode fails."),
+    start_state: int = typer.Option(0, min=0, help="Start state of the walk (0..19)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Reproduce the paper's Simulated MDP (Fig. 2b) with baselines and robustness."""
@@ -57,7 +69,8 @@ def random_walk(
 @app.command("sweep")
 def sweep(
     config: Path = typer.Argument(..., help="Sweep configuration (.toml or .json)."),
-    out: Path | None = typer.Option(None, help="Output folder (default: results/sweep-"
+    out: Path | None = typer.Option(None, callback=folder,
+                                    help="Output folder (default: results/sweep-"
                                     "CONFIG_NAME). Re-running into it skips finished cells."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
@@ -83,15 +96,32 @@ app.add_typer(gear_app, name="gear")
 app.add_typer(generic_app, name="pipeline")
 
 
+class Terminated(KeyboardInterrupt):
+    """Raised in the main thread by SIGTERM, so that a terminated run unwinds as an
+    interrupted one: temporary files and staged folders are removed
+    (:mod:`dynoplan.io`) and the previous outputs stay."""
+
+
+def _terminate(signum: int, _frame: object) -> None:
+    raise Terminated(signum)
+
+
 def main() -> None:
-    """Console entry point: one line per user error, exit status 2."""
+    """Console entry point: one line per user error, exit status 2; ``dynoplan: aborted``
+    and status 130 (SIGINT, Ctrl-C) or 143 (SIGTERM) when interrupted."""
+    # SIGINT also when started with it ignored (a background job of a shell script)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         code = app(standalone_mode=False)
-    except (typer.Abort, KeyboardInterrupt):
+    except (typer.Abort, typer.Exit, KeyboardInterrupt) as exc:
+        # typer turns KeyboardInterrupt into Exit(130) "from" it
+        interrupt = exc if isinstance(exc, KeyboardInterrupt) else exc.__cause__
+        if isinstance(exc, typer.Exit) and not isinstance(interrupt, KeyboardInterrupt):
+            sys.exit(exc.exit_code)
         sys.stderr.write("dynoplan: aborted\n")
-        sys.exit(130)
-    except typer.Exit as exc:
-        sys.exit(exc.exit_code)
+        sys.exit(128 + (signal.SIGTERM if isinstance(interrupt, Terminated)
+                        else signal.SIGINT))
     except typer.TyperException as exc:  # usage errors of the vendored click
         fmt = getattr(exc, "format_message", None)
         message = fmt() if callable(fmt) else str(exc)
