@@ -36,8 +36,10 @@ def expert(
 ) -> None:
     """Run the scripted expert; write OUT/summary.json (success, contacts, speed)."""
     from dynoplan.experiments.gear_expert import run_expert
+    from dynoplan.io import staged_folder
 
-    summary = run_expert(episodes, seed, out, progress=not quiet, human_mode=human)
+    with staged_folder(out) as folder:
+        summary = run_expert(episodes, seed, folder, progress=not quiet, human_mode=human)
     typer.echo(
         f"success {summary['success_rate']:.1%} ({summary['successes']}/{summary['episodes']}),"
         f" robot-human contacts {summary['contacts']}, min distance "
@@ -108,9 +110,11 @@ def render(
     # Headless machines: MuJoCo picks its GL backend when first imported.
     os.environ.setdefault("MUJOCO_GL", "egl")
     from dynoplan.experiments.gear_expert import render_scene
+    from dynoplan.io import staged_folder
 
-    written = render_scene(out, seed=seed, video=video, human_mode=human)
-    typer.echo(" ".join(str(p) for p in written.values()))
+    with staged_folder(out) as folder:
+        written = render_scene(folder, seed=seed, video=video, human_mode=human)
+    typer.echo(" ".join(str(out / p.name) for p in written.values()))
 
 
 @gear_app.command("option")
@@ -338,6 +342,7 @@ def evaluate(
 
     from dynoplan.experiments.gear_controllers import PlannerSettings
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
+    from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
@@ -347,8 +352,10 @@ def evaluate(
     if samples is not None:
         planner = replace(planner, samples=samples)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
-    summary = run_gear_evaluation(models, out, names, episodes, seed, planner,
-                                  flat or models.parent / "flat_ppo", pool, progress=not quiet)
+    with staged_folder(out) as folder:
+        summary = run_gear_evaluation(models, folder, names, episodes, seed, planner,
+                                      flat or models.parent / "flat_ppo", pool,
+                                      progress=not quiet)
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
@@ -376,18 +383,19 @@ def episode(
     from dynoplan.experiments.gear_eval import seconds
     from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
     from dynoplan.experiments.gear_run import save_video, video_clip
-    from dynoplan.io import ensure_writable_dir, write_csv, write_json
+    from dynoplan.io import staged_folder, write_csv, write_json
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
     metrics, rows, human = inspect_episode(models, controller, index, seed, frames=frames)
-    ensure_writable_dir(out)
-    write_csv(out / "trace.csv", rows)
     summary = episode_summary(metrics, controller, index, seed, human)
-    if frames is not None:
-        clip = video_clip(frames, metrics.success, [o for o in metrics.options if o != "hold"])
-        summary["video"] = save_video(clip, metrics, index, out / "episode.mp4")
-    write_json(out / "summary.json", summary)
+    with staged_folder(out) as folder:
+        write_csv(folder / "trace.csv", rows)
+        if frames is not None:
+            clip = video_clip(frames, metrics.success,
+                              [o for o in metrics.options if o != "hold"])
+            summary["video"] = save_video(clip, metrics, index, folder / "episode.mp4")
+        write_json(folder / "summary.json", summary)
     events = ", ".join(human["events"]) or "away"
     measured = metrics.task_metrics
     typer.echo(f"episode {index} ({events}): {controller} "

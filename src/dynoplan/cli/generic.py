@@ -76,6 +76,7 @@ def pipeline(
     """Collect, fit dynamics/goal/regions, run DynoPlan and compare with each option alone
     and random choice; writes OUT/summary.json, OUT/results.md, datasets and models."""
     from dynoplan.data.dataset import read_dataset
+    from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
     from dynoplan.pipeline import (
         ControllerSettings,
@@ -109,9 +110,11 @@ def pipeline(
         control=ControllerSettings(horizon=horizon, samples=samples,
                                    replan_every=replan_every or None))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
-                          settings=settings, out=out, progress=not quiet,
-                          status=None if quiet else lambda m: typer.echo(f"-- {m}", err=True),
-                          command=command, workers=pool, task=task)
+    with staged_folder(out) as folder:  # nothing of a failed run, the previous run's kept
+        result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
+                              settings=settings, out=folder, progress=not quiet,
+                              status=None if quiet else lambda m: typer.echo(f"-- {m}",
+                                                                             err=True),
+                              command=command, workers=pool, task=task)
     typer.echo(result.table)
     typer.echo(f"{result.summary['seconds']:.1f} s -> {out}/summary.json")

@@ -7,6 +7,7 @@ User mistakes (bad arguments, unreadable files, unknown names) print one line,
 import signal
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 import typer
 
@@ -54,11 +55,13 @@ def random_walk(
 ) -> None:
     """Reproduce the paper's Simulated MDP (Fig. 2b) with baselines and robustness."""
     from dynoplan.experiments.random_walk import RandomWalkSettings, run_random_walk
+    from dynoplan.io import staged_folder
 
     settings = RandomWalkSettings(episodes=episodes, noise=noise, seed=seed, horizon=horizon,
                                   samples=samples, max_decisions=max_decisions,
                                   start_state=start_state)
-    summary = run_random_walk(settings, out, progress=not quiet)
+    with staged_folder(out) as folder:
+        summary = run_random_walk(settings, folder, progress=not quiet)
     typer.echo(
         f"success {summary['success_rate']:.1%}, planning steps median "
         f"{summary['planning_steps_median']}, p90 {summary['planning_steps_p90']}, "
@@ -96,32 +99,36 @@ app.add_typer(gear_app, name="gear")
 app.add_typer(generic_app, name="pipeline")
 
 
-class Terminated(KeyboardInterrupt):
-    """Raised in the main thread by SIGTERM, so that a terminated run unwinds as an
-    interrupted one: temporary files and staged folders are removed
-    (:mod:`dynoplan.io`) and the previous outputs stay."""
+_signals: list[int] = []
+"""The interrupting signals received (typer turns the KeyboardInterrupt they raise into a
+return code of 130, whatever the signal)."""
 
 
-def _terminate(signum: int, _frame: object) -> None:
-    raise Terminated(signum)
+def _interrupt(signum: int, _frame: object) -> None:
+    """SIGINT and SIGTERM handler: unwind the run as Ctrl-C does, so that ``finally``
+    blocks remove temporary files and staged folders (:mod:`dynoplan.io`) and the previous
+    outputs stay."""
+    _signals.append(signum)
+    raise KeyboardInterrupt
+
+
+def _aborted(signum: int) -> NoReturn:
+    sys.stderr.write("dynoplan: aborted\n")
+    sys.exit(128 + signum)
 
 
 def main() -> None:
     """Console entry point: one line per user error, exit status 2; ``dynoplan: aborted``
     and status 130 (SIGINT, Ctrl-C) or 143 (SIGTERM) when interrupted."""
     # SIGINT also when started with it ignored (a background job of a shell script)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         code = app(standalone_mode=False)
-    except (typer.Abort, typer.Exit, KeyboardInterrupt) as exc:
-        # typer turns KeyboardInterrupt into Exit(130) "from" it
-        interrupt = exc if isinstance(exc, KeyboardInterrupt) else exc.__cause__
-        if isinstance(exc, typer.Exit) and not isinstance(interrupt, KeyboardInterrupt):
-            sys.exit(exc.exit_code)
-        sys.stderr.write("dynoplan: aborted\n")
-        sys.exit(128 + (signal.SIGTERM if isinstance(interrupt, Terminated)
-                        else signal.SIGINT))
+    except (typer.Abort, KeyboardInterrupt):
+        _aborted(_signals[0] if _signals else signal.SIGINT)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
     except typer.TyperException as exc:  # usage errors of the vendored click
         fmt = getattr(exc, "format_message", None)
         message = fmt() if callable(fmt) else str(exc)
@@ -132,4 +139,6 @@ def main() -> None:
     except DynoplanError as exc:
         sys.stderr.write(f"dynoplan: error: {exc}\n")
         sys.exit(2)
+    if _signals:
+        _aborted(_signals[0])
     sys.exit(code if isinstance(code, int) else 0)
