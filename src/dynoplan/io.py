@@ -175,7 +175,7 @@ def _make_dirs(folder: Path) -> list[Path]:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise DynoplanError(f"output folder {folder} cannot be created: "
+        raise DynoplanError(f"output folder {folder} is not writable: "
                             f"{exc.strerror}") from None
     return missing
 
