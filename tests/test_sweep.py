@@ -107,7 +107,7 @@ def test_damaged_or_stale_cell_files_are_computed_again(sweep_dir: Path):
 
 @pytest.mark.parametrize(("text", "message"), [
     ("episodes = 2\n[grid]\nhorizon = [2]\n", "models: expected the models folder"),
-    ('models = "m"\n[grid]\nhorizon = [0]\n', "grid.horizon: expected an integer >= 1"),
+    ('models = "m"\n[grid]\nhorizon = [0]\n', "grid.horizon: expected an integer in 1..1000"),
     ('models = "m"\n[grid]\nhorizon = "6"\n', "grid.horizon: expected a non-empty list"),
     ('models = "m"\n[grid]\nhorizons = [6]\n', "grid.horizons: unknown key"),
     ('models = "m"\n[grid]\nmargin = [-0.1]\n', "grid.margin: expected a number >= 0"),

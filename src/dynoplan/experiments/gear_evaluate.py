@@ -39,6 +39,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     Raises:
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
     """
+    from dynoplan.baselines.flat_policy import read_flat_policy
     from dynoplan.experiments.gear_model_files import load_gear_models
 
     known = (*CONTROLLERS, FLAT_POLICY)
@@ -53,6 +54,8 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     planner.validate()
     ensure_writable_dir(out)
     load_gear_models(models)  # one clear error here rather than one per worker
+    if FLAT_POLICY in controllers and flat_folder is not None:
+        read_flat_policy(flat_folder)
     settings = GearRunSettings(episodes=episodes, oracle_episodes=episodes, planner=planner)
     seeds = episode_seeds(seed + EVAL_SEED_OFFSET, episodes)
     names = [c for c in controllers if c != FLAT_POLICY]

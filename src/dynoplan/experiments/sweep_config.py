@@ -31,10 +31,12 @@ from typing import Any
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.experiments.gear_task import FLAT_POLICY
+from dynoplan.limits import CELLS_MAX, EPISODES_MAX, HORIZON_MAX, SAMPLES_MAX, SEED_MAX
 from dynoplan.pipeline.evaluate import ControllerSettings
 
 INT_KEYS = ("horizon", "samples", "oracle_horizon", "oracle_samples")
-"""Grid keys of positive integers."""
+"""Grid keys of positive integers (at most :data:`~dynoplan.limits.HORIZON_MAX` for the
+horizons, :data:`~dynoplan.limits.SAMPLES_MAX` for the samples)."""
 FLOAT_KEYS = ("margin", "dynamics_noise")
 """Grid keys of non-negative numbers."""
 GRID_KEYS = (*INT_KEYS, *FLOAT_KEYS, "controller", "seed")
@@ -100,7 +102,8 @@ def load_sweep_config(path: Path) -> SweepConfig:
 
     Raises:
         DynoplanError: (one line) unreadable file, unknown or missing key, wrong type
-            or range of a value, empty grid.
+            or range of a value (bounds of :mod:`dynoplan.limits`), empty grid or more
+            than :data:`~dynoplan.limits.CELLS_MAX` cells.
     """
     raw = _read(path)
     unknown = sorted(set(raw) - set(TOP_KEYS))
@@ -110,8 +113,8 @@ def load_sweep_config(path: Path) -> SweepConfig:
     models = raw.get("models")
     if not isinstance(models, str) or not models:
         raise DynoplanError(f"{path}: models: expected the models folder (a string)")
-    episodes = _integer(path, "episodes", raw.get("episodes", 20), minimum=1)
-    seed = _integer(path, "seed", raw.get("seed", 0), minimum=0)
+    episodes = _integer(path, "episodes", raw.get("episodes", 20), 1, EPISODES_MAX)
+    seed = _integer(path, "seed", raw.get("seed", 0), 0, SEED_MAX)
     controller = _controller(path, "controller", raw.get("controller", "dynoplan"))
     grid = raw.get("grid")
     if not isinstance(grid, dict) or not grid:
@@ -126,16 +129,20 @@ def load_sweep_config(path: Path) -> SweepConfig:
             raise DynoplanError(f"{path}: grid.{key}: expected a non-empty list of values")
         field = f"grid.{key}"
         if key in INT_KEYS:
-            vals: tuple[Any, ...] = tuple(_integer(path, field, v, minimum=1) for v in values)
+            top = HORIZON_MAX if key.endswith("horizon") else SAMPLES_MAX
+            vals: tuple[Any, ...] = tuple(_integer(path, field, v, 1, top) for v in values)
         elif key in FLOAT_KEYS:
             vals = tuple(_number(path, field, v) for v in values)
         elif key == "seed":
-            vals = tuple(_integer(path, field, v, minimum=0) for v in values)
+            vals = tuple(_integer(path, field, v, 0, SEED_MAX) for v in values)
         else:
             vals = tuple(_controller(path, field, v) for v in values)
         if len(set(vals)) != len(vals):
             raise DynoplanError(f"{path}: {field}: repeated values {list(vals)}")
         checked.append((key, vals))
+    cells = math.prod(len(v) for _, v in checked)
+    if cells > CELLS_MAX:
+        raise DynoplanError(f"{path}: grid: {cells} cells, expected at most {CELLS_MAX}")
     folder = Path(models)
     if not folder.is_absolute():
         folder = path.parent / folder
@@ -167,10 +174,11 @@ def _read(path: Path) -> dict[str, Any]:
     return raw
 
 
-def _integer(path: Path, field: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise DynoplanError(f"{path}: {field}: expected an integer >= {minimum}, "
-                            f"got {value!r}")
+def _integer(path: Path, field: str, value: Any, minimum: int, maximum: int) -> int:
+    if (isinstance(value, bool) or not isinstance(value, int)
+            or not minimum <= value <= maximum):
+        raise DynoplanError(f"{path}: {field}: expected an integer in {minimum}.."
+                            f"{maximum}, got {value!r}")
     return value
 
 

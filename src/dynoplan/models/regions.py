@@ -22,7 +22,7 @@ import numpy as np
 from sklearn.mixture import GaussianMixture
 
 from dynoplan.errors import DynoplanError
-from dynoplan.models.storage import as_states, load_arrays, require, save_arrays
+from dynoplan.models.storage import as_states, load_arrays, require, require_finite, save_arrays
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
 _KIND = "safety_regions"
@@ -185,14 +185,16 @@ class SafetyRegions:
         d = meta.get("state_dim")
         if not isinstance(names, list) or not isinstance(d, int):
             raise DynoplanError(f"{path}: metadata lacks option_names or state_dim")
-        means = require(arrays, "means", (None, d), path)
+        means = require_finite(arrays, "means", (None, d), None, path)
         m, o = means.shape[0], len(names)
         return cls(
             option_names=[str(n) for n in names],
             means=means.astype(np.float64),
-            precisions_cholesky=require(arrays, "precisions_cholesky", (m, d, d), path),
+            precisions_cholesky=require_finite(arrays, "precisions_cholesky", (m, d, d), None,
+                                               path),
             members=require(arrays, "members", (o, m), path).astype(bool),
-            log_thresholds=require(arrays, "log_thresholds", (o,), path).astype(np.float64),
+            log_thresholds=require_finite(arrays, "log_thresholds", (o,), None,
+                                          path).astype(np.float64),
         )
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from dynoplan.adapters.spec import OptionSpec
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
-from dynoplan.io import ensure_writable_dir
+from dynoplan.io import staged_folder
 from dynoplan.models.dynamics import DynamicsModel, StackedDynamics
 from dynoplan.models.evaluation import one_step_error
 from dynoplan.models.features import FeatureMap, GoalOnFeatures, RegionsOnFeatures
@@ -350,9 +350,15 @@ class FittedModels:
     def save(self, folder: str | os.PathLike[str]) -> Path:
         """Write every model file, then ``models.json`` (the manifest) into ``folder``.
 
-        Dynamics models without a ``save`` method are listed with ``null``.
+        Dynamics models without a ``save`` method are listed with ``null``. The files are
+        written into a folder beside ``folder`` that replaces it when complete
+        (:func:`~dynoplan.io.staged_folder`): a failed save leaves the previous models.
         """
-        out = ensure_writable_dir(folder)
+        with staged_folder(folder, keep=True) as staged:
+            self._write(staged)
+        return Path(folder)
+
+    def _write(self, out: Path) -> None:
         files: dict[str, str | None] = {}
         for name, model in self.dynamics.items():
             save = getattr(model, "save", None)
@@ -371,7 +377,6 @@ class FittedModels:
                        use_regions=self.use_regions, goal=(GOAL_FILE, goal_features),
                        regions=regions, dynamics=files,
                        extra={"report": self.report, **self.extra})
-        return out
 
     @classmethod
     def load(cls, folder: str | os.PathLike[str],
