@@ -19,7 +19,7 @@ from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_controllers import VARIANTS, PlannerSettings
 from dynoplan.experiments.gear_eval import run_episode, trace_metrics
 from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
@@ -48,9 +48,9 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
         the option was not admissible or the chooser does not score), and the human
         schedule (``events``, keyframe ``times`` and hand ``positions``).
     """
-    if controller not in CONTROLLERS:
+    if controller not in VARIANTS:
         raise DynoplanError(f"unknown controller {controller!r}; expected one of "
-                            f"{', '.join(CONTROLLERS)} (flat_ppo has no decisions)")
+                            f"{', '.join(VARIANTS)} (flat_ppo has no decisions)")
     episode = evaluation_episode(index, seed)
     state = build_evaluation(EvalJob(models, controller, planner or PlannerSettings(),
                                      render=frames is not None))

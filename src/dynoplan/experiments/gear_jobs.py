@@ -19,7 +19,7 @@ import gymnasium as gym
 from dynoplan.control import Controller
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_controllers import VARIANTS, PlannerSettings
 from dynoplan.experiments.gear_eval import controller_episode, policy_episode
 from dynoplan.options.initiation import RegionModel
 from dynoplan.parallel import SERIAL, Workers
@@ -41,7 +41,7 @@ class EvalJob:
 
     Attributes:
         models: the models folder (``models.json`` and the option networks).
-        controller: one of :data:`~dynoplan.experiments.gear_controllers.CONTROLLERS`, or
+        controller: one of :data:`~dynoplan.experiments.gear_controllers.VARIANTS`, or
             :data:`FLAT_POLICY`.
         planner: horizon, samples, margin and dynamics noise of the controller.
         fault: None, or one of :data:`FAULTS` wrapped around the environment.
@@ -59,9 +59,9 @@ class EvalJob:
     render: bool = False
 
     def __post_init__(self) -> None:
-        if self.controller not in (*CONTROLLERS, FLAT_POLICY):
+        if self.controller not in (*VARIANTS, FLAT_POLICY):
             raise DynoplanError(f"unknown controller {self.controller!r}; expected one of "
-                                f"{', '.join((*CONTROLLERS, FLAT_POLICY))}")
+                                f"{', '.join((*VARIANTS, FLAT_POLICY))}")
         if self.fault is not None and self.fault not in FAULTS:
             raise DynoplanError(f"unknown fault {self.fault!r}; expected one of "
                                 f"{', '.join(FAULTS)}")
