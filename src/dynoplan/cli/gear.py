@@ -200,6 +200,57 @@ def collect(
     typer.echo(f"{summary['runs']} runs, transitions: {counts} -> {out}")
 
 
+@gear_app.command("outcomes")
+def outcomes(
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Models folder (gear train, or gear "
+                                "run's OUT/models): the option networks are read from it and "
+                                "the learned initiation is written into it."),
+    out: Path = typer.Option(Path("results/gear-outcomes"), callback=folder,
+                             help="Dataset folder of the outcome runs."),
+    runs: int = typer.Option(40, min=1, max=EPISODES_MAX, help="Runs per option."),
+    max_decisions: int = typer.Option(30, min=1, max=STEPS_MAX,
+                                      help="Decisions (0.5 s each) an option may run."),
+    lead_decisions: int = typer.Option(12, min=0, max=STEPS_MAX,
+                                       help="Decisions the source option may run first."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Run r of option o uses default_rng([seed, 17, o, r])."),
+    collect: bool = typer.Option(True, "--collect/--fit-only", help="Run the options first "
+                                 "(else fit on the dataset OUT as it is)."),
+    workers: str = workers_option(),
+    ray_address: str | None = ray_address_option(),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Run every option from starts beyond its own region and learn, from what came of
+    it, where each option may start (initiation from outcomes, Bagaria et al. 2023)."""
+    import json
+
+    import torch
+
+    from dynoplan.experiments.gear_outcomes import (
+        OutcomeSettings,
+        collect_outcomes,
+        fit_gear_initiation,
+    )
+    from dynoplan.io import write_json
+    from dynoplan.parallel import parse_workers, ray_session
+
+    pool = parse_workers(workers, ray_address)
+    torch.set_num_threads(1)
+    if collect:
+        with ray_session(pool):
+            summary = collect_outcomes(models, seed, out, OutcomeSettings(
+                runs, max_decisions, lead_decisions), progress=not quiet, workers=pool)
+        write_json(out / "outcomes.json", summary)
+        typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
+            f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
+            for n in summary["starts"]))
+    report = fit_gear_initiation(models, out, seed)
+    write_json(models / "initiation.json", report)
+    typer.echo(json.dumps(report["options"]))
+    typer.echo(f"-> {out}, {report['file']}, {models}/initiation.json")
+
+
 @gear_app.command("train")
 def train(
     demos: Path = typer.Option(Path("results/gear-demos"), callback=folder,
@@ -321,7 +372,10 @@ def evaluate(
                                 "run's OUT/models)."),
     out: Path = typer.Option(Path("results/gear-eval"), callback=folder, help="Output folder."),
     controllers: str = typer.Option("dynoplan", help="Comma-separated controllers: dynoplan, "
-                                    "oracle, fixed_script, random, flat_ppo."),
+                                    "oracle, fixed_script, random, flat_ppo, or a variant on "
+                                    "other initiation sets: dynoplan_learned, random_learned, "
+                                    "dynoplan_regions, random_regions, dynoplan_everywhere, "
+                                    "random_everywhere."),
     episodes: int = typer.Option(100, min=1, max=EPISODES_MAX, help="Episodes per controller."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Episodes are gear run's for the same seed."),
@@ -368,8 +422,8 @@ def episode(
     models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
-    controller: str = typer.Option("dynoplan", help="dynoplan, oracle, fixed_script or "
-                                   "random."),
+    controller: str = typer.Option("dynoplan", help="dynoplan, oracle, fixed_script, random "
+                                   "or a variant (see gear evaluate --help)."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Episodes are gear run's for the same seed."),
     out: Path = typer.Option(Path("results/gear-episode"), callback=folder, help="Output folder."),

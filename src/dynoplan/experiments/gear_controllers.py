@@ -22,12 +22,19 @@ because 10 demonstrations cannot teach a mixture where the task's phases begin a
 An option the demonstrations do not show has no region: its own conditions alone decide
 (as :meth:`~dynoplan.pipeline.fit.FittedModels.initiation` does).
 
+:data:`VARIANTS` names the same choosers on other initiation sets
+(:data:`INITIATION_SETS`): ``dynoplan_learned`` and ``random_learned`` on the learned sets
+alone (no hand-written condition), ``*_regions`` on the Eq. 5 regions alone (the paper),
+``*_everywhere`` with no initiation set. Each option keeps its own policy and
+termination ``beta_w`` in every variant.
+
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
 rate too: the learned models step at the decision rate.
 """
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -54,7 +61,7 @@ from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
+from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion, Nowhere
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
 from dynoplan.pipeline.evaluate import ControllerSettings, with_dynamics_noise
@@ -63,7 +70,48 @@ from dynoplan.planning import OptionPlanner, SimulatorOracle
 from dynoplan.types import FloatArray
 
 CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
-"""Option-level controllers, in table order (the flat PPO policy is run separately)."""
+"""Option-level controllers of ``gear run``'s table, in table order (the flat PPO policy
+is run separately)."""
+
+INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
+"""Where the options may start and go on (:func:`option_sets`):
+
+- ``rules``: each option's own hand-written conditions (its registry record) intersected
+  with its learned Eq. 5 region (:func:`preconditions`);
+- ``learned``: what was learned alone, no hand-written condition: the option's Eq. 5
+  region intersected with its initiation learned from outcomes
+  (:mod:`dynoplan.models.outcome_initiation`, when the models folder holds one), and the
+  region as the continuation set; an option with neither is not admissible;
+- ``regions``: the paper's method, the Eq. 5 regions alone (an option without a region
+  is admissible everywhere, as the paper's ``I = R^12``);
+- ``everywhere``: no initiation set at all (the paper: "the initiation set of all
+  policies is R^12")."""
+
+
+@dataclass(frozen=True)
+class ControllerVariant:
+    """A named controller: how it chooses (``planner``, ``oracle``, ``random`` or
+    ``script``) and on which initiation and continuation sets (of
+    :data:`INITIATION_SETS`)."""
+
+    chooser: str
+    sets: str
+
+
+VARIANTS: dict[str, ControllerVariant] = {
+    "dynoplan": ControllerVariant("planner", "rules"),
+    "oracle": ControllerVariant("oracle", "rules"),
+    "fixed_script": ControllerVariant("script", "everywhere"),
+    "random": ControllerVariant("random", "rules"),
+    "dynoplan_learned": ControllerVariant("planner", "learned"),
+    "random_learned": ControllerVariant("random", "learned"),
+    "dynoplan_regions": ControllerVariant("planner", "regions"),
+    "random_regions": ControllerVariant("random", "regions"),
+    "dynoplan_everywhere": ControllerVariant("planner", "everywhere"),
+    "random_everywhere": ControllerVariant("random", "everywhere"),
+}
+"""Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
+accept: :data:`CONTROLLERS` and the variants on other initiation sets."""
 
 FIXED_SCRIPT = ("pick", "fast_move", "insert")
 """The fixed script's options, each run until its policy reports it is finished."""
@@ -103,32 +151,23 @@ def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Ini
 
 
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
-                 factories: Mapping[str, GearPolicyFactory], regions: bool = True,
+                 factories: Mapping[str, GearPolicyFactory], sets: str = "rules",
                  terminations: bool = True) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
     Args:
-        regions: initiation sets are the options' own conditions and learned safety
-            regions (:func:`preconditions`; else everywhere).
+        sets: their initiation and continuation sets, one of :data:`INITIATION_SETS`.
         terminations: each option's own ``beta_w`` (else 0: the option runs until its
             policy reports it is finished).
     """
     missing = [n for n in models.option_names if n not in factories]
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
-    learned = models.regions
-    if regions and learned is None:
-        raise DynoplanError("the gear's options need the learned safety regions")
     options = []
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
-        if regions and learned is not None:
-            shown = name in learned.option_names  # demonstrated: it has a region
-            initiation, continuation = preconditions(
-                name, InRegion(learned, name) if shown else None)
-        else:
-            initiation, continuation = Everywhere(), None
+        initiation, continuation = option_sets(name, models, sets)
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
@@ -136,26 +175,55 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
     return options
 
 
+def option_sets(name: str, models: FittedModels,
+                sets: str) -> tuple[Initiation, Initiation | None]:
+    """Option ``name``'s initiation and continuation sets (``None``: the same as its
+    initiation) under ``sets`` (one of :data:`INITIATION_SETS`)."""
+    if sets not in INITIATION_SETS:
+        raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
+                            f"{', '.join(INITIATION_SETS)}")
+    if sets == "everywhere":
+        return Everywhere(), None
+    learned = models.regions
+    if learned is None:
+        raise DynoplanError("the gear's options need the learned safety regions")
+    region = InRegion(learned, name) if name in learned.option_names else None
+    if sets == "rules":
+        return preconditions(name, region)
+    if sets == "regions":  # not demonstrated: no region, admissible everywhere
+        return (Everywhere() if region is None else region), None
+    outcomes = models.learned_initiation
+    from_outcomes: Initiation | None = (
+        InRegion(outcomes, name)
+        if outcomes is not None and name in outcomes.option_names else None)
+    if region is None:  # not demonstrated
+        return (Nowhere() if from_outcomes is None else from_outcomes), None
+    if from_outcomes is None:
+        return region, None
+    return AllOf(region, from_outcomes), region  # start where both say; go on in the region
+
+
 def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
                          factories: Mapping[str, GearPolicyFactory],
                          settings: ControllerSettings = GEAR_CONTROL) -> Controller:
-    """The controller ``name`` (one of :data:`CONTROLLERS`) on ``env``."""
-    if name not in CONTROLLERS:
+    """The controller ``name`` (one of :data:`VARIANTS`) on ``env``."""
+    if name not in VARIANTS:
         raise DynoplanError(f"unknown controller {name!r}; expected one of "
-                            f"{', '.join(CONTROLLERS)}")
+                            f"{', '.join(VARIANTS)}")
     settings.validate()
-    scripted = name == "fixed_script"
-    options = gear_options(env, models, factories, regions=not scripted,
+    variant = VARIANTS[name]
+    scripted = variant.chooser == "script"
+    options = gear_options(env, models, factories, sets=variant.sets,
                            terminations=not scripted)
     chooser: OptionChooser
-    if name == "dynoplan":
+    if variant.chooser == "planner":
         chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
                                 models.goal, horizon=settings.horizon,
                                 samples=settings.samples, risk=settings.risk)
-    elif name == "oracle":
+    elif variant.chooser == "oracle":
         chooser = gear_oracle(env, options, factories, models.goal,
                               settings.oracle_horizon, settings.oracle_samples)
-    elif name == "random":
+    elif variant.chooser == "random":
         chooser = RandomChoice(options)
     else:
         chooser = ScriptedSequence(options, FIXED_SCRIPT)
@@ -201,12 +269,15 @@ __all__ = [
     "FIXED_SCRIPT",
     "GEAR_CONTROL",
     "HELD_GEAR_HEIGHT",
+    "INITIATION_SETS",
     "INSERT_KEEP_CLEARANCE",
     "INSERT_START_CLEARANCE",
     "MAX_EPISODE_SECONDS",
     "MAX_EPISODE_STEPS",
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
+    "VARIANTS",
+    "ControllerVariant",
     "FarFromGoal",
     "HoldStill",
     "gear_options",
@@ -216,6 +287,7 @@ __all__ = [
     "holding_gear",
     "make_gear_controller",
     "not_carried",
+    "option_sets",
     "preconditions",
 ]
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
 from dynoplan.experiments.gear_run import (
     EVAL_SEED_OFFSET,
@@ -31,7 +31,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
                         seed: int = 0, planner: ControllerSettings = GEAR_CONTROL,
                         flat_folder: Path | None = None, workers: Workers = SERIAL,
                         progress: bool = True) -> dict[str, Any]:
-    """Evaluate ``controllers`` (of :data:`CONTROLLERS` and ``flat_ppo``) on ``episodes``
+    """Evaluate ``controllers`` (of :data:`VARIANTS` and ``flat_ppo``) on ``episodes``
     seeded episodes each; write ``results.csv``, ``results.md``, ``episodes.json`` and
     ``summary.json`` (with ``wall_s``, Ray's start included) into ``out``; return the
     summary.
@@ -42,7 +42,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     from dynoplan.baselines.flat_policy import read_flat_policy
     from dynoplan.experiments.gear_model_files import load_gear_models
 
-    known = (*CONTROLLERS, FLAT_POLICY)
+    known = (*VARIANTS, FLAT_POLICY)
     unknown = [c for c in controllers if c not in known]
     if unknown or not controllers:
         raise DynoplanError(f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "

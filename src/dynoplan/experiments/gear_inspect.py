@@ -19,7 +19,7 @@ from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.experiments.gear_task import GearTask
 from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRecord
@@ -47,9 +47,9 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
         the option was not admissible or the chooser does not score), and the human
         schedule (``events``, keyframe ``times`` and hand ``positions``).
     """
-    if controller not in CONTROLLERS:
+    if controller not in VARIANTS:
         raise DynoplanError(f"unknown controller {controller!r}; expected one of "
-                            f"{', '.join(CONTROLLERS)} (flat_ppo has no decisions)")
+                            f"{', '.join(VARIANTS)} (flat_ppo has no decisions)")
     episode = evaluation_episode(index, seed)
     runner = GearTask(render=frames is not None).make_runner(controller, models, planner)
     assert isinstance(runner, ControllerRunner)

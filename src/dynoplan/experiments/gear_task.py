@@ -27,7 +27,7 @@ import numpy as np
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS
+from dynoplan.experiments.gear_controllers import VARIANTS
 from dynoplan.experiments.gear_model_files import TASK_NAME
 from dynoplan.pipeline.evaluate import (
     ControllerRunner,
@@ -85,7 +85,8 @@ class GearTask:
 
     def make_runner(self, controller: str, models: Path,
                     settings: ControllerSettings) -> EpisodeRunner:
-        """Controller ``controller`` (of :data:`CONTROLLERS` or :data:`FLAT_POLICY`) on a
+        """Controller ``controller`` (of :data:`~dynoplan.experiments.gear_controllers.VARIANTS` or
+        :data:`FLAT_POLICY`) on a
         new environment, built from the models folder ``models`` (once per process).
         PyTorch runs on one thread, as in the serial command line, so predictions, and
         hence episodes, are bit-identical in every process."""
@@ -96,9 +97,9 @@ class GearTask:
         from dynoplan.experiments.gear_controllers import make_gear_controller
         from dynoplan.experiments.gear_model_files import load_gear_models
 
-        if controller not in (*CONTROLLERS, FLAT_POLICY):
+        if controller not in (*VARIANTS, FLAT_POLICY):
             raise DynoplanError(f"unknown controller {controller!r}; expected one of "
-                                f"{', '.join((*CONTROLLERS, FLAT_POLICY))}")
+                                f"{', '.join((*VARIANTS, FLAT_POLICY))}")
         torch.set_num_threads(1)
         env = self.make_env()
         gear_env = env.unwrapped

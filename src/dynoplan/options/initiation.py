@@ -22,6 +22,14 @@ class Everywhere:
         return np.ones(states.shape[:-1], dtype=bool)
 
 
+class Nowhere:
+    """The empty set: the option may start nowhere (an option with no learned initiation
+    set when only learned sets count)."""
+
+    def contains(self, states: FloatArray) -> BoolArray:
+        return np.zeros(states.shape[:-1], dtype=bool)
+
+
 class InitiationFromCallable:
     """Wrap ``fn(states (batch, d)) -> (batch,)`` booleans."""
 
