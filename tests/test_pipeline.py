@@ -113,6 +113,20 @@ def test_pipeline_writes_datasets_models_and_summary(result):
     assert loaded.regions is not None and loaded.regions.option_names == ["right", "left"]
 
 
+def test_summary_reports_where_each_option_may_start(result):
+    out, _ = result
+    summary = json.loads((out / "summary.json").read_text())
+    rows = summary["admissibility"]
+    assert set(rows) == {"right", "left"}
+    for row in rows.values():
+        assert 0.0 <= row["start_states"] <= 1.0 and 0.0 <= row["demo_states"] <= 1.0
+    assert rows["left"]["own_demo_states"] is None  # never demonstrated
+    assert rows["right"]["own_demo_states"] >= 0.9
+    assert isinstance(summary["warnings"], list) and summary["warnings"]
+    assert set(summary["stage_seconds"]) >= {"demonstrations", "safety regions", "evaluation"}
+    assert "admissible at evaluation start states" in (out / "results.md").read_text()
+
+
 def test_pipeline_is_deterministic_given_the_seed(result):
     _, res = result
     again = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
