@@ -105,7 +105,7 @@ def test_heldout_fit_covers_fresh_states_at_the_stated_rate():
     groups = np.r_[np.arange(120) // 20, 100 + np.arange(120) // 20]  # six "demonstrations" each
     regions, report = SafetyRegions.fit_heldout(x, y, ["a", "b"], groups, coverage=0.9,
                                                 max_components=3, seed=0)
-    assert report["method"] == "heldout" and report["folds"] == 5
+    assert report["method"] == "heldout" and report["per_option"]["a"]["heldout_states"] == 120
     fresh, fresh_y = _mixture_sample(np.random.default_rng(1), 4000)
     for k in (0, 1):
         inside = regions.contains(fresh[fresh_y == k], k).mean()

@@ -16,10 +16,11 @@ def _episode(states, label):
                    truncations=np.zeros(n, bool), infos={"option": np.full(n, label)})
 
 
-# demonstrations: option 0 ('right') acts on x in [0, 5]; exploration: option 1 ('left')
-# ran on x in [-8, -2] only; option 2 ('idle') never ran anywhere.
-DEMOS = [_episode(np.linspace(0.0, 5.0, 30) + 0.05 * i, 0) for i in range(5)]
-RUNS = [_episode(np.linspace(-8.0, -2.0, 30) - 0.05 * i, 1) for i in range(5)]
+# demonstrations: option 0 ('right') acts around x = 2.5; exploration: option 1 ('left')
+# ran around x = -5 only; option 2 ('idle') never ran anywhere.
+_RNG = np.random.default_rng(0)
+DEMOS = [_episode(_RNG.normal(2.5, 1.0, 30), 0) for _ in range(5)]
+RUNS = [_episode(_RNG.normal(-5.0, 1.0, 30), 1) for _ in range(5)]
 NAMES = ["right", "left", "idle"]
 
 
@@ -29,7 +30,7 @@ def test_undemonstrated_option_gets_a_region_from_its_own_runs_by_default():
     assert len(report["warnings"]) == 2
     xs = np.linspace(-20.0, 20.0, 401)[:, None]
     left = regions.contains(xs, "left")
-    assert left[(xs[:, 0] > -6.0) & (xs[:, 0] < -4.0)].all()  # where it ran
+    assert left[(xs[:, 0] > -5.5) & (xs[:, 0] < -4.5)].all()  # where it ran
     assert not left[xs[:, 0] > 0.0].any() and left.mean() < 0.5  # not everywhere
     assert not regions.contains(xs, "idle").any()  # no runs: never admissible
 
@@ -52,7 +53,7 @@ def test_the_fitted_initiation_set_of_an_undemonstrated_option_is_not_everywhere
              for n in NAMES]
     settings = FitSettings(dynamics_hidden=(8,), dynamics_members=1, dynamics_epochs=1,
                            goal_hidden=8, goal_epochs=1)
-    idle_runs = [_episode(np.linspace(10.0, 12.0, 30), 2)]
+    idle_runs = [_episode(_RNG.normal(11.0, 0.5, 30), 2)]
     with pytest.warns(DynoplanWarning, match="never appear in the demonstrations"):
         models = fit_models(specs, [*RUNS, *idle_runs], DEMOS, settings, seed=0)
     xs = np.linspace(-20.0, 20.0, 401)[:, None]

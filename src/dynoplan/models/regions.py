@@ -181,10 +181,9 @@ class SafetyRegions:
         coverage: float = 0.95,
         folds: int = 5,
         n_components: int | None = None,
-        max_components: int = 8,
+        max_components: int = 6,
         reg_covar: float = 1e-2,
         slack: float = 0.0,
-        min_share: float = 0.1,
         seed: int = 0,
     ) -> tuple["SafetyRegions", dict[str, Any]]:
         """Regions whose held-out coverage is ``coverage``, chosen without BIC.
@@ -193,32 +192,34 @@ class SafetyRegions:
            ``1e-3`` of the largest spread, so a constant dimension does not divide by 0);
            ``reg_covar`` is added to every covariance's diagonal in those units (``1e-2``:
            no component is narrower than a tenth of the data's spread in any direction).
-        2. The demonstrations (``groups``) are dealt into at most ``folds`` folds. ``M``
-           (when ``n_components`` is ``None``) is the size in ``1..max_components`` with
-           the best mean log-likelihood of held-out folds; sizes with fewer than
-           ``2 (d + 1)`` training states per component are not tried.
-        3. For each fold, a mixture of that ``M`` fitted without it gives ``log L(s | k)``
-           of the fold's states of option ``k``. Option ``k``'s threshold is the
-           ``1 - coverage`` quantile of these held-out values (no higher than the same
-           quantile over its training states), minus ``slack`` nats. An option seen in
-           one demonstration only has no held-out values; its threshold is lowered from
-           the training quantile by the largest such gap among the other options.
-
-        The final mixture is fitted on all states; only the thresholds come from the
-        folds.
+        2. Each option gets its own mixture on its own states, so ``J_k`` is that
+           mixture's components (one mixture shared by all options lets a component
+           span several options' states, and their regions become the same).
+        3. Option ``k``'s states are dealt into at most ``folds`` folds of whole
+           demonstrations (``groups``). Its ``M`` (when ``n_components`` is ``None``) is
+           the size in ``1..max_components`` with the best mean log-likelihood of the
+           held-out folds; sizes with fewer than ``2 (d + 1)`` training states per
+           component are not tried.
+        4. Mixtures of that ``M`` fitted without each fold give ``log L(s | k)`` of the
+           fold's states. The threshold is the ``1 - coverage`` quantile of these
+           held-out values (no higher than the same quantile over the training states),
+           minus ``slack`` nats. The final mixture is fitted on all of ``k``'s states;
+           only the threshold comes from the folds.
 
         Args:
             states: ``(N, state_dim)`` states; labels: ``(N,)`` option indices.
-            groups: ``(N,)`` id of the demonstration (episode) of every state; ``None``
-                (or a single id): ``folds`` contiguous blocks of states.
+            groups: ``(N,)`` id of the demonstration (episode) of every state. Where an
+                option's states come from one group (or ``groups`` is ``None``), its folds
+                are contiguous blocks of its states.
             coverage: the target share of held-out states of each option inside its region.
             seed: seeds the fold assignment and scikit-learn.
 
         Returns:
-            The regions and a report ``{"method", "components", "folds",
-            "heldout_loglik", "heldout_coverage", "heldout_states"}`` (per option: the
-            share of its held-out states inside its final threshold, and how many there
-            were; ``None`` when it has none).
+            The regions and a report: ``{"method": "heldout", "folds", "components":
+            total, "per_option": {name: {"components", "heldout_coverage",
+            "heldout_states", "heldout_loglik"}}}``; ``heldout_coverage`` is the share of
+            the option's held-out states inside its final threshold (``None`` without
+            held-out states).
 
         Raises:
             DynoplanError: malformed input, an option without states, ``folds < 2``.
@@ -228,78 +229,31 @@ class SafetyRegions:
             raise DynoplanError(f"folds must be >= 2, got {folds}")
         if reg_covar <= 0.0:
             raise DynoplanError(f"reg_covar must be > 0, got {reg_covar}")
-        n, d = x.shape
+        if n_components is not None and n_components < 1:
+            raise DynoplanError(f"n_components must be >= 1, got {n_components}")
         center = x.mean(axis=0)
         spread = x.std(axis=0)
         scale = np.maximum(spread, 1e-3 * float(spread.max()) + 1e-12)
         z = (x - center) / scale
-        fold = _folds(n, groups, folds, seed)
-        fold_ids = np.unique(fold)
-
-        def mixture(m: int, rows: BoolArray) -> GaussianMixture:
-            gmm = GaussianMixture(n_components=m, covariance_type="full", reg_covar=reg_covar,
-                                  random_state=seed, n_init=1)
-            return gmm.fit(z[rows])
-
-        heldout_loglik: dict[int, float] = {}
-        if n_components is not None:
-            if n_components < 1:
-                raise DynoplanError(f"n_components must be >= 1, got {n_components}")
-            m_best = n_components
-        else:
-            smallest_train = min(int(np.sum(fold != f)) for f in fold_ids)
-            cap = max(1, min(max_components, smallest_train // (2 * (d + 1))))
-            worse_in_a_row = 0
-            for m in range(1, cap + 1):
-                total = 0.0
-                for f in fold_ids:
-                    total += float(mixture(m, fold != f).score_samples(z[fold == f]).sum())
-                heldout_loglik[m] = total / n
-                if heldout_loglik[m] < max(heldout_loglik.values()):
-                    worse_in_a_row += 1
-                    if worse_in_a_row == 2:
-                        break
-                else:
-                    worse_in_a_row = 0
-            m_best = max(heldout_loglik, key=lambda k: heldout_loglik[k])
-
-        heldout: list[list[FloatArray]] = [[] for _ in names]
-        for f in fold_ids:
-            train = fold != f
-            fold_regions = cls._from_mixture(mixture(m_best, train), z[train], y[train],
-                                             names, min_share)
-            for k in range(len(names)):
-                rows = (~train) & (y == k)
-                if rows.any() and fold_regions.members[k].any():
-                    heldout[k].append(fold_regions.log_likelihood(z[rows], k))
-
-        final = cls._from_mixture(mixture(m_best, np.ones(n, dtype=bool)), z, y, names,
-                                  min_share)
-        q = 1.0 - coverage
-        train_q = np.array([np.quantile(final.log_likelihood(z[y == k], k), q)
-                            for k in range(len(names))])
-        held = [np.concatenate(h) if h else None for h in heldout]
-        gaps = [float(train_q[k] - np.quantile(h, q)) for k, h in enumerate(held)
-                if h is not None]
-        widen = max([0.0, *gaps])
-        thresholds = np.array([min(train_q[k], float(np.quantile(h, q))) if h is not None
-                               else train_q[k] - widen for k, h in enumerate(held)]) - slack
+        g = None if groups is None else np.asarray(groups)
+        if g is not None and g.shape != y.shape:
+            raise DynoplanError(f"groups must be {y.shape}, got {g.shape}")
+        merged: SafetyRegions | None = None
+        per_option: dict[str, Any] = {}
+        for k, name in enumerate(names):
+            own = y == k
+            one, info = _heldout_option(z[own], None if g is None else g[own], name, coverage,
+                                        folds, n_components, max_components, reg_covar, seed)
+            one.log_thresholds = one.log_thresholds - slack
+            per_option[name] = info
+            merged = one if merged is None else cls.merge(merged, one)
+        assert merged is not None
         # back to the original units: z = (x - center) / scale
-        final.means = center + final.means * scale
-        final.precisions_cholesky = final.precisions_cholesky / scale[None, :, None]
-        final.log_thresholds = thresholds - float(np.log(scale).sum())
-        report: dict[str, Any] = {
-            "method": "heldout",
-            "components": m_best,
-            "folds": len(fold_ids),
-            "heldout_loglik": {str(m): round(v, 4) for m, v in heldout_loglik.items()},
-            "heldout_coverage": {names[k]: None if h is None else
-                                 float(np.mean(h >= thresholds[k]))
-                                 for k, h in enumerate(held)},
-            "heldout_states": {names[k]: 0 if h is None else len(h)
-                               for k, h in enumerate(held)},
-        }
-        return final, report
+        merged.means = center + merged.means * scale
+        merged.precisions_cholesky = merged.precisions_cholesky / scale[None, :, None]
+        merged.log_thresholds = merged.log_thresholds - float(np.log(scale).sum())
+        return merged, {"method": "heldout", "components": merged.n_components,
+                        "per_option": per_option}
 
     @classmethod
     def merge(cls, first: "SafetyRegions", second: "SafetyRegions") -> "SafetyRegions":
@@ -388,6 +342,61 @@ def _checked(states: FloatArray, labels: IntArray, option_names: Sequence[str],
     if not 0.0 < coverage <= 1.0:
         raise DynoplanError(f"coverage must be in (0, 1], got {coverage}")
     return x, y, names
+
+
+def _heldout_option(z: FloatArray, groups: IntArray | None, name: str, coverage: float,
+                    folds: int, n_components: int | None, max_components: int,
+                    reg_covar: float, seed: int) -> tuple[SafetyRegions, dict[str, Any]]:
+    """One option's region in standardised units (see :meth:`SafetyRegions.fit_heldout`)."""
+    n, d = z.shape
+    fold = _folds(n, groups, min(folds, n), seed) if n >= 2 else np.zeros(n, np.int64)
+    fold_ids = np.unique(fold)
+
+    def mixture(m: int, rows: BoolArray) -> SafetyRegions:
+        gmm = GaussianMixture(n_components=m, covariance_type="full", reg_covar=reg_covar,
+                              random_state=seed, n_init=1).fit(z[rows])
+        return SafetyRegions([name], np.asarray(gmm.means_, dtype=np.float64),
+                             np.asarray(gmm.precisions_cholesky_, dtype=np.float64),
+                             np.ones((1, m), dtype=bool), np.zeros(1))
+
+    scores: dict[int, float] = {}
+    if n_components is not None:
+        m_best = min(n_components, n)
+    elif len(fold_ids) < 2:
+        m_best = 1
+    else:
+        smallest_train = min(int(np.sum(fold != f)) for f in fold_ids)
+        cap = max(1, min(max_components, smallest_train // (2 * (d + 1))))
+        worse = 0
+        for m in range(1, cap + 1):
+            total = 0.0
+            for f in fold_ids:
+                gmm = GaussianMixture(n_components=m, covariance_type="full",
+                                      reg_covar=reg_covar, random_state=seed,
+                                      n_init=1).fit(z[fold != f])
+                total += float(gmm.score_samples(z[fold == f]).sum())
+            scores[m] = total / n
+            worse = worse + 1 if scores[m] < max(scores.values()) else 0
+            if worse == 2:
+                break
+        m_best = max(scores, key=lambda m: scores[m])
+    held: list[FloatArray] = []
+    if len(fold_ids) >= 2:
+        for f in fold_ids:
+            held.append(mixture(m_best, fold != f).log_likelihood(z[fold == f], 0))
+    final = mixture(m_best, np.ones(n, dtype=bool))
+    q = 1.0 - coverage
+    threshold = float(np.quantile(final.log_likelihood(z, 0), q))
+    values = np.concatenate(held) if held else None
+    if values is not None:
+        threshold = min(threshold, float(np.quantile(values, q)))
+    final.log_thresholds = np.array([threshold])
+    return final, {
+        "components": m_best,
+        "heldout_loglik": {str(m): round(v, 4) for m, v in scores.items()},
+        "heldout_coverage": None if values is None else float(np.mean(values >= threshold)),
+        "heldout_states": 0 if values is None else len(values),
+    }
 
 
 def _folds(n: int, groups: IntArray | None, folds: int, seed: int) -> IntArray:

@@ -99,7 +99,7 @@ class FitSettings:
     region_coverage: float = 0.95
     region_slack: float = 0.0
     region_components: int | None = None
-    region_max_components: int = 8
+    region_max_components: int = 6
     region_folds: int = 5
     region_reg_covar: float = 1e-2
     region_undemonstrated: str = "runs"
@@ -286,8 +286,8 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
 
     Demonstrated options: Eq. 5 on the demonstrations (``settings.region_fit``). Options
     no demonstration shows follow ``settings.region_undemonstrated``: ``"runs"`` fits
-    each one's region the same way on the states where it acted in ``transitions`` (a
-    mixture per option, merged into one model: the same ``L(s | k)``); ``"none"``, or ``"runs"``
+    their regions the same way on the states where they acted in ``transitions``
+    (merged into one model: the same ``L(s | k)``); ``"none"``, or ``"runs"``
     with fewer than ``4 (d + 1)`` such states, makes them admissible nowhere;
     ``"everywhere"`` leaves them out of the regions (their own initiation set alone).
     Each case is said in one :class:`~dynoplan.errors.DynoplanWarning`.
@@ -317,16 +317,14 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
         enough = 4 * (states.shape[1] + 1)
         fitted = [k for k in unshown if np.sum(run_labels == k) >= enough]
         nowhere = [k for k in unshown if k not in fitted]
-        report["from_runs"] = {}
-        for k in fitted:  # one mixture per option: its runs alone say where it may start
-            keep = run_labels == k
-            runs, runs_report = _fit_labelled(run_states[keep], run_labels[keep],
-                                              run_groups[keep], [names[k]], [k], settings,
-                                              seed)
-            regions = SafetyRegions.merge(regions, runs)
-            report["from_runs"][names[k]] = runs_report
-            report["undemonstrated"][names[k]] = "runs"
         if fitted:
+            keep = np.isin(run_labels, fitted)
+            runs, runs_report = _fit_labelled(run_states[keep], run_labels[keep],
+                                              run_groups[keep], [names[k] for k in fitted],
+                                              fitted, settings, seed)
+            regions = SafetyRegions.merge(regions, runs)
+            report["from_runs"] = runs_report
+            report["undemonstrated"].update({names[k]: "runs" for k in fitted})
             report["warnings"].append(
                 f"option(s) {', '.join(names[k] for k in fitted)} never appear in the "
                 "demonstrations: their regions come from their own exploration runs "
