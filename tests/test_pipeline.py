@@ -84,7 +84,10 @@ def test_pipeline_learns_to_go_right_and_beats_going_left(result):
     assert res.evaluation["dynoplan"]["success_rate"] == 1.0
     assert res.evaluation["option:right"]["success_rate"] == 1.0
     assert res.evaluation["option:left"]["success_rate"] == 0.0
-    assert res.models.regions is not None and res.models.regions.option_names == ["right"]
+    # 'left' is never demonstrated: its region comes from its own exploration runs
+    assert res.models.regions is not None
+    assert res.models.regions.option_names == ["right", "left"]
+    assert res.models.report["regions"]["undemonstrated"] == {"left": "runs"}
     assert res.summary["demonstrations"]["episodes"] == 4
     assert "| dynoplan | 1 |" in res.table
 
@@ -107,7 +110,21 @@ def test_pipeline_writes_datasets_models_and_summary(result):
         b = loaded.dynamics[name].sample(states, np.random.default_rng(1))
         assert np.array_equal(a, b)
     assert np.array_equal(loaded.goal.mean_std(states)[0], res.models.goal.mean_std(states)[0])
-    assert loaded.regions is not None and loaded.regions.option_names == ["right"]
+    assert loaded.regions is not None and loaded.regions.option_names == ["right", "left"]
+
+
+def test_summary_reports_where_each_option_may_start(result):
+    out, _ = result
+    summary = json.loads((out / "summary.json").read_text())
+    rows = summary["admissibility"]
+    assert set(rows) == {"right", "left"}
+    for row in rows.values():
+        assert 0.0 <= row["start_states"] <= 1.0 and 0.0 <= row["demo_states"] <= 1.0
+    assert rows["left"]["own_demo_states"] is None  # never demonstrated
+    assert rows["right"]["own_demo_states"] >= 0.9
+    assert isinstance(summary["warnings"], list) and summary["warnings"]
+    assert set(summary["stage_seconds"]) >= {"demonstrations", "safety regions", "evaluation"}
+    assert "admissible at evaluation start states" in (out / "results.md").read_text()
 
 
 def test_pipeline_is_deterministic_given_the_seed(result):

@@ -91,3 +91,47 @@ def test_bad_fitting_input_is_a_clear_error():
         regions.contains(np.zeros((1, 2)), "c")
     with pytest.raises(DynoplanError, match=r"shape \(batch, 2\)"):
         regions.contains(np.zeros((1, 3)), "a")
+
+
+def _mixture_sample(rng, n):
+    """A known distribution: two elongated Gaussians in 3-D, labels 0 and 1."""
+    a = rng.normal(0.0, [0.5, 0.1, 2.0], size=(n, 3))
+    b = rng.normal([4.0, 1.0, -3.0], [1.0, 0.3, 0.2], size=(n, 3))
+    return np.vstack([a, b]), np.r_[np.zeros(n, int), np.ones(n, int)]
+
+
+def test_heldout_fit_covers_fresh_states_at_the_stated_rate():
+    x, y = _mixture_sample(np.random.default_rng(0), 120)
+    groups = np.r_[np.arange(120) // 20, 100 + np.arange(120) // 20]  # six "demonstrations" each
+    regions, report = SafetyRegions.fit_heldout(x, y, ["a", "b"], groups, coverage=0.9,
+                                                max_components=3, seed=0)
+    assert report["method"] == "heldout" and report["per_option"]["a"]["heldout_states"] == 120
+    fresh, fresh_y = _mixture_sample(np.random.default_rng(1), 4000)
+    for k in (0, 1):
+        inside = regions.contains(fresh[fresh_y == k], k).mean()
+        assert 0.85 <= inside <= 0.97, (k, inside)
+    assert not regions.contains_all(np.full((4, 3), 40.0)).any()
+
+
+def test_heldout_fit_is_the_same_in_any_units():
+    """Standardisation: scaling one dimension by 1000 does not change membership."""
+    x, y = _mixture_sample(np.random.default_rng(2), 80)
+    scaled = x * np.array([1.0, 1000.0, 1.0])
+    query, _ = _mixture_sample(np.random.default_rng(3), 200)
+    r1, _ = SafetyRegions.fit_heldout(x, y, ["a", "b"], n_components=2, seed=0)
+    r2, _ = SafetyRegions.fit_heldout(scaled, y, ["a", "b"], n_components=2, seed=0)
+    np.testing.assert_array_equal(r1.contains_all(query),
+                                  r2.contains_all(query * np.array([1.0, 1000.0, 1.0])))
+
+
+def test_merged_and_nowhere_regions():
+    x, y = _two_clusters(np.random.default_rng(6))
+    a = SafetyRegions.fit(x[y == 0], np.zeros(int((y == 0).sum()), int), ["a"], n_components=1)
+    b = SafetyRegions.fit(x[y == 1], np.zeros(int((y == 1).sum()), int), ["b"], n_components=1)
+    merged = SafetyRegions.merge(SafetyRegions.merge(a, b), SafetyRegions.nowhere(["c"], 2))
+    assert merged.option_names == ["a", "b", "c"] and merged.n_components == 2
+    np.testing.assert_array_equal(merged.contains(x, "a"), a.contains(x, "a"))
+    np.testing.assert_array_equal(merged.contains(x, "b"), b.contains(x, "b"))
+    assert not merged.contains(x, "c").any() and not merged.contains_all(x)[:, 2].any()
+    with pytest.raises(DynoplanError, match="both regions hold"):
+        SafetyRegions.merge(a, a)

@@ -8,3 +8,9 @@ class DynoplanError(Exception):
     traceback. Library code raises it for mistakes a caller can fix; bugs stay ordinary
     exceptions.
     """
+
+
+class DynoplanWarning(UserWarning):
+    """Something the user should know that does not stop the run (for example an option
+    never demonstrated, or one admissible almost nowhere). The command line prints it as
+    one line, ``dynoplan: warning: <message>``."""

@@ -8,13 +8,17 @@ Mounted by ``cli/main.py`` as ``app.add_typer(generic_app, name="pipeline")``::
 
 import shlex
 import sys
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from dynoplan.cli.params import folder
 from dynoplan.cli.workers import ray_address_option, workers_option
-from dynoplan.errors import DynoplanError
+from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.limits import (
     EPISODES_MAX,
     EPOCHS_MAX,
@@ -30,6 +34,27 @@ generic_app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
+
+
+@contextmanager
+def warnings_as_lines() -> Iterator[None]:
+    """Print every :class:`DynoplanWarning` as one line on stderr, when it is raised."""
+    shown = warnings.showwarning
+
+    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+             file: Any = None, line: str | None = None) -> None:
+        if issubclass(category, DynoplanWarning):
+            typer.echo(f"dynoplan: warning: {message}", err=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", DynoplanWarning)
+        warnings.showwarning = show
+        try:
+            yield
+        finally:
+            warnings.showwarning = shown
 
 
 @generic_app.callback(invoke_without_command=True)
@@ -65,6 +90,22 @@ def pipeline(
                                    "option stops)."),
     regions: bool = typer.Option(True, "--regions/--no-regions",
                                  help="Fit the safety regions (Eq. 5) and enforce them."),
+    region_fit: str = typer.Option(
+        "heldout", "--region-fit",
+        help="heldout: components and thresholds chosen on held-out demonstrations; "
+             "bic: BIC and in-sample thresholds (the paper's reading)."),
+    region_coverage: float = typer.Option(
+        0.95, "--region-coverage", min=0.0, max=1.0,
+        help="Share of (held-out) demonstration states of an option inside its region."),
+    region_slack: float = typer.Option(
+        0.0, "--region-slack", help="Nats subtracted from every region threshold."),
+    region_components: int | None = typer.Option(
+        None, "--region-components", min=1, max=100,
+        help="Mixture size (default: chosen by the fit)."),
+    region_undemonstrated: str = typer.Option(
+        "runs", "--region-undemonstrated",
+        help="Region of an option no demonstration shows: runs (from its own exploration "
+             "runs), none (never admissible), everywhere (its own initiation set)."),
     dynamics_epochs: int = typer.Option(30, "--dynamics-epochs", min=1, max=EPOCHS_MAX,
                                         help="Epochs per ensemble."),
     goal_epochs: int = typer.Option(150, "--goal-epochs", min=1, max=EPOCHS_MAX,
@@ -106,15 +147,22 @@ def pipeline(
     settings = PipelineSettings(
         demos=demos, exploration_episodes=explore, episodes=episodes, seed=seed,
         fit=FitSettings(stride=stride, regions=regions, dynamics_epochs=dynamics_epochs,
-                        goal_epochs=goal_epochs),
+                        goal_epochs=goal_epochs, region_fit=region_fit,
+                        region_coverage=region_coverage, region_slack=region_slack,
+                        region_components=region_components,
+                        region_undemonstrated=region_undemonstrated),
         control=ControllerSettings(horizon=horizon, samples=samples,
                                    replan_every=replan_every or None))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    with staged_folder(out) as folder:  # nothing of a failed run, the previous run's kept
+    settings.validate()
+    with staged_folder(out) as folder, warnings_as_lines():
+        # nothing of a failed run, the previous run's kept
         result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
                               settings=settings, out=folder, progress=not quiet,
                               status=None if quiet else lambda m: typer.echo(f"-- {m}",
                                                                              err=True),
                               command=command, workers=pool, task=task)
     typer.echo(result.table)
-    typer.echo(f"{result.summary['seconds']:.1f} s -> {out}/summary.json")
+    typer.echo(result.admissibility_table)
+    stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.summary["stage_seconds"].items())
+    typer.echo(f"{result.summary['seconds']:.1f} s ({stages}) -> {out}/summary.json")

@@ -11,12 +11,21 @@ calibrated on the demonstrations: the ``1 - coverage`` quantile of ``log L`` ove
 ``k``'s own demonstration states, minus ``slack`` nats. With ``coverage=0.99`` and
 ``slack=0`` (defaults), 99% of the option's training states are inside by construction;
 held-out coverage is what the evaluation measures.
+
+:meth:`SafetyRegions.fit_heldout` is the fit that works by default on a new task: the
+states are standardised per dimension, the covariances are regularised relative to
+each dimension's spread, the number of components is the one with the best held-out
+log-likelihood (folds of whole demonstrations), and each threshold is the
+``1 - coverage`` quantile of ``log L`` of *held-out* states, so ``coverage`` is the
+rate at which unseen demonstration states fall inside (not the rate on the states the
+mixture was fitted on, which BIC with few demonstrations makes needle-thin).
 """
 
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from sklearn.mixture import GaussianMixture
@@ -80,7 +89,10 @@ class SafetyRegions:
     def log_likelihood(self, states: FloatArray, option: str | int) -> FloatArray:
         """``log L(s | k) = max_{i in J_k} log p(s | mu_i, Sigma_i)``, shape ``(batch,)``."""
         k = self.option_index(option)
-        return self.component_log_density(states)[:, self.members[k]].max(axis=1)
+        log_p = self.component_log_density(states)
+        if not self.members[k].any():  # an option with no components is admissible nowhere
+            return np.full(log_p.shape[0], -np.inf)
+        return log_p[:, self.members[k]].max(axis=1)
 
     def likelihood(self, states: FloatArray, option: str | int) -> FloatArray:
         """``L(s | k)`` of Eq. 5, shape ``(batch,)``."""
@@ -95,6 +107,8 @@ class SafetyRegions:
         """Membership for every option at once: ``(batch, options)``."""
         log_p = self.component_log_density(states)
         masked = np.where(self.members[None, :, :], log_p[:, None, :], -np.inf)
+        if masked.shape[2] == 0:
+            return np.zeros(masked.shape[:2], dtype=bool)
         return masked.max(axis=2) >= self.log_thresholds[None, :]
 
     # --- fitting ---------------------------------------------------------------------
@@ -125,23 +139,21 @@ class SafetyRegions:
                 component holding most of its states.
             seed: seeds scikit-learn's initialisation.
         """
-        x = np.asarray(states, dtype=np.float64)
-        y = np.asarray(labels, dtype=np.int64)
-        names = list(option_names)
-        if x.ndim != 2 or y.shape != (x.shape[0],):
-            raise DynoplanError(
-                f"states must be (N, d) and labels (N,), got {x.shape} and {y.shape}")
-        if not np.isfinite(x).all():
-            raise DynoplanError("demonstration states contain NaN or infinite values")
-        if y.size and (y.min() < 0 or y.max() >= len(names)):
-            raise DynoplanError(f"labels must lie in 0..{len(names) - 1}")
-        missing = [names[k] for k in range(len(names)) if not np.any(y == k)]
-        if missing:
-            raise DynoplanError(f"no demonstration states for option(s): {', '.join(missing)}")
-        if not 0.0 < coverage <= 1.0:
-            raise DynoplanError(f"coverage must be in (0, 1], got {coverage}")
-
+        x, y, names = _checked(states, labels, option_names, coverage)
         gmm = _fit_mixture(x, n_components, max_components, reg_covar, seed)
+        regions = cls._from_mixture(gmm, x, y, names, min_share)
+        for k in range(len(names)):
+            own = regions.log_likelihood(x[y == k], k)
+            regions.log_thresholds[k] = np.quantile(own, 1.0 - coverage) - slack
+        return regions
+
+    @classmethod
+    def _from_mixture(cls, gmm: GaussianMixture, x: FloatArray, y: IntArray,
+                      names: list[str], min_share: float) -> "SafetyRegions":
+        """Regions with ``J_k`` from ``gmm``'s assignment of ``x`` (thresholds 0).
+
+        An option with no state in ``x`` gets no component (it is admissible nowhere).
+        """
         assigned = gmm.predict(x)
         m = gmm.n_components
         counts = np.zeros((len(names), m))
@@ -149,19 +161,134 @@ class SafetyRegions:
         share = counts / np.maximum(counts.sum(axis=0, keepdims=True), 1.0)
         members = share >= min_share
         members &= counts > 0
-        members[np.arange(len(names)), counts.argmax(axis=1)] = True
-
-        regions = cls(
+        present = counts.sum(axis=1) > 0
+        members[np.flatnonzero(present), counts[present].argmax(axis=1)] = True
+        return cls(
             option_names=names,
             means=np.asarray(gmm.means_, dtype=np.float64),
             precisions_cholesky=np.asarray(gmm.precisions_cholesky_, dtype=np.float64),
             members=members,
             log_thresholds=np.zeros(len(names)),
         )
-        for k in range(len(names)):
-            own = regions.log_likelihood(x[y == k], k)
-            regions.log_thresholds[k] = np.quantile(own, 1.0 - coverage) - slack
-        return regions
+
+    @classmethod
+    def fit_heldout(
+        cls,
+        states: FloatArray,
+        labels: IntArray,
+        option_names: Sequence[str],
+        groups: IntArray | None = None,
+        coverage: float = 0.95,
+        folds: int = 5,
+        n_components: int | None = None,
+        max_components: int = 6,
+        reg_covar: float = 1e-2,
+        slack: float = 0.0,
+        seed: int = 0,
+    ) -> tuple["SafetyRegions", dict[str, Any]]:
+        """Regions whose held-out coverage is ``coverage``, chosen without BIC.
+
+        1. Every dimension is standardised by its spread over ``states`` (floored at
+           ``1e-3`` of the largest spread, so a constant dimension does not divide by 0);
+           ``reg_covar`` is added to every covariance's diagonal in those units (``1e-2``:
+           no component is narrower than a tenth of the data's spread in any direction).
+        2. Each option gets its own mixture on its own states, so ``J_k`` is that
+           mixture's components (one mixture shared by all options lets a component
+           span several options' states, and their regions become the same).
+        3. Option ``k``'s states are dealt into at most ``folds`` folds of whole
+           demonstrations (``groups``). Its ``M`` (when ``n_components`` is ``None``) is
+           the size in ``1..max_components`` with the best mean log-likelihood of the
+           held-out folds; sizes with fewer than ``2 (d + 1)`` training states per
+           component are not tried.
+        4. Mixtures of that ``M`` fitted without each fold give ``log L(s | k)`` of the
+           fold's states. The threshold is the ``1 - coverage`` quantile of these
+           held-out values (no higher than the same quantile over the training states),
+           minus ``slack`` nats. The final mixture is fitted on all of ``k``'s states;
+           only the threshold comes from the folds.
+
+        Args:
+            states: ``(N, state_dim)`` states; labels: ``(N,)`` option indices.
+            groups: ``(N,)`` id of the demonstration (episode) of every state. Where an
+                option's states come from one group (or ``groups`` is ``None``), its folds
+                are contiguous blocks of its states.
+            coverage: the target share of held-out states of each option inside its region.
+            seed: seeds the fold assignment and scikit-learn.
+
+        Returns:
+            The regions and a report: ``{"method": "heldout", "folds", "components":
+            total, "per_option": {name: {"components", "heldout_coverage",
+            "heldout_states", "heldout_loglik"}}}``; ``heldout_coverage`` is the share of
+            the option's held-out states inside its final threshold (``None`` without
+            held-out states).
+
+        Raises:
+            DynoplanError: malformed input, an option without states, ``folds < 2``.
+        """
+        x, y, names = _checked(states, labels, option_names, coverage)
+        if folds < 2:
+            raise DynoplanError(f"folds must be >= 2, got {folds}")
+        if reg_covar <= 0.0:
+            raise DynoplanError(f"reg_covar must be > 0, got {reg_covar}")
+        if n_components is not None and n_components < 1:
+            raise DynoplanError(f"n_components must be >= 1, got {n_components}")
+        center = x.mean(axis=0)
+        spread = x.std(axis=0)
+        scale = np.maximum(spread, 1e-3 * float(spread.max()) + 1e-12)
+        z = (x - center) / scale
+        g = None if groups is None else np.asarray(groups)
+        if g is not None and g.shape != y.shape:
+            raise DynoplanError(f"groups must be {y.shape}, got {g.shape}")
+        merged: SafetyRegions | None = None
+        per_option: dict[str, Any] = {}
+        for k, name in enumerate(names):
+            own = y == k
+            one, info = _heldout_option(z[own], None if g is None else g[own], name, coverage,
+                                        folds, n_components, max_components, reg_covar, seed)
+            one.log_thresholds = one.log_thresholds - slack
+            per_option[name] = info
+            merged = one if merged is None else cls.merge(merged, one)
+        assert merged is not None
+        # back to the original units: z = (x - center) / scale
+        merged.means = center + merged.means * scale
+        merged.precisions_cholesky = merged.precisions_cholesky / scale[None, :, None]
+        merged.log_thresholds = merged.log_thresholds - float(np.log(scale).sum())
+        return merged, {"method": "heldout", "components": merged.n_components,
+                        "per_option": per_option}
+
+    @classmethod
+    def merge(cls, first: "SafetyRegions", second: "SafetyRegions") -> "SafetyRegions":
+        """One model holding both models' options (their names must not overlap).
+
+        Exact: ``L(s | k)`` is a maximum over ``J_k``, so the mixtures' components are
+        concatenated and each option keeps its own components and threshold.
+        """
+        if first.state_dim != second.state_dim:
+            raise DynoplanError(f"cannot merge regions on {first.state_dim} and "
+                                f"{second.state_dim} values")
+        common = set(first.option_names) & set(second.option_names)
+        if common:
+            raise DynoplanError(f"both regions hold option(s) {sorted(common)}")
+        m1, m2 = first.n_components, second.n_components
+        members = np.zeros((len(first.option_names) + len(second.option_names), m1 + m2),
+                           dtype=bool)
+        members[:len(first.option_names), :m1] = first.members
+        members[len(first.option_names):, m1:] = second.members
+        return cls(option_names=[*first.option_names, *second.option_names],
+                   means=np.concatenate([first.means, second.means]),
+                   precisions_cholesky=np.concatenate([first.precisions_cholesky,
+                                                       second.precisions_cholesky]),
+                   members=members,
+                   log_thresholds=np.concatenate([first.log_thresholds,
+                                                  second.log_thresholds]))
+
+    @classmethod
+    def nowhere(cls, option_names: Sequence[str], state_dim: int) -> "SafetyRegions":
+        """Regions of options that are admissible nowhere (no component; threshold inf)."""
+        names = list(option_names)
+        return cls(option_names=names, means=np.zeros((0, state_dim)),
+                   precisions_cholesky=np.zeros((0, state_dim, state_dim)),
+                   members=np.zeros((len(names), 0), dtype=bool),
+                   log_thresholds=np.full(len(names), np.inf))
 
     # --- storage ---------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> Path:
@@ -197,6 +324,94 @@ class SafetyRegions:
                                           path).astype(np.float64),
         )
 
+
+
+def _checked(states: FloatArray, labels: IntArray, option_names: Sequence[str],
+             coverage: float) -> tuple[FloatArray, IntArray, list[str]]:
+    x = np.asarray(states, dtype=np.float64)
+    y = np.asarray(labels, dtype=np.int64)
+    names = list(option_names)
+    if x.ndim != 2 or y.shape != (x.shape[0],):
+        raise DynoplanError(
+            f"states must be (N, d) and labels (N,), got {x.shape} and {y.shape}")
+    if not np.isfinite(x).all():
+        raise DynoplanError("demonstration states contain NaN or infinite values")
+    if y.size and (y.min() < 0 or y.max() >= len(names)):
+        raise DynoplanError(f"labels must lie in 0..{len(names) - 1}")
+    missing = [names[k] for k in range(len(names)) if not np.any(y == k)]
+    if missing:
+        raise DynoplanError(f"no demonstration states for option(s): {', '.join(missing)}")
+    if not 0.0 < coverage <= 1.0:
+        raise DynoplanError(f"coverage must be in (0, 1], got {coverage}")
+    return x, y, names
+
+
+def _heldout_option(z: FloatArray, groups: IntArray | None, name: str, coverage: float,
+                    folds: int, n_components: int | None, max_components: int,
+                    reg_covar: float, seed: int) -> tuple[SafetyRegions, dict[str, Any]]:
+    """One option's region in standardised units (see :meth:`SafetyRegions.fit_heldout`)."""
+    n, d = z.shape
+    fold = _folds(n, groups, min(folds, n), seed) if n >= 2 else np.zeros(n, np.int64)
+    fold_ids = np.unique(fold)
+
+    def mixture(m: int, rows: BoolArray) -> SafetyRegions:
+        gmm = GaussianMixture(n_components=m, covariance_type="full", reg_covar=reg_covar,
+                              random_state=seed, n_init=1).fit(z[rows])
+        return SafetyRegions([name], np.asarray(gmm.means_, dtype=np.float64),
+                             np.asarray(gmm.precisions_cholesky_, dtype=np.float64),
+                             np.ones((1, m), dtype=bool), np.zeros(1))
+
+    scores: dict[int, float] = {}
+    if n_components is not None:
+        m_best = min(n_components, n)
+    elif len(fold_ids) < 2:
+        m_best = 1
+    else:
+        smallest_train = min(int(np.sum(fold != f)) for f in fold_ids)
+        cap = max(1, min(max_components, smallest_train // (2 * (d + 1))))
+        worse = 0
+        for m in range(1, cap + 1):
+            total = 0.0
+            for f in fold_ids:
+                gmm = GaussianMixture(n_components=m, covariance_type="full",
+                                      reg_covar=reg_covar, random_state=seed,
+                                      n_init=1).fit(z[fold != f])
+                total += float(gmm.score_samples(z[fold == f]).sum())
+            scores[m] = total / n
+            worse = worse + 1 if scores[m] < max(scores.values()) else 0
+            if worse == 2:
+                break
+        m_best = max(scores, key=lambda m: scores[m])
+    held: list[FloatArray] = []
+    if len(fold_ids) >= 2:
+        for f in fold_ids:
+            held.append(mixture(m_best, fold != f).log_likelihood(z[fold == f], 0))
+    final = mixture(m_best, np.ones(n, dtype=bool))
+    q = 1.0 - coverage
+    threshold = float(np.quantile(final.log_likelihood(z, 0), q))
+    values = np.concatenate(held) if held else None
+    if values is not None:
+        threshold = min(threshold, float(np.quantile(values, q)))
+    final.log_thresholds = np.array([threshold])
+    return final, {
+        "components": m_best,
+        "heldout_loglik": {str(m): round(v, 4) for m, v in scores.items()},
+        "heldout_coverage": None if values is None else float(np.mean(values >= threshold)),
+        "heldout_states": 0 if values is None else len(values),
+    }
+
+
+def _folds(n: int, groups: IntArray | None, folds: int, seed: int) -> IntArray:
+    """``(n,)`` fold index of every state: whole groups dealt at random into folds, or
+    contiguous blocks when there is at most one group."""
+    g = None if groups is None else np.asarray(groups)
+    if g is not None and g.shape != (n,):
+        raise DynoplanError(f"groups must be ({n},), got {g.shape}")
+    if g is None or len(np.unique(g)) < 2:
+        return np.minimum(np.arange(n) * folds // max(n, 1), folds - 1)
+    ids, index = np.unique(g, return_inverse=True)
+    order = np.random.default_rng(seed).permutation(len(ids))
+    return (order % min(folds, len(ids)))[index]
 
 
 def _fit_mixture(x: FloatArray, n_components: int | None, max_components: int,

@@ -37,14 +37,17 @@ from dynoplan.pipeline.fit import (
     fit_dynamics,
     fit_goal,
     fit_models,
+    fit_option_regions,
     fit_regions,
     option_transitions,
 )
 from dynoplan.pipeline.run import (
     PipelineResult,
     PipelineSettings,
+    admissibility,
     demos_from_dataset,
     run_pipeline,
+    start_states,
 )
 from dynoplan.pipeline.task import GymTask, Task, call_factory, load_object
 
@@ -63,6 +66,7 @@ __all__ = [
     "RandomOptions",
     "StridedTermination",
     "Task",
+    "admissibility",
     "box_state_dim",
     "call_factory",
     "collect_transitions",
@@ -74,6 +78,7 @@ __all__ = [
     "fit_dynamics",
     "fit_goal",
     "fit_models",
+    "fit_option_regions",
     "fit_regions",
     "flat_state",
     "load_object",
@@ -85,5 +90,6 @@ __all__ = [
     "record_episode",
     "results_table",
     "run_pipeline",
+    "start_states",
     "summarize",
 ]

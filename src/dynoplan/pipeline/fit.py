@@ -5,7 +5,10 @@
   (:class:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics`), any other learner can
   be passed as a :data:`DynamicsFitter`;
 - the goal heuristic ``G`` on the demonstrations' progress (:func:`fit_goal`);
-- the safety regions of Eq. 5 on the demonstrations' option labels (:func:`fit_regions`).
+- the safety regions of Eq. 5 on the demonstrations' option labels
+  (:func:`fit_option_regions`): by default calibrated on held-out demonstrations
+  (:meth:`~dynoplan.models.regions.SafetyRegions.fit_heldout`); an option the
+  demonstrations never show gets a region from its own runs (or none), with a warning.
 
 **Model stride.** With ``stride = k > 1`` a dynamics model predicts ``k`` environment
 steps at once (``s_{t+k}`` from ``s_t`` while the option runs), so a planning horizon of
@@ -16,6 +19,7 @@ the option stops somewhere in those ``k`` steps when ``beta`` hardly changes ove
 """
 
 import os
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,7 +29,7 @@ import numpy as np
 
 from dynoplan.adapters.spec import OptionSpec
 from dynoplan.data.episodes import OPTION_KEY, Episode
-from dynoplan.errors import DynoplanError
+from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.io import staged_folder
 from dynoplan.models.dynamics import DynamicsModel, StackedDynamics
 from dynoplan.models.evaluation import one_step_error
@@ -62,14 +66,27 @@ class FitSettings:
         goal_hidden: hidden width of the goal network.
         goal_members: goal ensemble size.
         goal_epochs: training epochs of the goal network.
-        regions: fit the safety regions (Eq. 5) and use them as initiation sets of the
-            options that appear in the demonstrations (the others keep theirs).
-        region_coverage: fraction of an option's demonstration states inside its region.
+        regions: fit the safety regions (Eq. 5) and intersect every option's initiation
+            set with its region.
+        region_fit: ``"heldout"`` (default): components and thresholds chosen on
+            held-out demonstrations (:meth:`SafetyRegions.fit_heldout`), so
+            ``region_coverage`` is the share of *unseen* demonstration states inside;
+            ``"bic"``: the paper's reading, BIC components and thresholds on the
+            training states (with few demonstrations: needle-thin regions).
+        region_coverage: share of an option's demonstration states inside its region
+            (held out with ``"heldout"``, in-sample with ``"bic"``).
         region_slack: nats subtracted from every region threshold (widens them).
-        region_components: mixture size (``None``: chosen by BIC in
-            ``1..region_max_components``; with few demonstration states BIC can pick
-            many tiny components, so fix it or lower the maximum).
-        region_max_components: the largest mixture BIC may choose.
+        region_components: mixture size (``None``: chosen in
+            ``1..region_max_components``, by held-out likelihood or BIC).
+        region_max_components: the largest mixture that may be chosen.
+        region_folds: folds of whole demonstrations for ``"heldout"``.
+        region_reg_covar: added to every covariance's diagonal, in units of each
+            dimension's spread for ``"heldout"`` (absolute for ``"bic"``: 1e-6).
+        region_undemonstrated: what an option that no demonstration shows gets:
+            ``"runs"``: a region fitted (as above) on the states where it ran while
+            collecting transitions, i.e. where its dynamics model has data; ``"none"``:
+            no region (never admissible); ``"everywhere"``: its own initiation set
+            alone (before 0.x the only behaviour). The pipeline warns either way.
     """
 
     stride: int = 1
@@ -80,10 +97,14 @@ class FitSettings:
     goal_members: int = 1
     goal_epochs: int = 150
     regions: bool = True
-    region_coverage: float = 0.99
+    region_fit: str = "heldout"
+    region_coverage: float = 0.95
     region_slack: float = 0.0
     region_components: int | None = None
-    region_max_components: int = 12
+    region_max_components: int = 6
+    region_folds: int = 5
+    region_reg_covar: float = 1e-2
+    region_undemonstrated: str = "runs"
 
     def validate(self) -> None:
         if self.stride < 1:
@@ -95,6 +116,26 @@ class FitSettings:
             raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
         if not 0.0 < self.region_coverage <= 1.0:
             raise DynoplanError(f"region_coverage must be in (0, 1], got {self.region_coverage}")
+        if self.region_fit not in REGION_FITS:
+            raise DynoplanError(f"region_fit must be one of {', '.join(REGION_FITS)}, got "
+                                f"'{self.region_fit}'")
+        if self.region_undemonstrated not in UNDEMONSTRATED:
+            raise DynoplanError(f"region_undemonstrated must be one of "
+                                f"{', '.join(UNDEMONSTRATED)}, got "
+                                f"'{self.region_undemonstrated}'")
+        if self.region_folds < 2:
+            raise DynoplanError(f"region_folds must be >= 2, got {self.region_folds}")
+        if self.region_reg_covar <= 0.0:
+            raise DynoplanError(f"region_reg_covar must be > 0, got {self.region_reg_covar}")
+        if self.region_max_components < 1 or (self.region_components is not None
+                                              and self.region_components < 1):
+            raise DynoplanError("region_components and region_max_components must be >= 1")
+
+
+REGION_FITS = ("heldout", "bic")
+"""Values of :attr:`FitSettings.region_fit`."""
+UNDEMONSTRATED = ("runs", "none", "everywhere")
+"""Values of :attr:`FitSettings.region_undemonstrated`."""
 
 
 class DynamicsFitter(Protocol):
@@ -226,24 +267,124 @@ def fit_regions(demos: Sequence[Episode], option_names: Sequence[str], settings:
                 seed: int, state_fn: ObservationFn = flat_state) -> SafetyRegions:
     """Eq. 5 on the demonstrations, for the options that appear in them.
 
-    The regions' ``option_names`` are the demonstrated options, in the given order.
+    The regions' ``option_names`` are the demonstrated options, in the given order; see
+    :func:`fit_option_regions` for every option and the report.
 
     Raises:
         DynoplanError: a demonstration without option labels.
     """
-    states, labels = [], []
-    for index, episode in enumerate(demos):
-        labels.append(_labels(episode, index, len(option_names)))
+    states, labels, groups = _labelled_states(demos, len(option_names), state_fn)
+    shown = [k for k in range(len(option_names)) if np.any(labels == k)]
+    regions, _ = _fit_labelled(states, labels, groups, [option_names[k] for k in shown],
+                               shown, settings, seed)
+    return regions
+
+
+def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
+                       option_names: Sequence[str], settings: FitSettings, seed: int,
+                       state_fn: ObservationFn = flat_state,
+                       ) -> tuple[SafetyRegions, dict[str, Any]]:
+    """The regions of every option, and what the fit measured.
+
+    Demonstrated options: Eq. 5 on the demonstrations (``settings.region_fit``). Options
+    no demonstration shows follow ``settings.region_undemonstrated``: ``"runs"`` fits
+    their regions the same way on the states where they acted in ``transitions``
+    (merged into one model: the same ``L(s | k)``); ``"none"``, or ``"runs"``
+    with fewer than ``4 (d + 1)`` such states, makes them admissible nowhere;
+    ``"everywhere"`` leaves them out of the regions (their own initiation set alone).
+    Each case is said in one :class:`~dynoplan.errors.DynoplanWarning`.
+
+    Returns:
+        The regions and ``{"method", "components", "heldout_coverage", ...,
+        "undemonstrated": {name: "runs" | "none" | "everywhere"}, "warnings": [...]}``.
+
+    Raises:
+        DynoplanError: a demonstration or transition episode without option labels.
+    """
+    names = list(option_names)
+    states, labels, groups = _labelled_states(demos, len(names), state_fn)
+    shown = [k for k in range(len(names)) if np.any(labels == k)]
+    regions, report = _fit_labelled(states, labels, groups, [names[k] for k in shown], shown,
+                                    settings, seed)
+    unshown = [k for k in range(len(names)) if k not in shown]
+    report["undemonstrated"] = {}
+    report["warnings"] = []
+    if not unshown:
+        return regions, report
+    how = settings.region_undemonstrated
+    nowhere: list[int] = []
+    if how == "runs":
+        run_states, run_labels, run_groups = _labelled_states(transitions, len(names),
+                                                              state_fn)
+        enough = 4 * (states.shape[1] + 1)
+        fitted = [k for k in unshown if np.sum(run_labels == k) >= enough]
+        nowhere = [k for k in unshown if k not in fitted]
+        if fitted:
+            keep = np.isin(run_labels, fitted)
+            runs, runs_report = _fit_labelled(run_states[keep], run_labels[keep],
+                                              run_groups[keep], [names[k] for k in fitted],
+                                              fitted, settings, seed)
+            regions = SafetyRegions.merge(regions, runs)
+            report["from_runs"] = runs_report
+            report["undemonstrated"].update({names[k]: "runs" for k in fitted})
+            report["warnings"].append(
+                f"option(s) {', '.join(names[k] for k in fitted)} never appear in the "
+                "demonstrations: their regions come from their own exploration runs "
+                "(region_undemonstrated='none' never starts them)")
+    elif how == "none":
+        nowhere = unshown
+    else:
+        report["undemonstrated"].update({names[k]: "everywhere" for k in unshown})
+        report["warnings"].append(
+            f"option(s) {', '.join(names[k] for k in unshown)} never appear in the "
+            "demonstrations and have no region: they may start wherever their own "
+            "initiation set allows")
+    if nowhere:
+        regions = SafetyRegions.merge(
+            regions, SafetyRegions.nowhere([names[k] for k in nowhere], regions.state_dim))
+        report["undemonstrated"].update({names[k]: "none" for k in nowhere})
+        why = ("region_undemonstrated='none'" if how == "none" else
+               f"fewer than {4 * (states.shape[1] + 1)} states of their own runs")
+        report["warnings"].append(
+            f"option(s) {', '.join(names[k] for k in nowhere)} never appear in the "
+            f"demonstrations and get no region ({why}): they are never started")
+    return regions, report
+
+
+def _labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
+                     ) -> tuple[FloatArray, np.ndarray, np.ndarray]:
+    """Every state an option acted in: ``(N, d)`` states, ``(N,)`` labels and episode ids."""
+    states, labels, groups = [], [], []
+    for index, episode in enumerate(episodes):
+        y = _labels(episode, index, n_options)
+        labels.append(y)
         states.append(episode_states(episode, state_fn)[:-1])
-    y = np.concatenate(labels)
-    shown = [k for k in range(len(option_names)) if np.any(y == k)]
-    remap = np.full(len(option_names), -1)
-    remap[shown] = np.arange(len(shown))
-    return SafetyRegions.fit(np.concatenate(states), remap[y], [option_names[k] for k in shown],
-                             n_components=settings.region_components,
-                             max_components=settings.region_max_components,
-                             coverage=settings.region_coverage, slack=settings.region_slack,
-                             seed=seed)
+        groups.append(np.full(len(y), index))
+    if not states:
+        return np.zeros((0, 0)), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(states), np.concatenate(labels), np.concatenate(groups)
+
+
+def _fit_labelled(states: FloatArray, labels: np.ndarray, groups: np.ndarray,
+                  names: list[str], indices: list[int], settings: FitSettings,
+                  seed: int) -> tuple[SafetyRegions, dict[str, Any]]:
+    """Regions of the options ``indices`` (labels in ``labels``) named ``names``."""
+    remap = np.full(int(labels.max()) + 1 if labels.size else 1, -1)
+    remap[indices] = np.arange(len(indices))
+    y = remap[labels]
+    if settings.region_fit == "bic":
+        regions = SafetyRegions.fit(states, y, names, n_components=settings.region_components,
+                                    max_components=settings.region_max_components,
+                                    coverage=settings.region_coverage,
+                                    slack=settings.region_slack, seed=seed)
+        return regions, {"method": "bic", "components": regions.n_components}
+    return SafetyRegions.fit_heldout(states, y, names, groups,
+                                     coverage=settings.region_coverage,
+                                     folds=settings.region_folds,
+                                     n_components=settings.region_components,
+                                     max_components=settings.region_max_components,
+                                     reg_covar=settings.region_reg_covar,
+                                     slack=settings.region_slack, seed=seed)
 
 
 class StridedTermination:
@@ -509,11 +650,15 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     say("goal heuristic")
     goal, goal_report = fit_goal(demos, settings, seed, state_fn)
     regions = None
+    region_report: dict[str, Any] | None = None
     if settings.regions:
         say("safety regions")
-        regions = fit_regions(demos, names, settings, seed, state_fn)
+        regions, region_report = fit_option_regions(demos, transitions, names, settings,
+                                                    seed, state_fn)
+        region_report["options"] = regions.option_names
+        for message in region_report["warnings"]:
+            warnings.warn(message, DynoplanWarning, stacklevel=2)
     report = {"settings": asdict(settings), "dynamics": dyn_report, "goal": goal_report,
-              "regions": None if regions is None else {
-                  "components": regions.n_components, "options": regions.option_names}}
+              "regions": region_report}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
                         settings.regions, task)

@@ -6,12 +6,18 @@
                           demonstrator=make_demonstrator(), settings=PipelineSettings())
     print(result.table)
 
+The run also reports, per option, where it may start (:func:`admissibility`): the
+share of the evaluation episodes' start states and of the demonstration states inside
+its initiation set (the user's own, intersected with its learned region), with a
+warning when that is almost nowhere or everywhere.
+
 Seeds: one ``seed`` is split (``numpy.random.SeedSequence.spawn``) into independent
 streams for the demonstrations, the exploration episodes, model fitting and the
 evaluation episodes, so changing the number of one never changes the others.
 """
 
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,7 +31,7 @@ from dynoplan.adapters.spec import OptionSpec, as_spec
 from dynoplan.data.dataset import Dataset, write_dataset
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.data.metadata import DatasetMetadata
-from dynoplan.errors import DynoplanError
+from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers
@@ -38,8 +44,23 @@ from dynoplan.pipeline.collect import (
     record_demonstrations,
 )
 from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_controllers, results_table
-from dynoplan.pipeline.fit import DynamicsFitter, FitSettings, FittedModels, fit_models
+from dynoplan.pipeline.fit import (
+    DynamicsFitter,
+    FitSettings,
+    FittedModels,
+    episode_states,
+    fit_models,
+)
 from dynoplan.pipeline.task import Task
+from dynoplan.reports.tables import markdown_table
+from dynoplan.seeding import episode_seeds
+from dynoplan.types import FloatArray
+
+NOWHERE = 0.02
+"""An option admissible at fewer than this share of both the evaluation start states and
+the demonstration states is reported as admissible almost nowhere."""
+EVERYWHERE = 0.99
+"""... and at least this share of both as admissible everywhere."""
 
 
 @dataclass(frozen=True)
@@ -102,6 +123,11 @@ class PipelineResult:
         """The evaluation as a markdown table."""
         return results_table(self.evaluation)
 
+    @property
+    def admissibility_table(self) -> str:
+        """Where each option may start, as a markdown table (:func:`admissibility`)."""
+        return admissibility_table(self.summary["admissibility"])
+
 
 def _seeds(seed: int) -> dict[str, int]:
     children = np.random.SeedSequence(seed).spawn(4)
@@ -156,6 +182,69 @@ def demos_from_dataset(dataset: Dataset | Sequence[Episode],
     return out
 
 
+def start_states(env: gym.Env[Any, Any], seed: int, episodes: int,
+                 state_fn: ObservationFn = flat_state) -> FloatArray:
+    """The planner states the evaluation episodes start from: ``(episodes, d)``.
+
+    The same resets as :func:`~dynoplan.pipeline.evaluate_controllers` with the same
+    ``seed`` and ``episodes`` (each episode's ``env_seed``).
+    """
+    return np.stack([np.asarray(state_fn(env.reset(seed=s.env_seed)[0]),
+                                dtype=np.float64).reshape(-1)
+                     for s in episode_seeds(seed, episodes)])
+
+
+def admissibility(options: Sequence[Option], starts: FloatArray,
+                  demos: Sequence[Episode], state_fn: ObservationFn = flat_state,
+                  ) -> tuple[dict[str, dict[str, float | None]], list[str]]:
+    """Where each option may start: the admissibility diagnostic.
+
+    Args:
+        options: the options as the controller runs them (learned initiation sets).
+        starts: ``(episodes, d)`` start states of the evaluation (:func:`start_states`).
+        demos: the demonstrations (option labels).
+
+    Returns:
+        Per option ``{"start_states", "demo_states", "own_demo_states"}``: the share of
+        the start states, of all demonstration states and of the demonstration states
+        where that option acted (``None`` if none) inside its initiation set; and one
+        warning per option admissible almost nowhere (< :data:`NOWHERE` of both start
+        and demonstration states) or everywhere (>= :data:`EVERYWHERE` of both).
+    """
+    demo_states = [episode_states(e, state_fn)[:-1] for e in demos]
+    states = np.concatenate(demo_states) if demo_states else np.zeros((0, starts.shape[1]))
+    labels = (np.concatenate([np.asarray(e.infos[OPTION_KEY]) for e in demos]) if demos
+              else np.zeros(0, np.int64))
+    rows: dict[str, dict[str, float | None]] = {}
+    notes: list[str] = []
+    for k, option in enumerate(options):
+        at_start = float(np.mean(option.initiation.contains(starts))) if len(starts) else 0.0
+        inside = np.asarray(option.initiation.contains(states), dtype=bool)
+        at_demo = float(np.mean(inside)) if len(states) else 0.0
+        own = labels == k
+        rows[option.name] = {"start_states": at_start, "demo_states": at_demo,
+                             "own_demo_states": float(np.mean(inside[own])) if own.any()
+                             else None}
+        shares = (f"{at_start:.0%} of the evaluation start states and {at_demo:.0%} of the "
+                  "demonstration states")
+        if at_start < NOWHERE and at_demo < NOWHERE:
+            notes.append(f"option '{option.name}' is admissible almost nowhere ({shares}): "
+                         "the planner will hardly ever start it")
+        elif at_start >= EVERYWHERE and at_demo >= EVERYWHERE:
+            notes.append(f"option '{option.name}' is admissible everywhere ({shares}): its "
+                         "initiation set does not restrict where the planner starts it")
+    return rows, notes
+
+
+def admissibility_table(rows: dict[str, dict[str, float | None]]) -> str:
+    """The admissibility diagnostic as a markdown table, one row per option."""
+    return markdown_table(
+        [{"option": name, **row} for name, row in rows.items()],
+        ["option", "start_states", "demo_states", "own_demo_states"],
+        ["option", "admissible at evaluation start states", "at demonstration states",
+         "at its own demonstration states"])
+
+
 def run_pipeline(
     env: str | gym.Env[Any, Any],
     options: Sequence[OptionSpec | Option],
@@ -207,7 +296,18 @@ def run_pipeline(
         raise DynoplanError("the pipeline on several workers needs a task and an output "
                             "folder, and the default dynamics fitter and planner state "
                             "(workers rebuild the controllers from files)")
-    say = status or (lambda _msg: None)
+    stages: dict[str, float] = {}
+    since = [time.perf_counter()]
+    current = [""]
+
+    def say(message: str) -> None:  # times every stage from its status message to the next
+        now = time.perf_counter()
+        if current[0]:
+            stages[current[0]] = stages.get(current[0], 0.0) + now - since[0]
+        since[0], current[0] = now, message
+        if status is not None and message:
+            status(message)
+
     started = time.perf_counter()
     environment = make_env(env) if isinstance(env, str) else env
     specs = [as_spec(o) for o in options]
@@ -232,12 +332,19 @@ def run_pipeline(
                         state_fn, fitter, say, task.name if task is not None else
                         _env_id(environment) or "")
     run_options, planner_options = models.build(specs)
+    say("admissibility")
+    starts = start_states(environment, seeds["evaluation"], settings.episodes, state_fn)
+    admissible, notes = admissibility(run_options, starts, demo_episodes, state_fn)
+    for note in notes:
+        warnings.warn(note, DynoplanWarning, stacklevel=2)
     models_dir = models.save(folder / "models") if folder is not None else None
     say("evaluation")
     evaluation = evaluate_controllers(environment, run_options, models.goal, settings.control,
                                       settings.episodes, seeds["evaluation"], planner_options,
                                       settings.controllers, progress, workers, task,
                                       models_dir)
+    say("")
+    region_warnings = (models.report.get("regions") or {}).get("warnings", [])
     summary = {
         "dynoplan_version": __version__,
         "env_id": _env_id(environment),
@@ -249,7 +356,10 @@ def run_pipeline(
                            "steps": sum(len(e) for e in demo_episodes)},
         "transitions": {"episodes": len(transitions), "steps": sum(len(e) for e in transitions)},
         "models": models.report,
+        "admissibility": admissible,
+        "warnings": [*region_warnings, *notes],
         "controllers": evaluation,
+        "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
         "seconds": time.perf_counter() - started,
         "command": command,
     }
@@ -293,7 +403,10 @@ def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
     n = settings.episodes
     write_text(folder / "results.md",
                f"{head} ({n} seeded episodes per controller, seed {settings.seed}).\n\n"
-               f"{results_table(summary['controllers'])}")
+               f"{results_table(summary['controllers'])}\n\n"
+               "Where each option may start (share of states inside its initiation set):"
+               f"\n\n{admissibility_table(summary['admissibility'])}\n"
+               + "".join(f"\n- warning: {w}" for w in summary["warnings"]))
 
 
 def _box_or_none(space: gym.Space[Any]) -> gym.spaces.Box | None:

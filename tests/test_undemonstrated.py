@@ -1,0 +1,62 @@
+"""Options the demonstrations never show are not admissible everywhere by default."""
+
+import numpy as np
+import pytest
+
+from dynoplan.adapters import option_spec
+from dynoplan.data import Episode
+from dynoplan.errors import DynoplanWarning
+from dynoplan.pipeline import FitSettings, fit_option_regions
+
+
+def _episode(states, label):
+    n = len(states) - 1
+    return Episode(observations=np.asarray(states, float)[:, None], actions=np.zeros((n, 1)),
+                   rewards=np.zeros(n), terminations=np.zeros(n, bool),
+                   truncations=np.zeros(n, bool), infos={"option": np.full(n, label)})
+
+
+# demonstrations: option 0 ('right') acts around x = 2.5; exploration: option 1 ('left')
+# ran around x = -5 only; option 2 ('idle') never ran anywhere.
+_RNG = np.random.default_rng(0)
+DEMOS = [_episode(_RNG.normal(2.5, 1.0, 30), 0) for _ in range(5)]
+RUNS = [_episode(_RNG.normal(-5.0, 1.0, 30), 1) for _ in range(5)]
+NAMES = ["right", "left", "idle"]
+
+
+def test_undemonstrated_option_gets_a_region_from_its_own_runs_by_default():
+    regions, report = fit_option_regions(DEMOS, RUNS, NAMES, FitSettings(), seed=0)
+    assert report["undemonstrated"] == {"left": "runs", "idle": "none"}
+    assert len(report["warnings"]) == 2
+    xs = np.linspace(-20.0, 20.0, 401)[:, None]
+    left = regions.contains(xs, "left")
+    assert left[(xs[:, 0] > -5.5) & (xs[:, 0] < -4.5)].all()  # where it ran
+    assert not left[xs[:, 0] > 0.0].any() and left.mean() < 0.5  # not everywhere
+    assert not regions.contains(xs, "idle").any()  # no runs: never admissible
+
+
+def test_the_other_policies_are_settings():
+    none, _ = fit_option_regions(DEMOS, RUNS, NAMES,
+                                 FitSettings(region_undemonstrated="none"), seed=0)
+    assert not none.contains(np.array([[-5.0]]), "left")[0]
+    everywhere, report = fit_option_regions(DEMOS, RUNS, NAMES,
+                                            FitSettings(region_undemonstrated="everywhere"),
+                                            seed=0)
+    assert everywhere.option_names == ["right"]
+    assert report["undemonstrated"] == {"left": "everywhere", "idle": "everywhere"}
+
+
+def test_the_fitted_initiation_set_of_an_undemonstrated_option_is_not_everywhere():
+    from dynoplan.pipeline import fit_models
+
+    specs = [option_spec(n, lambda obs: np.array([0.0], np.float32), termination=0.1)
+             for n in NAMES]
+    settings = FitSettings(dynamics_hidden=(8,), dynamics_members=1, dynamics_epochs=1,
+                           goal_hidden=8, goal_epochs=1)
+    idle_runs = [_episode(_RNG.normal(11.0, 0.5, 30), 2)]
+    with pytest.warns(DynoplanWarning, match="never appear in the demonstrations"):
+        models = fit_models(specs, [*RUNS, *idle_runs], DEMOS, settings, seed=0)
+    xs = np.linspace(-20.0, 20.0, 401)[:, None]
+    for spec in specs[1:]:
+        share = models.initiation(spec).contains(xs).mean()
+        assert 0.0 < share < 0.5, (spec.name, share)
