@@ -387,6 +387,11 @@ def evaluate(
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
+    human: str | None = typer.Option(
+        None, "--human", help="Human behaviours the episodes draw from, uniformly: "
+        "comma-separated of away, cross, block (the demonstrations' mix, the default) and "
+        "reach, linger, fast_cross, two_passes (never demonstrated), or 'unseen' (those "
+        "four) or 'all'."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -405,11 +410,12 @@ def evaluate(
         planner = replace(planner, horizon=horizon)
     if samples is not None:
         planner = replace(planner, samples=samples)
+    behaviours = _behaviours(human)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
         summary = run_gear_evaluation(models, folder, names, episodes, seed, planner,
                                       flat or models.parent / "flat_ppo", pool,
-                                      progress=not quiet)
+                                      progress=not quiet, human=behaviours)
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
@@ -472,3 +478,19 @@ def _echo_results(rows: list[dict[str, Any]]) -> None:
                    f"{row['episodes']}, contacts {row['contacts']}, out-of-region starts "
                    f"{row['out_of_region_starts']}, decision p50 "
                    f"{'-' if ms is None else f'{ms:.2f} ms'}")
+
+
+def _behaviours(human: str | None) -> tuple[str, ...] | None:
+    """``--human``: None, or the behaviours it names (``unseen``, ``all`` or a list)."""
+    from dynoplan.envs.gear.human import BEHAVIOURS, UNSEEN_BEHAVIOURS
+    from dynoplan.errors import DynoplanError
+
+    if human is None:
+        return None
+    names = {"all": BEHAVIOURS, "unseen": UNSEEN_BEHAVIOURS}.get(
+        human.strip(), tuple(h.strip() for h in human.split(",") if h.strip()))
+    unknown = [n for n in names if n not in BEHAVIOURS]
+    if unknown or not names:
+        raise DynoplanError(f"--human: unknown behaviour(s) {', '.join(unknown) or '(none)'}; "
+                            f"expected some of {', '.join(BEHAVIOURS)}, 'unseen' or 'all'")
+    return tuple(names)

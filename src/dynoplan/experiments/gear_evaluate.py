@@ -13,7 +13,7 @@ from typing import Any
 
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS, behaviour_table
 from dynoplan.experiments.gear_run import (
     EVAL_SEED_OFFSET,
     GearRunSettings,
@@ -30,11 +30,13 @@ from dynoplan.seeding import episode_seeds
 def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], episodes: int,
                         seed: int = 0, planner: ControllerSettings = GEAR_CONTROL,
                         flat_folder: Path | None = None, workers: Workers = SERIAL,
-                        progress: bool = True) -> dict[str, Any]:
+                        progress: bool = True,
+                        human: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Evaluate ``controllers`` (of :data:`VARIANTS` and ``flat_ppo``) on ``episodes``
     seeded episodes each; write ``results.csv``, ``results.md``, ``episodes.json`` and
     ``summary.json`` (with ``wall_s``, Ray's start included) into ``out``; return the
-    summary.
+    summary. ``human``: the behaviours the episodes draw from uniformly (``None``: the
+    demonstrations' mix); ``results.md`` then has the success by behaviour.
 
     Raises:
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
@@ -63,9 +65,10 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     t0 = time.perf_counter()
     with ray_session(workers):
         rows, per_episode = evaluate_gear_controllers(models, seeds, settings, flat, progress,
-                                                 workers, names)
+                                                      workers, names, human)
     wall = time.perf_counter() - t0
     summary = {"models": str(models), "seed": seed, "episodes": episodes,
+               "human": list(human) if human is not None else None,
                "planner": asdict(planner), "workers": asdict(workers),
                "wall_s": round(wall, 2), "results": rows}
     write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
@@ -76,7 +79,10 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
         f"Models {models}; seed {seed}; {episodes} episodes per controller; planner "
         f"horizon {planner.horizon}, samples {planner.samples}; {workers.count} worker(s)"
         f"{'' if workers.address is None else ' on ' + workers.address}; "
-        f"{wall:.1f} s wall.", "", markdown_table(rows, RESULT_COLUMNS)]))
+        f"{wall:.1f} s wall; human behaviours "
+        f"{', '.join(human) if human else 'away, cross, block (the demonstrations mix)'}.",
+        "", markdown_table(rows, RESULT_COLUMNS), "", "Success by human behaviour:", "",
+        behaviour_table(rows)]))
     write_json(out / "summary.json", summary)
     return summary
 
