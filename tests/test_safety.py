@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -21,6 +22,7 @@ from dynoplan.envs.gear.human import (
     sample_schedule,
 )
 from dynoplan.safety import SeparationParameters, protective_separation
+from dynoplan.safety.shield import SeparationShield
 
 
 def test_protective_separation_matches_the_formula_by_hand():
@@ -37,6 +39,47 @@ def test_protective_separation_matches_the_formula_by_hand():
         protective_separation(-0.1, 1.0)
     with pytest.raises(ValueError):
         SeparationParameters(stopping_time=float("nan"))
+
+
+class _Measured(gym.Env):
+    """Reports scripted (distance, robot speed, hand speed) after reset and each step, and
+    remembers the actions it was given."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,))
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,))
+
+    def __init__(self, measured):
+        self.measured, self.actions, self.t = measured, [], 0
+
+    def _info(self):
+        d, v_r, v_h = self.measured[self.t]
+        return {"min_human_distance": d, "robot_speed": v_r, "human_speed": v_h}
+
+    def reset(self, *, seed=None, options=None):
+        self.t = 0
+        return np.zeros(1, dtype=np.float32), self._info()
+
+    def step(self, action):
+        self.actions.append(float(action[0]))
+        self.t += 1
+        return np.zeros(1, dtype=np.float32), 0.0, False, False, self._info()
+
+
+def test_the_shield_stops_a_moving_robot_below_s_p_and_only_then():
+    # S_p(0.5 m/s, hand still) = 0.5 * 0.1 + 0.05 + 0.08 = 0.18 m
+    env = _Measured([(1.0, 0.5, 0.0), (0.1, 0.5, 0.0), (0.1, 0.0, 0.0), (0.17, 0.5, 0.0),
+                     (0.19, 0.5, 0.0), (0.19, 0.5, 0.0)])
+    shield = SeparationShield(env, stop_action=lambda obs: np.array([-1.0]))
+    _, info = shield.reset(seed=0)
+    assert info["protective_stops"] == 0
+    stopped = [shield.step(np.array([0.5]))[4]["protective_stop"] for _ in range(5)]
+    # step 1 starts 1 m away: runs; step 2 starts 0.1 m away moving: stopped; step 3 starts
+    # at rest: runs; step 4 at 0.17 m < 0.18 m moving: stopped; step 5 at 0.19 m: runs
+    assert stopped == [False, True, False, True, False]
+    assert env.actions == [0.5, -1.0, 0.5, -1.0, 0.5]
+    assert shield.stops == 2
+    with pytest.raises(KeyError):
+        SeparationShield(gym.make("Pendulum-v1"), lambda obs: obs).must_stop({})
 
 
 def test_the_unseen_behaviours_are_not_in_the_training_mix_and_are_deterministic():
@@ -104,15 +147,15 @@ def test_gear_evaluate_on_unseen_behaviours_reports_the_safety_columns(quick_gea
     result = CliRunner().invoke(app, [
         "gear", "evaluate", "--models", str(quick_gear_run / "models"), "--out", str(out),
         "--controllers", "dynoplan,fixed_script", "--episodes", "4", "--human", "unseen",
-        "--horizon", "6", "--samples", "32", "--workers", "1", "--quiet"])
+        "--horizon", "6", "--samples", "32", "--workers", "1", "--quiet", "--shield"])
     assert result.exit_code == 0, result.output
     rows = list(csv.DictReader((out / "results.csv").open()))
     for row in rows:
         contacts = int(row["contacts"])
         assert int(row["contacts_moving"]) + int(row["contacts_at_rest"]) == contacts
-        assert int(row["sp_violations_moving"]) >= 0
+        assert row["sp_violations_moving"].isdigit() and row["protective_stops"].isdigit()
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["human"] == list(UNSEEN_BEHAVIOURS)
+    assert summary["human"] == list(UNSEEN_BEHAVIOURS) and summary["shield"] is True
     for row in summary["results"]:
         assert set(row["by_human_mode"]) <= set(UNSEEN_BEHAVIOURS)
     episodes = json.loads((out / "episodes.json").read_text())

@@ -392,6 +392,9 @@ def evaluate(
         "comma-separated of away, cross, block (the demonstrations' mix, the default) and "
         "reach, linger, fast_cross, two_passes (never demonstrated), or 'unseen' (those "
         "four) or 'all'."),
+    shield: bool = typer.Option(False, "--shield", help="Run every episode under the runtime "
+                                "monitor: a protective stop whenever the arm moves closer to "
+                                "the hand than ISO/TS 15066's S_p."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -401,6 +404,7 @@ def evaluate(
 
     from dynoplan.experiments.gear_controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
+    from dynoplan.experiments.gear_task import GearTask
     from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
@@ -415,7 +419,8 @@ def evaluate(
     with staged_folder(out) as folder:
         summary = run_gear_evaluation(models, folder, names, episodes, seed, planner,
                                       flat or models.parent / "flat_ppo", pool,
-                                      progress=not quiet, human=behaviours)
+                                      progress=not quiet,
+                                      task=GearTask(human=behaviours, shield=shield))
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")

@@ -30,8 +30,8 @@ from dynoplan.reports.tables import markdown_table
 RESULT_COLUMNS = (
     "controller", "episodes", "success_rate", "time_to_success_s", "contacts",
     "episodes_with_contact", "contacts_moving", "contacts_at_rest", "sp_violations_moving",
-    "min_human_distance", "out_of_region_starts", "switches", "holds", "decision_ms_p50",
-    "decision_ms_p99",
+    "protective_stops", "min_human_distance", "out_of_region_starts", "switches", "holds",
+    "decision_ms_p50", "decision_ms_p99",
 )
 """Columns of ``results.csv``, in order."""
 
@@ -59,7 +59,8 @@ def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
         "contacts": int(sum(contacts)),
         "episodes_with_contact": int(sum(c > 0 for c in contacts)),
         **{key: int(sum(int(e.task_metrics.get(key, 0)) for e in episodes))
-           for key in ("contacts_moving", "contacts_at_rest", "sp_violations_moving")},
+           for key in ("contacts_moving", "contacts_at_rest", "sp_violations_moving",
+                       "protective_stops")},
         "min_human_distance": float(min(e.task_metrics["min_human_distance"]
                                         for e in episodes)),
         "out_of_region_starts": int(sum(e.out_of_region_starts for e in episodes)),

@@ -19,7 +19,7 @@ from dynoplan.experiments.gear_run import (
     GearRunSettings,
     evaluate_gear_controllers,
 )
-from dynoplan.experiments.gear_task import FLAT_POLICY
+from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.evaluate import ControllerSettings
@@ -31,12 +31,12 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
                         seed: int = 0, planner: ControllerSettings = GEAR_CONTROL,
                         flat_folder: Path | None = None, workers: Workers = SERIAL,
                         progress: bool = True,
-                        human: tuple[str, ...] | None = None) -> dict[str, Any]:
+                        task: GearTask = GearTask()) -> dict[str, Any]:
     """Evaluate ``controllers`` (of :data:`VARIANTS` and ``flat_ppo``) on ``episodes``
     seeded episodes each; write ``results.csv``, ``results.md``, ``episodes.json`` and
     ``summary.json`` (with ``wall_s``, Ray's start included) into ``out``; return the
-    summary. ``human``: the behaviours the episodes draw from uniformly (``None``: the
-    demonstrations' mix); ``results.md`` then has the success by behaviour.
+    summary. ``task``: the gear as the episodes see it: the human behaviours they draw
+    from (``results.md`` has the success by behaviour) and the runtime monitor.
 
     Raises:
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
@@ -65,10 +65,11 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     t0 = time.perf_counter()
     with ray_session(workers):
         rows, per_episode = evaluate_gear_controllers(models, seeds, settings, flat, progress,
-                                                      workers, names, human)
+                                                      workers, names, task)
     wall = time.perf_counter() - t0
     summary = {"models": str(models), "seed": seed, "episodes": episodes,
-               "human": list(human) if human is not None else None,
+               "human": list(task.human) if task.human is not None else None,
+               "shield": task.shield,
                "planner": asdict(planner), "workers": asdict(workers),
                "wall_s": round(wall, 2), "results": rows}
     write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
@@ -80,7 +81,8 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
         f"horizon {planner.horizon}, samples {planner.samples}; {workers.count} worker(s)"
         f"{'' if workers.address is None else ' on ' + workers.address}; "
         f"{wall:.1f} s wall; human behaviours "
-        f"{', '.join(human) if human else 'away, cross, block (the demonstrations mix)'}.",
+        f"{', '.join(task.human or ('away, cross, block (the demonstrations mix)',))}; "
+        f"runtime monitor {'on' if task.shield else 'off'}.",
         "", markdown_table(rows, RESULT_COLUMNS), "", "Success by human behaviour:", "",
         behaviour_table(rows)]))
     write_json(out / "summary.json", summary)

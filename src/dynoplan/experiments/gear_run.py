@@ -232,15 +232,15 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          settings: GearRunSettings, flat_folder: Path | None,
                          progress: bool, workers: Workers = SERIAL,
                          names: Sequence[str] = CONTROLLERS,
-                         human: tuple[str, ...] | None = None,
+                         task: GearTask = GearTask(),
                          ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
     """The controllers ``names`` (of :data:`CONTROLLERS`), and the flat policy if
     ``flat_folder``, on ``seeds``; the oracle on the first ``settings.oracle_episodes``
     of them. All their episodes are one map on ``workers`` (the oracle's first), each
     worker rebuilding the controllers from ``models_dir``; rows and episodes come back in
-    the order of ``names``, then the flat policy. ``human``: the behaviours the episodes
-    draw from (:attr:`GearTask.human`)."""
-    gear = GearTask(flat_folder=flat_folder, human=human)
+    the order of ``names``, then the flat policy. ``task``: the gear as the episodes see it
+    (the human behaviours they draw from, the runtime monitor)."""
+    gear = replace(task, flat_folder=flat_folder)
     jobs = {name: (ControllerJob(gear, models_dir, name, settings.planner),
                    seeds[:settings.oracle_episodes] if name == "oracle" else seeds)
             for name in names}

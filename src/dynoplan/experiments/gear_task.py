@@ -25,8 +25,9 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
-from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.human import BEHAVIOURS
+from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import VARIANTS
 from dynoplan.experiments.gear_model_files import TASK_NAME
@@ -37,6 +38,7 @@ from dynoplan.pipeline.evaluate import (
     EpisodeRunner,
 )
 from dynoplan.safety import AT_REST_SPEED, protective_separation
+from dynoplan.safety.shield import SeparationShield
 from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray
 
@@ -60,6 +62,10 @@ class GearTask:
         human: the human behaviours an episode draws from, uniformly (of
             :data:`~dynoplan.envs.gear.human.BEHAVIOURS`; ``None``: the demonstrations'
             mix of ``away``, ``cross`` and ``block``).
+        shield: wrap the environment in the runtime monitor
+            (:class:`~dynoplan.safety.shield.SeparationShield`, outermost): a protective
+            stop (the arm held where it is) on every step that starts with the arm moving
+            closer to the hand than ``S_p``.
     """
 
     fault: str | None = None
@@ -67,6 +73,7 @@ class GearTask:
     flat_folder: Path | None = None
     render: bool = False
     human: tuple[str, ...] | None = None
+    shield: bool = False
 
     def __post_init__(self) -> None:
         if self.fault is not None and self.fault not in FAULTS:
@@ -88,11 +95,14 @@ class GearTask:
 
         gear_env = GearAssemblyEnv(render_mode="rgb_array" if self.render else None,
                                    human_behaviours=self.human)
+        env: gym.Env[Any, Any] = gear_env
         if self.fault == "observation_noise":
-            return ObservationNoise(gear_env, self.observation_noise)
-        if self.fault == "grasp_slip":
-            return GraspSlip(gear_env)
-        return gear_env
+            env = ObservationNoise(gear_env, self.observation_noise)
+        elif self.fault == "grasp_slip":
+            env = GraspSlip(gear_env)
+        if self.shield:
+            env = SeparationShield(env, StopWhereItIs(gear_env))
+        return env
 
     def make_runner(self, controller: str, models: Path,
                     settings: ControllerSettings) -> EpisodeRunner:
@@ -139,10 +149,12 @@ def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
     - ``sp_violations_moving``: steps after which the robot moves closer to the hand than
       the protective separation distance ``S_p`` of ISO/TS 15066 for the robot's and the
       hand's measured speeds (:func:`~dynoplan.safety.protective_separation`);
+    - ``protective_stops``: steps the runtime monitor stopped (:attr:`GearTask.shield`);
     - ``min_human_distance``: the smallest robot-human distance (m; also over
       ``min_distance``, for example the distance at the reset).
     """
     contacts = np.array([int(i["human_contacts"]) for i in infos], dtype=np.int64)
+    stops = sum(bool(i.get("protective_stop", False)) for i in infos)
     moving = np.array([float(i["robot_speed"]) >= AT_REST_SPEED for i in infos], dtype=bool)
     distance = np.array([float(i["min_human_distance"]) for i in infos])
     s_p = protective_separation(np.array([float(i["robot_speed"]) for i in infos]),
@@ -152,6 +164,7 @@ def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
             "contacts_moving": int(contacts[moving].sum()),
             "contacts_at_rest": int(contacts[~moving].sum()),
             "sp_violations_moving": int(np.sum(moving & (distance < s_p))),
+            "protective_stops": int(stops),
             "min_human_distance": float(min([min_distance, *distance.tolist()]))}
 
 
@@ -160,6 +173,18 @@ def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, An
     gear_env = env.unwrapped
     assert isinstance(gear_env, GearAssemblyEnv)
     return gear_metrics(gear_env, trace.infos)
+
+
+class StopWhereItIs:
+    """The gear's protective stop: both arms commanded to the joint angles they have now,
+    the gripper as it is (observation (50,) -> action (13,))."""
+
+    def __init__(self, env: GearAssemblyEnv) -> None:
+        self.env = env
+
+    def __call__(self, observation: FloatArray) -> FloatArray:
+        closed = float(np.asarray(observation)[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
+        return np.concatenate([self.env.arm_qpos, [1.0 if closed else 0.0]])
 
 
 @dataclass
@@ -189,5 +214,5 @@ class FlatPolicyRunner:
                              tuple(ms), (), (), gear_metrics(self.env, infos, first_distance))
 
 
-__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "episode_metrics",
-           "gear_metrics"]
+__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "StopWhereItIs",
+           "episode_metrics", "gear_metrics"]
