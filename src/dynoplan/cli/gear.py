@@ -338,6 +338,9 @@ def evaluate(
     horizon: int | None = typer.Option(None, help="Planner horizon (default 10)."),
     samples: int | None = typer.Option(None, help="Monte-Carlo rollouts per option "
                                        "(default 64)."),
+    epistemic: float | None = typer.Option(None, help="Weight of the dynamics ensemble's "
+                                           "disagreement in the planner's score (default "
+                                           "0)."),
     flat: Path | None = typer.Option(None, help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
     workers: str = workers_option(),
@@ -357,6 +360,8 @@ def evaluate(
         planner = replace(planner, horizon=horizon)
     if samples is not None:
         planner = replace(planner, samples=samples)
+    if epistemic is not None:
+        planner = replace(planner, epistemic=epistemic)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     summary = run_gear_evaluation(models, out, names, episodes, seed, planner,
                                   flat or models.parent / "flat_ppo", pool, progress=not quiet)

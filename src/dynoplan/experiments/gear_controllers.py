@@ -135,6 +135,9 @@ class PlannerSettings:
             differ by less than their noise, and a smaller margin lets them take turns).
         dynamics_noise: std of Gaussian noise added to every learned prediction (a
             fault; 0 for none).
+        epistemic: weight of the dynamics ensemble's disagreement in the learned
+            planner's score (:class:`~dynoplan.planning.OptionPlanner`; 0: the paper's
+            expectation).
     """
 
     horizon: int = 10
@@ -143,6 +146,7 @@ class PlannerSettings:
     oracle_samples: int = 1
     margin: float = 0.1
     dynamics_noise: float = 0.0
+    epistemic: float = 0.0
 
 
 def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
@@ -229,7 +233,7 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
     chooser: OptionChooser
     if planned:
         chooser = OptionPlanner(options, models.goal, horizon=settings.horizon,
-                                samples=settings.samples)
+                                samples=settings.samples, epistemic=settings.epistemic)
     elif variant.chooser == "oracle":
         chooser = gear_oracle(env, options, factories, models.goal,
                               settings.oracle_horizon, settings.oracle_samples)

@@ -14,8 +14,9 @@ Run ``r`` of option ``o`` (everything seeded from ``[seed, OUTCOME_STREAM, o, r]
 
 Each decision state ``s_i`` of ``o``'s run is a start with a known outcome: the run from
 ``s_i`` on *ended well* (:func:`run_outcomes`) when the option reached its own end
-(``status == "done"`` and its own ``succeeded(info)``) and did not finish at once: more
-than one decision remained, or the step ended the task with success. The runs are
+(``status == "done"`` and its own ``succeeded(info)``) without touching the human, and
+did not finish at once: more than one decision remained, or the step ended the task with
+success. The runs are
 written in the dataset format of ``gear collect`` (one episode per phase offset of the
 decision period, observations one decision apart, ``infos["option"]``), plus
 ``infos["outcome"]`` ``(T,)``: the outcome of starting at each observation.
@@ -41,7 +42,7 @@ from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_collect import CollectJob, CollectState, build_collection
 from dynoplan.parallel import SERIAL, Workers, parallel_map
-from dynoplan.types import BoolArray, FloatArray
+from dynoplan.types import BoolArray, FloatArray, IntArray
 
 DATASET_ID = "dynoplan/gear-assembly/option-outcomes-v0"
 OUTCOME_KEY = "outcome"
@@ -65,15 +66,21 @@ class OutcomeSettings:
     lead_decisions: int = 12
 
 
-def run_outcomes(steps: int, ended_well: bool, task_success: bool) -> BoolArray:
-    """Outcomes of starting at each decision of a run that lasted ``steps`` env steps:
-    ``(D,)`` booleans for its ``D = ceil(steps / DECISION_STEPS)`` decision states. From
-    decision ``i`` the option ended well when the run did and, from there, it took more
-    than one decision (or its last step was the task's success): an option that would
-    finish at once where it starts is not admissible there."""
-    decisions = max(1, -(-steps // DECISION_STEPS))
-    remaining = steps - DECISION_STEPS * np.arange(decisions)
-    out: BoolArray = ended_well & ((remaining > DECISION_STEPS) | task_success)
+def run_outcomes(contacts: IntArray, reached_end: bool, task_success: bool) -> BoolArray:
+    """Outcomes of starting the option at each step of a run: ``(T,)`` booleans for a run
+    of ``T`` env steps with ``contacts`` ``(T,)`` robot-human contacts per step.
+
+    From step ``t`` the option ended well when the run reached the option's own end
+    (``reached_end``), no contact happened from ``t`` on, and from there it took more
+    than one decision (:data:`DECISION_STEPS` steps), unless its last step was the task's
+    success: an option that would finish at once where it starts is not admissible
+    there."""
+    c = np.asarray(contacts, dtype=np.int64)
+    steps = len(c)
+    later = np.cumsum(c[::-1])[::-1]  # contacts from step t on
+    remaining = steps - np.arange(steps)
+    out: BoolArray = reached_end & (later == 0) & ((remaining > DECISION_STEPS)
+                                                   | task_success)
     return out
 
 
@@ -103,17 +110,19 @@ def outcome_run(state: CollectState, run: tuple[str, int], settings: OutcomeSett
     label = GEAR_OPTIONS.index(option)
     observations: list[FloatArray] = [obs]
     terminated = truncated = False
+    contacts: list[int] = []
     if not (bool(info.get("is_success")) or bool(info.get("gear_dropped"))):
         policy.reset(obs, rng)
         for _ in range(settings.max_decisions * DECISION_STEPS):
             obs, _, terminated, truncated, info = env.step(policy.act(obs))
             observations.append(obs)
+            contacts.append(int(info["human_contacts"]))
             if policy.finished() or terminated or truncated:
                 break
     steps = len(observations) - 1
     success = bool(info.get("is_success"))
-    ended_well = steps > 0 and policy.status == "done" and bool(policy.succeeded(info))
-    outcomes = run_outcomes(steps, ended_well, success)
+    reached_end = steps > 0 and policy.status == "done" and bool(policy.succeeded(info))
+    outcomes = run_outcomes(np.asarray(contacts, dtype=np.int64), reached_end, success)
     all_obs = np.asarray(observations)
     episodes = []
     for offset in range(min(DECISION_STEPS, len(all_obs) - 1)):
@@ -124,10 +133,7 @@ def outcome_run(state: CollectState, run: tuple[str, int], settings: OutcomeSett
         if n < 1:
             continue
         # the outcome of starting at rows[:-1]: that of the decision it falls in
-        start_outcome = outcomes[np.minimum(rows[:-1] // DECISION_STEPS, len(outcomes) - 1)]
-        if offset:  # a start inside a decision: its own remaining time decides
-            remaining = steps - rows[:-1]
-            start_outcome = ended_well & ((remaining > DECISION_STEPS) | success)
+        start_outcome = outcomes[rows[:-1]]
         episodes.append(Episode(
             observations=all_obs[rows], actions=np.full(n, label, dtype=np.int64),
             rewards=np.zeros(n), terminations=np.zeros(n, dtype=bool),
