@@ -234,6 +234,9 @@ def train(
     seed: int = typer.Option(0, help="Seed of every fit."),
     quick: bool = typer.Option(False, "--quick", help="Small settings (those of gear run "
                                "--quick)."),
+    goal_ranking: float | None = typer.Option(None, help="Weight of the goal network's "
+                                              "ranking loss along demonstrations (default "
+                                              "0: none)."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -249,7 +252,7 @@ def train(
     torch.set_num_threads(1)
     with ray_session(pool):
         m = learned_models(demos, transitions, out, seed, heldout, quick, progress=not quiet,
-                           workers=pool, log=typer.echo)
+                           workers=pool, log=typer.echo, goal_ranking=goal_ranking)
     typer.echo(f"goal spearman {m['goal_spearman']:.3f}, mae {m['goal_mae']:.3f}; regions "
                f"inside {m['region_inside_rate']:.3f}, far outside "
                f"{m['region_far_outside_rate']:.3f}; dynamics coverage_90 "
