@@ -186,6 +186,9 @@ def outcomes(
     seed: int = typer.Option(0, help="Run r of option o uses default_rng([seed, 17, o, r])."),
     collect: bool = typer.Option(True, "--collect/--fit-only", help="Run the options first "
                                  "(else fit on the dataset OUT as it is)."),
+    merge: Path | None = typer.Option(None, help="Also write, into OUT/transitions-beyond, "
+                                      "these collected transitions (gear collect) with the "
+                                      "outcome runs', for gear train --transitions."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -200,6 +203,7 @@ def outcomes(
         OutcomeSettings,
         collect_outcomes,
         fit_gear_initiation,
+        transitions_beyond,
     )
     from dynoplan.io import write_json
     from dynoplan.parallel import parse_workers, ray_session
@@ -214,6 +218,9 @@ def outcomes(
         typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
             f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
             for n in summary["starts"]))
+    if merge is not None:
+        merged = transitions_beyond(merge, out, out / "transitions-beyond")
+        typer.echo(f"{merged['episodes']} episodes -> {merged['dataset']}")
     report = fit_gear_initiation(models, out, seed)
     write_json(models / "initiation.json", report)
     typer.echo(json.dumps(report["options"]))

@@ -4,11 +4,11 @@ of dynamics that have seen where an option does not belong.
 
 Run ``r`` of option ``o`` (everything seeded from ``[seed, OUTCOME_STREAM, o, r]``):
 
-1. a *source* option is drawn among all registered ones and the env is driven to a start
-   of the source (:func:`~dynoplan.envs.gear.options.starts.reach_start`, the human in a
-   random mode);
-2. the source runs for a random number of decisions (0 to ``lead_decisions``), so that
-   the starts cover the states the other options visit, not only where they begin;
+1. with probability ``own_fraction`` the env is driven to a start of ``o`` itself, else
+   to a start of another registered option, the *source*
+   (:func:`~dynoplan.envs.gear.options.starts.reach_start`, the human in a random mode);
+2. another source runs for a random number of decisions (0 to ``lead_decisions``), so
+   that the starts cover the states the other options visit, not only where they begin;
 3. option ``o`` starts there and runs until it finishes, the episode ends or
    ``max_decisions`` decisions pass.
 
@@ -57,13 +57,16 @@ class OutcomeSettings:
     Attributes:
         runs: runs per option.
         max_decisions: decisions (0.5 s each) the option may run.
-        lead_decisions: decisions the source option may run first (drawn uniformly in
-            ``0..lead_decisions``).
+        lead_decisions: decisions another source option may run first (drawn uniformly
+            in ``0..lead_decisions``).
+        own_fraction: share of the runs started in the option's own start region (no
+            lead), so that where it works is as well sampled as where it does not.
     """
 
     runs: int = 40
     max_decisions: int = 30
     lead_decisions: int = 12
+    own_fraction: float = 0.5
 
 
 def run_outcomes(contacts: IntArray, reached_end: bool, task_success: bool) -> BoolArray:
@@ -94,11 +97,13 @@ def outcome_run(state: CollectState, run: tuple[str, int], settings: OutcomeSett
     key = [state.job.seed, OUTCOME_STREAM, GEAR_OPTIONS.index(option), index]
     reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
     rng = np.random.default_rng(key)
-    source = names[int(rng.integers(len(names)))]
+    own = bool(rng.random() < settings.own_fraction)
+    others = [n for n in names if n != option] or [option]
+    source = option if own else others[int(rng.integers(len(others)))]
     mode = HUMAN_MODES[int(rng.integers(len(HUMAN_MODES)))]
     start = reach_start(env, source, rng, human_mode=mode)
     obs, info = start.observation, start.info
-    lead = int(rng.integers(settings.lead_decisions + 1)) * DECISION_STEPS
+    lead = 0 if own else int(rng.integers(settings.lead_decisions + 1)) * DECISION_STEPS
     if lead:
         lead_policy = state.policies[source]
         lead_policy.reset(obs, rng)
@@ -239,6 +244,25 @@ def fit_gear_initiation(models: Path, outcomes: Path, seed: int,
             "file": str(models / INITIATION_FILE)}
 
 
+def transitions_beyond(transitions: Path, outcomes: Path, out: Path) -> dict[str, Any]:
+    """The option transitions of ``gear collect`` (``transitions``) and those of the
+    outcome runs (``outcomes``, options started beyond their own regions) as one dataset
+    ``out`` for ``gear train --transitions``: dynamics that have seen where each option
+    does not belong. Only ``infos["option"]`` is kept."""
+    source = read_dataset(transitions)
+    episodes = [Episode(e.observations, e.actions, e.rewards, e.terminations, e.truncations,
+                        {"option": np.asarray(e.infos["option"])}, e.seed)
+                for e in [*source, *read_outcomes(outcomes)]]
+    meta = source.metadata
+    metadata = DatasetMetadata(
+        dataset_id="dynoplan/gear-assembly/option-transitions-beyond-v0", env_id=meta.env_id,
+        option_names=list(meta.option_names), seed=meta.seed,
+        extra={**meta.extra, "human_modes": None, "sources": [str(transitions), str(outcomes)]},
+        observation_space=meta.observation_space)
+    write_dataset(out, episodes, metadata)
+    return {"dataset": str(out), "episodes": len(episodes)}
+
+
 def read_outcomes(path: Path) -> list[Episode]:
     """The episodes of an outcome dataset (:func:`collect_outcomes`), checked."""
     dataset = read_dataset(path)
@@ -248,6 +272,15 @@ def read_outcomes(path: Path) -> list[Episode]:
     return list(dataset)
 
 
-__all__ = ["DATASET_ID", "OUTCOME_KEY", "OutcomeSettings", "collect_outcomes",
-           "fit_gear_initiation",
-           "outcome_run", "outcome_starts", "read_outcomes", "run_outcomes"]
+__all__ = [
+    "DATASET_ID",
+    "OUTCOME_KEY",
+    "OutcomeSettings",
+    "collect_outcomes",
+    "fit_gear_initiation",
+    "outcome_run",
+    "outcome_starts",
+    "read_outcomes",
+    "run_outcomes",
+    "transitions_beyond",
+]
