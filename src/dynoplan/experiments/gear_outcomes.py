@@ -126,7 +126,9 @@ def outcome_run(state: CollectState, run: tuple[str, int], settings: OutcomeSett
                 break
     steps = len(observations) - 1
     success = bool(info.get("is_success"))
-    reached_end = steps > 0 and policy.status == "done" and bool(policy.succeeded(info))
+    # the task's success ends the episode before the policy can say it is done
+    reached_end = (steps > 0 and (policy.status == "done" or success)
+                   and bool(policy.succeeded(info)))
     outcomes = run_outcomes(np.asarray(contacts, dtype=np.int64), reached_end, success)
     all_obs = np.asarray(observations)
     episodes = []
