@@ -223,5 +223,6 @@ def test_gear_episode_rejects_an_unknown_controller_without_writing(tmp_path: Pa
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
         "dynoplan: error: unknown controller 'flat_ppo'; expected one of dynoplan, oracle, "
-        "fixed_script, random (flat_ppo has no decisions)"]
+        "fixed_script, random, dynoplan_learned, random_learned, dynoplan_regions, "
+        "random_regions, dynoplan_everywhere, random_everywhere (flat_ppo has no decisions)"]
     assert not out.exists()
