@@ -217,6 +217,9 @@ def outcomes(
                              help="Run r of option o uses default_rng([seed, 17, o, r])."),
     collect: bool = typer.Option(True, "--collect/--fit-only", help="Run the options first "
                                  "(else fit on the dataset OUT as it is)."),
+    merge: Path | None = typer.Option(None, help="Also write, into OUT/transitions-beyond, "
+                                      "these collected transitions (gear collect) with the "
+                                      "outcome runs', for gear train --transitions."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -231,6 +234,7 @@ def outcomes(
         OutcomeSettings,
         collect_outcomes,
         fit_gear_initiation,
+        transitions_beyond,
     )
     from dynoplan.io import write_json
     from dynoplan.parallel import parse_workers, ray_session
@@ -245,6 +249,9 @@ def outcomes(
         typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
             f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
             for n in summary["starts"]))
+    if merge is not None:
+        merged = transitions_beyond(merge, out, out / "transitions-beyond")
+        typer.echo(f"{merged['episodes']} episodes -> {merged['dataset']}")
     report = fit_gear_initiation(models, out, seed)
     write_json(models / "initiation.json", report)
     typer.echo(json.dumps(report["options"]))
@@ -269,6 +276,9 @@ def train(
     seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of every fit."),
     quick: bool = typer.Option(False, "--quick", help="Small settings (those of gear run "
                                "--quick)."),
+    goal_ranking: float | None = typer.Option(None, help="Weight of the goal network's "
+                                              "ranking loss along demonstrations (default "
+                                              "0: none)."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -284,7 +294,7 @@ def train(
     torch.set_num_threads(1)
     with ray_session(pool):
         m = learned_models(demos, transitions, out, seed, heldout, quick, progress=not quiet,
-                           workers=pool, log=typer.echo)
+                           workers=pool, log=typer.echo, goal_ranking=goal_ranking)
     typer.echo(f"goal spearman {m['goal_spearman']:.3f}, mae {m['goal_mae']:.3f}; regions "
                f"inside {m['region_inside_rate']:.3f}, far outside "
                f"{m['region_far_outside_rate']:.3f}; dynamics coverage_90 "
@@ -384,6 +394,10 @@ def evaluate(
     samples: int | None = typer.Option(None, min=1, max=SAMPLES_MAX,
                                        help="Monte-Carlo rollouts per option "
                                        "(default 64)."),
+    epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
+                                           help="Weight of the dynamics ensemble's "
+                                           "disagreement in the planner's score (default "
+                                           "0)."),
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
@@ -414,6 +428,8 @@ def evaluate(
         planner = replace(planner, horizon=horizon)
     if samples is not None:
         planner = replace(planner, samples=samples)
+    if epistemic is not None:
+        planner = replace(planner, epistemic=epistemic)
     behaviours = _behaviours(human)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:

@@ -8,7 +8,11 @@ option's dynamics model, each running until the option's termination ``beta_w`` 
 (its initiation set unless it has another), or ``horizon`` steps pass; ensemble models
 keep one member per rollout (PETS's TS-infinity). The goal heuristic scores each end
 state; an option's score is the mean over its rollouts minus ``risk`` times their
-standard deviation (``risk=0`` is the paper's expectation).
+standard deviation (``risk=0`` is the paper's expectation), minus ``epistemic`` times
+the ensemble's disagreement about it: the standard deviation over the dynamics
+ensemble's members of the mean ``G`` of each member's rollouts (PETS's and MOPO's idea:
+where the members disagree the model has not seen the data, and a rollout that promises
+progress there is not to be trusted).
 
 All admissible options x samples advance together, one stacked array computation per
 horizon step; the only Python loop is over the horizon.
@@ -37,11 +41,14 @@ class Rollouts:
         steps: ``(options, samples)``, steps taken before stopping.
         valid: ``(options, samples)``, False where the model produced a non-finite state
             (the rollout is stopped at its last finite state and scored 0).
+        members: ``(options, samples)``, the ensemble member each rollout followed, or
+            ``None`` when the dynamics are not ensembles that say so.
     """
 
     end_states: FloatArray
     steps: IntArray
     valid: BoolArray
+    members: IntArray | None = None
 
 
 @dataclass(frozen=True)
@@ -54,8 +61,10 @@ class Plan:
     Attributes:
         option_names: ``(options,)``.
         admissible: ``(options,)``, ``1_{I_w}(s_t)``.
-        scores: ``(options,)``, ``E[G] - risk * std[G]`` over rollouts.
+        scores: ``(options,)``, ``E[G] - risk * std[G] - epistemic * disagreement``.
         spreads: ``(options,)``, ``std[G]`` over rollouts.
+        disagreements: ``(options,)``, std over ensemble members of each member's mean
+            ``G`` (0 without member information).
         end_states: ``(options, samples, state_dim)``.
         steps: ``(options, samples)``.
         chosen: index of the argmax, or ``None`` when no option is admissible.
@@ -68,10 +77,31 @@ class Plan:
     end_states: FloatArray
     steps: IntArray
     chosen: int | None
+    disagreements: FloatArray | None = None
 
     @property
     def chosen_name(self) -> str | None:
         return None if self.chosen is None else self.option_names[self.chosen]
+
+
+def member_disagreement(g: FloatArray, members: IntArray | None) -> FloatArray:
+    """Std over ensemble members of the mean of each member's rollout scores.
+
+    Args:
+        g: ``(options, samples)`` goal values of the rollouts' end states.
+        members: ``(options, samples)`` member index of each rollout, or ``None``.
+
+    Returns:
+        ``(options,)``; 0 where there is no member information or one member.
+    """
+    if members is None:
+        return np.zeros(g.shape[0])
+    out = np.zeros(g.shape[0])
+    for o in range(g.shape[0]):
+        ids = np.unique(members[o])
+        if len(ids) > 1:
+            out[o] = float(np.std([g[o][members[o] == k].mean() for k in ids]))
+    return out
 
 
 class OptionPlanner:
@@ -84,13 +114,16 @@ class OptionPlanner:
         horizon: ``n``, the most steps a rollout may take.
         samples: ``S``, Monte-Carlo rollouts per option.
         risk: ``k`` in ``mean - k * std``; 0 reproduces the paper.
+        epistemic: weight of the ensemble disagreement subtracted from the score (0
+            reproduces the paper).
         respect_regions: stop a rollout when it leaves the option's continuation set
             (its initiation set unless given; the controller would stop the real option
             there too).
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
-                 samples: int = 64, risk: float = 0.0, respect_regions: bool = True) -> None:
+                 samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
+                 epistemic: float = 0.0) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -103,6 +136,7 @@ class OptionPlanner:
         self.horizon = int(horizon)
         self.samples = int(samples)
         self.risk = float(risk)
+        self.epistemic = float(epistemic)
         self.respect_regions = respect_regions
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
 
@@ -131,6 +165,7 @@ class OptionPlanner:
         may_run = self.admissible(s, running)
         scores = np.full(n_opt, np.nan)
         spreads = np.full(n_opt, np.nan)
+        disagreements = np.full(n_opt, np.nan)
         end_states = np.full((n_opt, self.samples, d), np.nan)
         steps = np.zeros((n_opt, self.samples), dtype=np.int64)
         idx = tuple(int(i) for i in np.flatnonzero(may_run))
@@ -140,12 +175,15 @@ class OptionPlanner:
             g = self.goal.sample(roll.end_states.reshape(-1, d), rng).reshape(len(idx), -1)
             g = np.where(roll.valid, g, 0.0)
             mean, std = g.mean(axis=1), g.std(axis=1)
-            scores[list(idx)] = mean - self.risk * std
+            split = member_disagreement(g, roll.members)
+            scores[list(idx)] = mean - self.risk * std - self.epistemic * split
             spreads[list(idx)] = std
+            disagreements[list(idx)] = split
             end_states[list(idx)] = roll.end_states
             steps[list(idx)] = roll.steps
             chosen = idx[int(np.argmax(scores[list(idx)]))]
-        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen)
+        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen,
+                    disagreements)
 
     def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator) -> Rollouts:
         """Roll the given options forward from ``state``: one batched step per horizon step.
@@ -177,7 +215,8 @@ class OptionPlanner:
             alive = moved & (stop_draws[t] >= termination.probability(x))
             for j, initiation in regions:
                 alive[j] &= initiation.contains(x[j])
-        return Rollouts(x, steps, valid)
+        members = getattr(step, "members", None)
+        return Rollouts(x, steps, valid, None if members is None else np.asarray(members))
 
     def _stack(self, idx: tuple[int, ...]) -> tuple[StackedDynamics, StackedTermination]:
         if idx not in self._stacks:
