@@ -536,3 +536,30 @@ def test_labels_of_one_option_train_nothing(tmp_path, monkeypatch, capsys, gear_
     assert_one_line_error(code, err, "transitions to learn its dynamics")
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
     assert not leftovers(tmp_path)
+
+
+# --- rejected after the flags' checks: still no output folder ----------------------------
+
+LATE_REJECTIONS = {
+    "random-walk": (["--noise", "2"], "--noise"),
+    "gear expert": (["--human", "nobody"], "--human"),
+    "gear demos": (["--human", "nobody"], "--human"),
+    "gear collect": (["--workers", "0"], "--workers"),
+    "gear option": (["--human", "nobody"], "--human"),
+    "gear train": (["--demos", "missing-demos"], "missing-demos"),
+    "gear figures": (["--demos", "missing-demos"], ""),
+    "gear run": (["--workers", "0"], "--workers"),
+    "gear evaluate": (["--controllers", "nosuch"], "nosuch"),
+    "gear episode": (["--index", "0", "--controller", "nosuch"], "nosuch"),
+    "gear render": (["--human", "nobody"], "--human"),
+    "pipeline": (["--options", "examples.mountain_car.options:nosuch"], "nosuch"),
+}
+
+
+@pytest.mark.parametrize("name", list(COMMANDS))
+def test_rejected_command_leaves_no_output_folder(tmp_path, monkeypatch, capsys, name):
+    extra, needle = LATE_REJECTIONS[name]
+    monkeypatch.chdir(tmp_path)
+    code, _, err = invoke(monkeypatch, capsys, *command(name, tmp_path), *extra)
+    assert_one_line_error(code, err, needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], err
