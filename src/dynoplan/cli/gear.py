@@ -6,7 +6,7 @@ from typing import Any
 
 import typer
 
-from dynoplan.cli.params import folder
+from dynoplan.cli.params import folder, human_mode
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
     EPISODES_MAX,
@@ -31,7 +31,8 @@ def expert(
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Seed from which every episode's seed is derived."),
     out: Path = typer.Option(Path("results/gear-expert"), callback=folder, help="Output folder."),
-    human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Force the human: away, cross or block."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Run the scripted expert; write OUT/summary.json (success, contacts, speed)."""
@@ -63,7 +64,8 @@ def demos(
     heldout: bool = typer.Option(False, "--heldout", help="Record the held-out trials "
                                  "instead (gear run's OUT/heldout): episodes of seeds "
                                  "disjoint from the demonstrations'."),
-    human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Force the human: away, cross or block."),
     demonstrator: str | None = typer.Option(None, help="options (the default, as gear run: "
                                             "an operator chaining the four option "
                                             "policies) or expert (the scripted expert, "
@@ -104,7 +106,8 @@ def render(
     seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Episode seed."),
     out: Path = typer.Option(Path("results/gear-render"), callback=folder, help="Output folder."),
     video: bool = typer.Option(True, "--video/--no-video", help="Also write episode.mp4."),
-    human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Force the human: away, cross or block."),
 ) -> None:
     """Write OUT/scene.png and OUT/episode.mp4 of the expert's episode (offscreen)."""
     # Headless machines: MuJoCo picks its GL backend when first imported.
@@ -129,7 +132,8 @@ def option(
     models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
                                 help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
-    human: str | None = typer.Option(None, help="Human mode (default: the option's own; "
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Human mode (default: the option's own; "
                                      "block for cautious_move, away for the others)."),
     max_steps: int = typer.Option(600, min=1, max=STEPS_MAX,
                                   help="Env steps per trial before giving up."),
