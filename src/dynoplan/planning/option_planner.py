@@ -29,6 +29,7 @@ from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import Everywhere
 from dynoplan.options.option import Option, admissible
 from dynoplan.options.termination import StackedTermination, stack_terminations
+from dynoplan.safety.constraint import SafetyConstraint
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
 
@@ -43,12 +44,15 @@ class Rollouts:
             (the rollout is stopped at its last finite state and scored 0).
         members: ``(options, samples)``, the ensemble member each rollout followed, or
             ``None`` when the dynamics are not ensembles that say so.
+        unsafe: ``(options, samples)``, True where the safety constraint found an unsafe
+            step of the rollout (``None`` without a constraint).
     """
 
     end_states: FloatArray
     steps: IntArray
     valid: BoolArray
     members: IntArray | None = None
+    unsafe: BoolArray | None = None
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,9 @@ class Plan:
         end_states: ``(options, samples, state_dim)``.
         steps: ``(options, samples)``.
         chosen: index of the argmax, or ``None`` when no option is admissible.
+        unsafe_shares: ``(options,)``, the share of an option's rollouts with an unsafe
+            step (``None`` without a safety constraint). An option above the planner's
+            risk level is not admissible now: its score is ``-inf``.
     """
 
     option_names: tuple[str, ...]
@@ -78,6 +85,7 @@ class Plan:
     steps: IntArray
     chosen: int | None
     disagreements: FloatArray | None = None
+    unsafe_shares: FloatArray | None = None
 
     @property
     def chosen_name(self) -> str | None:
@@ -119,11 +127,18 @@ class OptionPlanner:
         respect_regions: stop a rollout when it leaves the option's continuation set
             (its initiation set unless given; the controller would stop the real option
             there too).
+        constraint: the chance constraint of the safe Eq. 1
+            (:class:`~dynoplan.safety.constraint.SafetyConstraint`; ``None``: the paper's
+            Eq. 1).
+        risk_level: ``epsilon``: an option whose share of rollouts with an unsafe step
+            exceeds it is not admissible now (score ``-inf``); with none left, no option
+            is chosen and the controller holds.
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
                  samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
-                 epistemic: float = 0.0) -> None:
+                 epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
+                 risk_level: float = 0.05) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -138,6 +153,10 @@ class OptionPlanner:
         self.risk = float(risk)
         self.epistemic = float(epistemic)
         self.respect_regions = respect_regions
+        if not 0.0 <= risk_level <= 1.0:
+            raise DynoplanError(f"risk_level must be in [0, 1], got {risk_level}")
+        self.constraint = constraint
+        self.risk_level = float(risk_level)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
 
     @property
@@ -170,7 +189,10 @@ class OptionPlanner:
         steps = np.zeros((n_opt, self.samples), dtype=np.int64)
         idx = tuple(int(i) for i in np.flatnonzero(may_run))
         chosen: int | None = None
+        shares = None if self.constraint is None else np.full(n_opt, np.nan)
         if idx:
+            if self.constraint is not None:
+                self.constraint.prepare(s)
             roll = self.rollout(idx, s, rng)
             g = self.goal.sample(roll.end_states.reshape(-1, d), rng).reshape(len(idx), -1)
             g = np.where(roll.valid, g, 0.0)
@@ -181,9 +203,15 @@ class OptionPlanner:
             disagreements[list(idx)] = split
             end_states[list(idx)] = roll.end_states
             steps[list(idx)] = roll.steps
-            chosen = idx[int(np.argmax(scores[list(idx)]))]
+            if shares is not None and roll.unsafe is not None:
+                shares[list(idx)] = roll.unsafe.mean(axis=1)
+                scores[list(idx)] = np.where(shares[list(idx)] > self.risk_level, -np.inf,
+                                             scores[list(idx)])
+            best = int(np.argmax(scores[list(idx)]))
+            unsafe_everywhere = shares is not None and scores[idx[best]] == -np.inf
+            chosen = None if unsafe_everywhere else idx[best]
         return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen,
-                    disagreements)
+                    disagreements, shares)
 
     def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator) -> Rollouts:
         """Roll the given options forward from ``state``: one batched step per horizon step.
@@ -201,6 +229,7 @@ class OptionPlanner:
                        self.options[i].continuation_set, Everywhere)]
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
         step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
+        unsafe = None if self.constraint is None else np.zeros_like(alive)
         for t in range(self.horizon):
             if not alive.any():
                 break
@@ -210,13 +239,17 @@ class OptionPlanner:
                 finite = np.isfinite(nxt).all(axis=-1)
                 valid &= finite | ~alive
                 moved = alive & finite
+            if unsafe is not None and self.constraint is not None:
+                unsafe |= moved & self.constraint.unsafe(x, np.where(moved[..., None], nxt, x),
+                                                         t + 1)
             np.copyto(x, nxt, where=moved[..., None])
             steps += moved
             alive = moved & (stop_draws[t] >= termination.probability(x))
             for j, initiation in regions:
                 alive[j] &= initiation.contains(x[j])
         members = getattr(step, "members", None)
-        return Rollouts(x, steps, valid, None if members is None else np.asarray(members))
+        return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
+                        unsafe)
 
     def _stack(self, idx: tuple[int, ...]) -> tuple[StackedDynamics, StackedTermination]:
         if idx not in self._stacks:
