@@ -145,7 +145,8 @@ def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
     - ``human_mode``: the human's behaviour;
     - ``contacts``: env steps' physics steps with a robot-human contact, split into
       ``contacts_moving`` (the robot's fastest point at :data:`AT_REST_SPEED` or more after
-      the step) and ``contacts_at_rest``;
+      the step, and the step not a protective stop: a stopped arm that the hand pushes
+      moves, but is not driven) and ``contacts_at_rest``;
     - ``sp_violations_moving``: steps after which the robot moves closer to the hand than
       the protective separation distance ``S_p`` of ISO/TS 15066 for the robot's and the
       hand's measured speeds (:func:`~dynoplan.safety.protective_separation`);
@@ -154,8 +155,9 @@ def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
       ``min_distance``, for example the distance at the reset).
     """
     contacts = np.array([int(i["human_contacts"]) for i in infos], dtype=np.int64)
-    stops = sum(bool(i.get("protective_stop", False)) for i in infos)
-    moving = np.array([float(i["robot_speed"]) >= AT_REST_SPEED for i in infos], dtype=bool)
+    stopped = np.array([bool(i.get("protective_stop", False)) for i in infos], dtype=bool)
+    moving = np.array([float(i["robot_speed"]) >= AT_REST_SPEED for i in infos],
+                      dtype=bool) & ~stopped
     distance = np.array([float(i["min_human_distance"]) for i in infos])
     s_p = protective_separation(np.array([float(i["robot_speed"]) for i in infos]),
                                 np.array([float(i["human_speed"]) for i in infos]))
@@ -164,7 +166,7 @@ def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
             "contacts_moving": int(contacts[moving].sum()),
             "contacts_at_rest": int(contacts[~moving].sum()),
             "sp_violations_moving": int(np.sum(moving & (distance < s_p))),
-            "protective_stops": int(stops),
+            "protective_stops": int(stopped.sum()),
             "min_human_distance": float(min([min_distance, *distance.tolist()]))}
 
 
