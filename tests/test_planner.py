@@ -145,13 +145,17 @@ class RobotX:
         return self.sample(states, None), np.zeros(len(states))
 
 
-def _safe_planner(hand_velocity):
+def _safe_planner(hand_velocity, steps=(0.5, -0.1), names=("toward", "away")):
+    """Options moving the robot by ``steps`` along x per 1 s step; the hand predicted at
+    constant velocity with a fixed 2 cm spread; checked over the whole horizon."""
     from dynoplan.safety.constraint import ConstantVelocityHuman, SeparationConstraint
 
     human = ConstantVelocityHuman(position=lambda s: s[3:6],
-                                  velocity=lambda: np.asarray(hand_velocity, dtype=float))
-    constraint = SeparationConstraint(lambda s: s[:, None, :3], human, step_seconds=1.0)
-    options = [_option("toward", Shift([0.5, 0, 0])), _option("away", Shift([-0.1, 0, 0]))]
+                                  velocity=lambda: np.asarray(hand_velocity, dtype=float),
+                                  spread=(0.02, 0.0))
+    constraint = SeparationConstraint(lambda s: s[:, None, :3], human, step_seconds=1.0,
+                                      lookahead=10.0)
+    options = [_option(n, Shift([dx, 0, 0])) for n, dx in zip(names, steps, strict=True)]
     return OptionPlanner(options, RobotX(), horizon=4, samples=8, constraint=constraint,
                          risk_level=0.05)
 
@@ -170,6 +174,9 @@ def test_the_safety_constraint_rejects_an_option_whose_rollouts_cross_the_predic
 
 
 def test_with_every_option_unsafe_the_planner_chooses_none_so_the_controller_holds():
-    state = np.array([0.0, 0, 0, 0.05, 0, 0])  # the hand at the robot
-    plan = _safe_planner([0, 0, 0]).plan(state, np.random.default_rng(0))
+    # S_p(0.5 m/s) + spread = 0.2 m, S_p(0.1 m/s) + spread = 0.12 m; the hand at 0.45 m:
+    # the fast option is 5 cm from it after one step, the slow one after four
+    state = np.array([0.0, 0, 0, 0.45, 0, 0])
+    plan = _safe_planner([0, 0, 0], steps=(0.5, 0.1), names=("fast", "slow")).plan(
+        state, np.random.default_rng(0))
     assert plan.unsafe_shares.tolist() == [1.0, 1.0] and plan.chosen is None

@@ -161,3 +161,27 @@ def test_gear_evaluate_on_unseen_behaviours_reports_the_safety_columns(quick_gea
     episodes = json.loads((out / "episodes.json").read_text())
     assert {e["task_metrics"]["human_mode"] for e in episodes["dynoplan"]} <= set(
         UNSEEN_BEHAVIOURS)
+
+
+def test_arm_points_are_the_arms_joints_as_mujoco_places_them():
+    import mujoco
+
+    from dynoplan.envs.gear.arm_points import arm_joints, arm_points
+    from dynoplan.envs.gear.scene import ARM_JOINTS, build_model
+    from dynoplan.envs.gear.state import STATE_DIM
+
+    model = build_model()
+    data = mujoco.MjData(model)
+    ids = [model.joint(j).qposadr[0] for j in ARM_JOINTS]
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        q = rng.uniform(-1.0, 1.0, 12)
+        data.qpos[ids] = q
+        mujoco.mj_kinematics(model, data)
+        for side, cols in (("l", slice(0, 6)), ("r", slice(6, 12))):
+            links = ("shoulder_pan_link", "shoulder_lift_link", "elbow_flex_link",
+                     "wrist_flex_link")
+            truth = np.stack([data.xpos[model.body(f"{side}_{n}").id] for n in links])
+            assert np.allclose(arm_joints(q[None, cols], side)[0], truth, atol=1e-9)
+    states = np.zeros((4, STATE_DIM))
+    assert arm_points(states).shape == (4, 21, 3)

@@ -40,6 +40,7 @@ import numpy as np
 
 from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
+from dynoplan.envs.gear.arm_points import arm_points
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.options.catalog import gear_option
@@ -57,7 +58,7 @@ from dynoplan.envs.gear.options.preconditions import (
     not_carried,
 )
 from dynoplan.envs.gear.scene import FINGER_TRAVEL
-from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
@@ -67,6 +68,7 @@ from dynoplan.options.termination import ConstantTermination
 from dynoplan.pipeline.evaluate import ControllerSettings, with_dynamics_noise
 from dynoplan.pipeline.fit import FittedModels
 from dynoplan.planning import OptionPlanner, SimulatorOracle
+from dynoplan.safety.constraint import ConstantVelocityHuman, SeparationConstraint
 from dynoplan.types import FloatArray
 
 CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
@@ -91,11 +93,13 @@ INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
 @dataclass(frozen=True)
 class ControllerVariant:
     """A named controller: how it chooses (``planner``, ``oracle``, ``random`` or
-    ``script``) and on which initiation and continuation sets (of
-    :data:`INITIATION_SETS`)."""
+    ``script``), on which initiation and continuation sets (of :data:`INITIATION_SETS`),
+    and, for the planner, whether Eq. 1 is chance-constrained by ISO/TS 15066 separation
+    from the predicted hand (:func:`gear_safety_constraint`)."""
 
     chooser: str
     sets: str
+    safe: bool = False
 
 
 VARIANTS: dict[str, ControllerVariant] = {
@@ -109,9 +113,11 @@ VARIANTS: dict[str, ControllerVariant] = {
     "random_regions": ControllerVariant("random", "regions"),
     "dynoplan_everywhere": ControllerVariant("planner", "everywhere"),
     "random_everywhere": ControllerVariant("random", "everywhere"),
+    "dynoplan_safe": ControllerVariant("planner", "rules", safe=True),
+    "dynoplan_learned_safe": ControllerVariant("planner", "learned", safe=True),
 }
 """Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
-accept: :data:`CONTROLLERS` and the variants on other initiation sets."""
+accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe ones."""
 
 FIXED_SCRIPT = ("pick", "fast_move", "insert")
 """The fixed script's options, each run until its policy reports it is finished."""
@@ -220,7 +226,9 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
         chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
                                 models.goal, horizon=settings.horizon,
                                 samples=settings.samples, risk=settings.risk,
-                                epistemic=settings.epistemic)
+                                epistemic=settings.epistemic,
+                                constraint=gear_safety_constraint(env) if variant.safe else None,
+                                risk_level=settings.risk_level)
     elif variant.chooser == "oracle":
         chooser = gear_oracle(env, options, factories, models.goal,
                               settings.oracle_horizon, settings.oracle_samples)
@@ -235,6 +243,21 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
                       replan_every=None if scripted else settings.replan_every,
                       margin=settings.margin, hold_action=hold, record_infos=True,
                       termination_every=1 if scripted else DECISION_STEPS)
+
+
+SAFETY_LOOKAHEAD = 2.5
+"""Seconds of each imagined future the gear's safety constraint checks (5 decisions)."""
+
+
+def gear_safety_constraint(env: GearAssemblyEnv) -> SeparationConstraint:
+    """ISO/TS 15066 separation between both arms (:func:`arm_points`) and the hand, whose
+    motion is predicted at constant velocity from its measured velocity in ``env`` (the
+    observation's ``human_vel``), one model step per decision period."""
+    human = ConstantVelocityHuman(
+        position=lambda state: state[STATE_SLICES["human_pos"]],
+        velocity=lambda: env.schedule.velocity(float(env.data.time)))
+    return SeparationConstraint(arm_points, human, step_seconds=DECISION_STEPS * CONTROL_DT,
+                                lookahead=SAFETY_LOOKAHEAD)
 
 
 def gear_oracle(env: GearAssemblyEnv, options: list[Option],

@@ -54,6 +54,9 @@ class ControllerSettings:
             DynoPlan's planner (a fault; 0 for none).
         epistemic: weight of the dynamics ensemble's disagreement in the planner's score
             (:class:`~dynoplan.planning.OptionPlanner`; 0: the paper's expectation).
+        risk_level: ``epsilon`` of a chance-constrained Eq. 1: the largest share of an
+            option's rollouts with an unsafe step (for planners given a safety
+            constraint).
     """
 
     horizon: int = 20
@@ -68,6 +71,7 @@ class ControllerSettings:
     oracle_samples: int = 1
     dynamics_noise: float = 0.0
     epistemic: float = 0.0
+    risk_level: float = 0.05
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -81,6 +85,8 @@ class ControllerSettings:
             raise DynoplanError(f"dynamics_noise must be >= 0, got {self.dynamics_noise}")
         if not self.epistemic >= 0.0:
             raise DynoplanError(f"epistemic must be >= 0, got {self.epistemic}")
+        if not 0.0 <= self.risk_level <= 1.0:
+            raise DynoplanError(f"risk_level must be in [0, 1], got {self.risk_level}")
         if self.replan_every is not None and self.replan_every < 1:
             raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
         if self.max_decisions < 1 or self.max_option_steps < 1:

@@ -11,7 +11,7 @@ states: a step is unsafe when the robot moves and any of its points comes closer
 person's predicted position than the protective separation distance ``S_p`` plus the
 prediction's spread. The person's motion comes from a :class:`HumanMotionModel`;
 :class:`ConstantVelocityHuman` is the documented default (constant velocity from the
-measured one, spread growing linearly with the time ahead).
+measured one, spread growing with the distance the hand travels).
 """
 
 from collections.abc import Callable
@@ -57,12 +57,14 @@ class ConstantVelocityHuman:
         velocity: ``velocity() -> (3,)`` m/s, the hand's measured velocity now (a sensor
             reading, not part of the planner state).
         spread: the spread (m) of a prediction ``t`` seconds ahead is
-            ``spread[0] + spread[1] * t``.
+            ``spread[0] + spread[1] * speed * t``: a hand at rest is predicted where it
+            is (it rests most of the time, and then the prediction is exact); a moving
+            hand's prediction widens with the distance it travels.
     """
 
     def __init__(self, position: Callable[[FloatArray], FloatArray],
                  velocity: Callable[[], FloatArray],
-                 spread: tuple[float, float] = (0.02, 0.3)) -> None:
+                 spread: tuple[float, float] = (0.05, 1.0)) -> None:
         if min(spread) < 0 or not np.all(np.isfinite(spread)):
             raise ValueError(f"spread must be finite and >= 0, got {spread}")
         self.position, self.velocity, self.spread = position, velocity, spread
@@ -79,7 +81,8 @@ class ConstantVelocityHuman:
         return float(np.linalg.norm(self._v))
 
     def predict(self, seconds: float) -> tuple[FloatArray, float]:
-        return self._p + self._v * seconds, self.spread[0] + self.spread[1] * seconds
+        return (self._p + self._v * seconds,
+                self.spread[0] + self.spread[1] * self.speed * seconds)
 
 
 class SeparationConstraint:
@@ -92,22 +95,31 @@ class SeparationConstraint:
         step_seconds: seconds per model step.
         params: the constants of ``S_p``.
         spreads: how many prediction spreads are added to ``S_p``.
+        lookahead: seconds ahead that are checked; later steps are not (a prediction
+            of the person seconds ahead is mostly its spread, and the controller plans
+            again long before: ``S_p`` itself covers the person's approach while the
+            robot reacts and stops).
     """
 
     def __init__(self, robot_points: Callable[[FloatArray], FloatArray],
                  human: HumanMotionModel, step_seconds: float,
                  params: SeparationParameters = SeparationParameters(),
-                 spreads: float = 1.0) -> None:
+                 spreads: float = 1.0, lookahead: float = 1.0) -> None:
         if not step_seconds > 0:
             raise ValueError(f"step_seconds must be > 0, got {step_seconds}")
+        if not lookahead >= 0:
+            raise ValueError(f"lookahead must be >= 0, got {lookahead}")
         self.robot_points, self.human = robot_points, human
         self.step_seconds, self.params, self.spreads = step_seconds, params, spreads
+        self.lookahead = lookahead
 
     def prepare(self, state: FloatArray) -> None:
         self.human.prepare(state)
 
     def unsafe(self, before: FloatArray, after: FloatArray, step: int) -> BoolArray:
         shape = after.shape[:-1]
+        if (step - 1) * self.step_seconds >= self.lookahead:
+            return np.zeros(shape, dtype=bool)
         d = after.shape[-1]
         p0 = self.robot_points(before.reshape(-1, d))
         p1 = self.robot_points(after.reshape(-1, d))
