@@ -3,7 +3,7 @@ controller and a collection run, timed serially in this process.
 
 For each controller (the default planner settings, and ``dynoplan`` with horizon 20 and
 128 samples), ``--episodes`` seeded episodes (the oracle: ``--oracle-episodes``) run
-with :func:`dynoplan.experiments.gear_jobs.evaluate_episode` on one built state; then
+with one runner built by :meth:`dynoplan.experiments.gear_task.GearTask.make_runner`; then
 ``--runs`` collection runs of every option. Reported per kind: the mean CPU and wall
 seconds of a task, the longest wall time, the mean simulated seconds, and for collection
 the bytes a run returns (pickled). These are the inputs of the 1000-core estimate in
@@ -18,6 +18,7 @@ import json
 import os
 import pickle
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -25,9 +26,10 @@ import numpy as np
 
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.experiments.gear_collect import CollectJob, build_collection, collect_option_run
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.experiments.gear_eval import seconds
-from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation, evaluate_episode
+from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
+from dynoplan.pipeline.evaluate import ControllerJob
 from dynoplan.seeding import episode_seeds
 
 
@@ -53,16 +55,17 @@ def main() -> None:
     torch.set_num_threads(1)
     os.environ.setdefault("MUJOCO_GL", "egl")
     flat = args.flat or args.models.parent / "flat_ppo"
-    jobs = {name: EvalJob(args.models, name) for name in CONTROLLERS}
-    jobs["dynoplan_h20_s128"] = EvalJob(args.models, "dynoplan",
-                                        PlannerSettings(horizon=20, samples=128))
+    gear = GearTask(flat_folder=flat)
+    jobs = {name: ControllerJob(gear, args.models, name, GEAR_CONTROL) for name in CONTROLLERS}
+    jobs["dynoplan_h20_s128"] = ControllerJob(
+        gear, args.models, "dynoplan", replace(GEAR_CONTROL, horizon=20, samples=128))
     if (flat / "flat_policy.json").is_file():
-        jobs[FLAT_POLICY] = EvalJob(args.models, FLAT_POLICY, flat_folder=flat)
+        jobs[FLAT_POLICY] = ControllerJob(gear, args.models, FLAT_POLICY, GEAR_CONTROL)
     result: dict[str, Any] = {}
     for name, job in jobs.items():
         n = args.oracle_episodes if name == "oracle" else args.episodes
-        state = build_evaluation(job)
-        rows = [timed(evaluate_episode, state, s) for s in episode_seeds(7, n)]
+        runner = job.build()
+        rows = [timed(runner.episode, s) for s in episode_seeds(7, n)]
         result[name] = {"tasks": n, "cpu_s_mean": round(float(np.mean([r[2] for r in rows])), 2),
                         "wall_s_mean": round(float(np.mean([r[1] for r in rows])), 2),
                         "wall_s_max": round(float(np.max([r[1] for r in rows])), 2),

@@ -15,7 +15,7 @@ option is admissible, after ``--warmup`` such decisions); at each, the two choos
 decide one after the other from the live state, so they see the same machine; the
 episode itself runs on the default planner. Reported: p50 / p99 of each, the ratio of
 the medians (``oracle / learned``), and the learned planner's p50 at the evaluation's
-default settings (``PlannerSettings()``).
+default settings (``GEAR_CONTROL``).
 
 Targets (issue 6): learned p50 <= 10 ms at the default settings; oracle / learned >= 100.
 """
@@ -33,7 +33,7 @@ import torch
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options.catalog import policy_factories
 from dynoplan.experiments.gear_controllers import (
-    PlannerSettings,
+    GEAR_CONTROL,
     gear_oracle,
     make_gear_controller,
 )
@@ -81,7 +81,7 @@ def measure(models_dir: Path, episodes: int, every: int, samples: int, horizon: 
     env.close()
     p = {name: (float(np.percentile(v, 50)), float(np.percentile(v, 99)))
          for name, v in timings.items()}
-    default = PlannerSettings()
+    default = GEAR_CONTROL
     return {
         "models": str(models_dir), "episodes": episodes, "decisions": len(timings["learned"]),
         "samples": samples, "horizon": horizon,

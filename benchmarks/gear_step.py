@@ -65,14 +65,14 @@ def bench_expert(episodes: int, seed: int) -> dict[str, Any]:
     step_time = decide_time = 0.0
     steps = 0
     for i in range(episodes):
-        _, info = env.reset(seed=seed + i)
+        obs, info = env.reset(seed=seed + i)
         expert.reset()
         done = False
         while not done:
             t0 = time.perf_counter()
-            decision = expert.act(info)
+            decision = expert.act(obs, info)
             t1 = time.perf_counter()
-            _, _, terminated, truncated, info = env.step(decision.action)
+            obs, _, terminated, truncated, info = env.step(decision.action)
             step_time += time.perf_counter() - t1
             decide_time += t1 - t0
             steps += 1

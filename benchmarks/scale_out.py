@@ -37,23 +37,24 @@ from typing import Any
 
 import numpy as np
 
-from dynoplan.experiments.gear_controllers import PlannerSettings
+from dynoplan.experiments.gear_controllers import GEAR_CONTROL
 from dynoplan.experiments.gear_eval import seconds
-from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
+from dynoplan.experiments.gear_task import GearTask
 from dynoplan.io import write_json
 from dynoplan.parallel import SERIAL, Workers, imap_unordered, ray_session
+from dynoplan.pipeline.evaluate import ControllerJob, build_runner
 from dynoplan.seeding import episode_seeds
 
 
-def timed_episode(state: Any, seed: Any) -> tuple[Any, float, float]:
-    """:func:`evaluate_episode` with its wall and CPU seconds (in the process running it)."""
+def timed_episode(runner: Any, seed: Any) -> tuple[Any, float, float]:
+    """``runner.episode(seed)`` with its wall and CPU seconds (in the process running it)."""
     wall, cpu = time.perf_counter(), time.process_time()
-    metrics = evaluate_episode(state, seed)
+    metrics = runner.episode(seed)
     return metrics, time.perf_counter() - wall, time.process_time() - cpu
 
 
-def timed_map(job: EvalJob, seeds: list[Any],
+def timed_map(job: ControllerJob, seeds: list[Any],
               workers: Workers) -> tuple[list[Any], list[float], float, float]:
     """Results in seed order, the wall time from the start to each result, and the
     episodes' summed wall and CPU seconds."""
@@ -61,7 +62,7 @@ def timed_map(job: EvalJob, seeds: list[Any],
     results: list[Any] = [None] * len(seeds)
     marks, walls, cpus = [], [], []
     tasks = [(job, s) for s in seeds]
-    for i, (metrics, wall, cpu) in imap_unordered(build_evaluation, timed_episode, tasks,
+    for i, (metrics, wall, cpu) in imap_unordered(build_runner, timed_episode, tasks,
                                                   workers):
         results[i] = metrics
         marks.append(time.perf_counter() - t0)
@@ -92,7 +93,7 @@ def main() -> None:
 
     torch.set_num_threads(1)
     os.environ.setdefault("MUJOCO_GL", "egl")
-    job = EvalJob(args.models, args.controller, PlannerSettings())
+    job = ControllerJob(GearTask(), args.models, args.controller, GEAR_CONTROL)
     seeds = episode_seeds(args.seed + EVAL_SEED_OFFSET, args.episodes)
 
     workers = Workers(args.workers)

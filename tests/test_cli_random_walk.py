@@ -45,7 +45,7 @@ def test_random_walk_writes_summary_figures_and_is_deterministic(tmp_path):
     ("args", "message"),
     [
         (["--noise", "-0.1"], "--noise must be a probability"),
-        (["--episodes", "0"], "--episodes must be >= 1"),
+        (["--episodes", "0"], "Invalid value for '--episodes'"),
         (["--no-such-flag"], "No such option"),
         (["--start-state", "20"], "--start-state must be in"),
     ],

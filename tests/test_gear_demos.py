@@ -54,7 +54,8 @@ def test_cli_rejects_zero_demonstrations_in_one_line_before_training_anything(tm
          "--n", "0", "--out", str(tmp_path / "d"), "--models", str(tmp_path / "m")],
         capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines() == ["dynoplan: error: --n must be >= 1, got 0"]
+    assert result.stderr.strip().splitlines() == [
+        "dynoplan: error: Invalid value for '--n': Input should be greater than or equal to 1"]
     assert not (tmp_path / "d").exists() and not (tmp_path / "m").exists()
 
 

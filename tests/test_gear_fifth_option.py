@@ -6,6 +6,7 @@ Registrations are undone after every test (:func:`temporary_gear_options`), so t
 tests see the paper's four options only.
 """
 
+import dataclasses
 import importlib
 import json
 import os
@@ -27,15 +28,12 @@ from dynoplan.envs.gear.options import (
     register_gear_option,
     temporary_gear_options,
 )
-from dynoplan.envs.gear.options.catalog import INSERT_FILE, RECOGNIZER_FILE, policy_factories
+from dynoplan.envs.gear.options.catalog import INSERT_FILE, RECOGNIZER_FILE
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import (
-    PlannerSettings,
-    make_gear_controller,
-    preconditions,
-)
+from dynoplan.experiments.gear_controllers import GEAR_CONTROL, preconditions
+from dynoplan.experiments.gear_task import GearTask
 from dynoplan.seeding import episode_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -124,7 +122,6 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
                                                     tmp_path: Path) -> None:
     from dynoplan.data import read_dataset
     from dynoplan.experiments.gear_collect import collect_transitions
-    from dynoplan.experiments.gear_eval import run_episode
     from dynoplan.experiments.gear_model_files import load_gear_models
     from dynoplan.experiments.gear_models import train_gear_models
     from dynoplan.reports.gear_figures import make_gear_figures
@@ -162,13 +159,12 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     assert figures["fig3b"]["region_share"]["pick"] is not None
 
     # DynoPlan plans with it: admissible once the gear is carried, scored, one episode run
-    env = GearAssemblyEnv()
-    controller = make_gear_controller("dynoplan", env, loaded, policy_factories(models),
-                                      PlannerSettings(horizon=3, samples=8))
-    names = [o.name for o in controller.options]
+    runner = GearTask().make_runner("dynoplan", models,
+                                    dataclasses.replace(GEAR_CONTROL, horizon=3, samples=8))
+    names = [o.name for o in runner.controller.options]
     assert names == [*PAPER_OPTIONS, "lift"]
-    trace = run_episode(env, controller, episode_seeds(7, 1)[0])
-    env.close()
+    trace = runner.run(episode_seeds(7, 1)[0])
+    runner.env.close()
     scored = [d for d in trace.decisions if d.plan.admissible[names.index("lift")]]
     assert scored and all(np.isfinite(d.plan.scores[names.index("lift")]) for d in scored)
     assert trace.env_steps > 0

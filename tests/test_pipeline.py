@@ -333,7 +333,7 @@ def test_cli_pipeline_on_ray_workers_gives_the_same_table_as_one_worker(tmp_path
     (["--env", "TestLine-v0", "--options", "line_options:make_options", "--demo-dataset",
       "missing"], "dataset folder not found"),
     (["--env", "TestLine-v0", "--options", "line_options:make_options", "--replan-every",
-      "-1"], "--replan-every must be >= 0"),
+      "-1"], "Invalid value for '--replan-every'"),
     (["--env", "TestLine-v0", "--options", "bare_options:make_options"],
      "'bare_options' defines no make_demonstrator(); give --demonstrator"),
 ])

@@ -13,14 +13,15 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
 from dynoplan.experiments.gear_collect import collect_transitions
-from dynoplan.experiments.gear_controllers import PlannerSettings
-from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate, evaluate_episode
+from dynoplan.experiments.gear_controllers import GEAR_CONTROL
+from dynoplan.experiments.gear_task import GearTask
 from dynoplan.parallel import SERIAL, Workers, parallel_map
+from dynoplan.pipeline.evaluate import ControllerJob, build_runner, evaluate_many
 from dynoplan.seeding import episode_seeds
 
 pytestmark = pytest.mark.slow
 
-QUICK_PLANNER = PlannerSettings(horizon=6, samples=32)
+QUICK_PLANNER = dataclasses.replace(GEAR_CONTROL, horizon=6, samples=32)
 EPISODES = 4
 
 
@@ -41,13 +42,17 @@ def _assert_same_dataset(one: dict[str, Any], two: dict[str, Any], a: Path, b: P
         assert (a / f).read_bytes() == (b / f).read_bytes(), f
 
 
-@pytest.fixture(scope="module")
-def job(quick_gear_run: Path) -> EvalJob:
-    return EvalJob(quick_gear_run / "models", "dynoplan", QUICK_PLANNER)
+def evaluate(job: ControllerJob, seeds: list[Any], workers: Workers = SERIAL) -> list[Any]:
+    return evaluate_many([(job, seeds)], workers)[0]
 
 
 @pytest.fixture(scope="module")
-def serial(job: EvalJob) -> list[Any]:
+def job(quick_gear_run: Path) -> ControllerJob:
+    return ControllerJob(GearTask(), quick_gear_run / "models", "dynoplan", QUICK_PLANNER)
+
+
+@pytest.fixture(scope="module")
+def serial(job: ControllerJob) -> list[Any]:
     return evaluate(job, episode_seeds(7, EPISODES), SERIAL)
 
 
@@ -72,16 +77,16 @@ def test_a_worker_dying_mid_episode_is_retried_without_losing_or_repeating_one(
                 os._exit(1)  # the worker process dies in the middle of the episode
             return self.env.step(action)
 
-    def dies_once(state, seed):
+    def dies_once(runner, seed):
         if seed.index == 1 and not marker.exists():
             marker.touch()
-            state = dataclasses.replace(state, env=DiesAtStep30(state.env))
-        metrics = evaluate_episode(state, seed)
+            runner = dataclasses.replace(runner, env=DiesAtStep30(runner.env))
+        metrics = runner.episode(seed)
         with log.open("a") as f:
             f.write(f"{seed.index}\n")
         return metrics
 
-    parallel = parallel_map(build_evaluation, dies_once, job, episode_seeds(7, EPISODES),
+    parallel = parallel_map(build_runner, dies_once, job, episode_seeds(7, EPISODES),
                             Workers(2))
     assert marker.exists()
     assert sorted(int(i) for i in log.read_text().split()) == list(range(EPISODES))
@@ -149,7 +154,7 @@ def test_one_map_of_several_jobs_gives_each_job_its_own_results(ray_runtime, job
     from dynoplan.pipeline.evaluate import evaluate_many
 
     seeds = episode_seeds(7, EPISODES)
-    script = EvalJob(job.models, "fixed_script", QUICK_PLANNER)
+    script = dataclasses.replace(job, controller="fixed_script")
     both = evaluate_many([(script, seeds[:2]), (job, seeds)], Workers(2))
     assert [_comparable(m) for m in both[1]] == [_comparable(m) for m in serial]
     assert [_comparable(m) for m in both[0]] == \

@@ -12,10 +12,9 @@ from pathlib import Path
 import pytest
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_jobs import EvalJob
 from dynoplan.experiments.sweep import cell_key, run_sweep
 from dynoplan.experiments.sweep_config import load_sweep_config
-from dynoplan.pipeline.evaluate import EpisodeRecord
+from dynoplan.pipeline.evaluate import ControllerJob, EpisodeRecord
 from dynoplan.seeding import EpisodeSeed
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,16 +32,16 @@ seed = [0, 1]
 calls: list[tuple[int, int]] = []
 
 
-def fake_setup(job: EvalJob) -> EvalJob:
+def fake_setup(job: ControllerJob) -> ControllerJob:
     return job
 
 
-def fake_run(job: EvalJob, seed: EpisodeSeed) -> EpisodeRecord:
+def fake_run(job: ControllerJob, seed: EpisodeSeed) -> EpisodeRecord:
     """A stand-in episode: succeeds when horizon + episode index is even."""
-    calls.append((job.planner.horizon, seed.index))
+    calls.append((job.settings.horizon, seed.index))
     if len(calls) == STOP_AT[0]:
         raise KeyboardInterrupt  # the user pressed Ctrl-C mid-sweep
-    return EpisodeRecord(seed.env_seed, (job.planner.horizon + seed.index) % 2 == 0, 20, 0.0,
+    return EpisodeRecord(seed.env_seed, (job.settings.horizon + seed.index) % 2 == 0, 20, 0.0,
                          1, 1, 0, 0, (0.1,), (("pick", 20),), ("pick",),
                          {"human_mode": "away", "contacts": 0, "min_human_distance": 0.5})
 
@@ -108,7 +107,7 @@ def test_damaged_or_stale_cell_files_are_computed_again(sweep_dir: Path):
 
 @pytest.mark.parametrize(("text", "message"), [
     ("episodes = 2\n[grid]\nhorizon = [2]\n", "models: expected the models folder"),
-    ('models = "m"\n[grid]\nhorizon = [0]\n', "grid.horizon: expected an integer >= 1"),
+    ('models = "m"\n[grid]\nhorizon = [0]\n', "grid.horizon: expected an integer in 1..1000"),
     ('models = "m"\n[grid]\nhorizon = "6"\n', "grid.horizon: expected a non-empty list"),
     ('models = "m"\n[grid]\nhorizons = [6]\n', "grid.horizons: unknown key"),
     ('models = "m"\n[grid]\nmargin = [-0.1]\n', "grid.margin: expected a number >= 0"),

@@ -1,6 +1,8 @@
-"""Atomic output files: write to a temporary file beside the target, then rename.
+"""Atomic outputs: write to a temporary file or folder beside the target, then rename.
 
-A reader never sees a half-written file: either the old file, or the complete new one.
+A reader never sees a half-written output: either the old file (folder), or the complete
+new one. Temporary names carry the writer's process id, so a leftover of a killed run is
+recognised (its process is gone) and removed by the next write of the same target.
 :func:`read_json_object` reads the JSON documents dynoplan writes back, with one error
 line for a missing, unreadable or malformed file.
 """
@@ -8,6 +10,8 @@ line for a missing, unreadable or malformed file.
 import csv
 import json
 import os
+import shutil
+import signal
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -21,14 +25,17 @@ from dynoplan.errors import DynoplanError
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; rename it onto ``path`` on success.
 
-    The temporary name keeps the target's suffix so that libraries choosing a format by
-    extension (matplotlib, imageio) still work.
+    The temporary name (``.<stem>.<pid>.<random>.tmp<suffix>``) keeps the target's suffix
+    so that libraries choosing a format by extension (matplotlib, imageio) still work. On
+    any exception, ``KeyboardInterrupt`` included, it is removed; leftovers of killed
+    processes for the same target are removed first.
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=target.parent
-    )
+    prefix, suffix = f".{target.stem}.", f".tmp{target.suffix}"
+    remove_stale(target.parent, prefix, suffix)
+    fd, tmp_name = tempfile.mkstemp(prefix=f"{prefix}{os.getpid()}.", suffix=suffix,
+                                    dir=target.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     os.chmod(tmp, 0o666 & ~current_umask())  # mkstemp makes 0600; outputs get the usual mode
@@ -38,6 +45,173 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def remove_stale(folder: Path, prefix: str, suffix: str) -> None:
+    """Remove the entries ``<prefix><pid>.<anything><suffix>`` of ``folder`` whose process
+    ``pid`` no longer runs: temporary files or folders of a killed writer."""
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for name in names:
+        if not (name.startswith(prefix) and name.endswith(suffix)):
+            continue
+        pid = name[len(prefix):].partition(".")[0]
+        if not pid.isdigit() or _running(int(pid)):
+            continue
+        stale = folder / name
+        if stale.is_dir() and not stale.is_symlink():
+            shutil.rmtree(stale, ignore_errors=True)
+        else:
+            stale.unlink(missing_ok=True)
+
+
+def _running(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
+@contextmanager
+def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[Path]:
+    """Yield a new folder beside ``path`` to write into; move its content onto ``path``
+    only when the block completes.
+
+    On any exception (``KeyboardInterrupt`` and SIGTERM included, see
+    :func:`dynoplan.cli.main.main`) the staged folder is removed and ``path`` is left as
+    it was; folders created for it are removed again. On success, with ``keep`` False,
+    each top-level entry of the staged folder replaces the entry of that name in ``path``
+    (other entries of ``path`` stay); with ``keep`` True the staged folder starts as a
+    copy of ``path`` and replaces it whole, so ``path`` is the previous folder, complete,
+    until the new one is. The move runs with SIGINT and SIGTERM blocked.
+
+    Raises:
+        DynoplanError: ``path`` is a file, or its parent cannot be created or written.
+    """
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise DynoplanError(f"{target}: is a file, expected a folder")
+    created = _make_dirs(target.parent)
+    try:
+        ensure_writable_dir(target.parent)
+        prefix = f".{target.name}."
+        for suffix in (".staging", ".old"):
+            remove_stale(target.parent, prefix, suffix)
+        stage = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}.", suffix=".staging",
+                                      dir=target.parent))
+    except BaseException:
+        _remove_empty(created)
+        raise
+    try:
+        os.chmod(stage, 0o777 & ~current_umask())  # mkdtemp makes 0700
+        if keep and target.is_dir():
+            shutil.copytree(target, stage, symlinks=True, dirs_exist_ok=True)
+        yield stage
+        fsync_tree(stage)
+        with _signals_blocked():
+            _install(stage, target, whole=keep and not Path.cwd().is_relative_to(
+                target.resolve()))
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        _remove_empty(created)
+        raise
+
+
+def _install(stage: Path, target: Path, whole: bool) -> None:
+    """Move ``stage`` onto ``target`` (whole: replace it; else entry by entry)."""
+    if not target.exists():
+        os.rename(stage, target)
+    elif whole:
+        _swap(stage, target)
+    else:
+        for entry in sorted(stage.iterdir()):
+            dest = target / entry.name
+            if dest.is_dir() and not dest.is_symlink():
+                _swap(entry, dest)
+            else:
+                os.replace(entry, dest)
+        stage.rmdir()
+    fsync_dir(target.parent)
+
+
+def _swap(new: Path, target: Path) -> None:
+    """Replace the folder ``target`` by ``new`` (two renames; the old one is deleted)."""
+    old = Path(tempfile.mkdtemp(prefix=f".{target.name}.{os.getpid()}.", suffix=".old",
+                                dir=target.parent))
+    os.rename(target, old / target.name)
+    try:
+        os.rename(new, target)
+    except BaseException:
+        os.rename(old / target.name, target)
+        raise
+    finally:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+@contextmanager
+def _signals_blocked() -> Iterator[None]:
+    signals = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _make_dirs(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; the ones created, deepest first."""
+    missing = []
+    current = folder
+    while not current.exists() and current != current.parent:
+        missing.append(current)
+        current = current.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DynoplanError(f"output folder {folder} is not writable: "
+                            f"{exc.strerror}") from None
+    return missing
+
+
+def _remove_empty(folders: Sequence[Path]) -> None:
+    for folder in folders:  # deepest first
+        try:
+            folder.rmdir()
+        except OSError:
+            return
+
+
+def fsync_dir(folder: Path) -> None:
+    """Flush a folder's entries (a rename into it) to disk."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_tree(folder: Path) -> None:
+    """Flush every file under ``folder`` before a rename, so that a crash cannot expose
+    empty files."""
+    for item in sorted(folder.rglob("*")):
+        if item.is_symlink():
+            continue
+        if item.is_dir():
+            fsync_dir(item)
+        else:
+            fd = os.open(item, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+    fsync_dir(folder)
 
 
 def current_umask() -> int:
@@ -76,9 +250,11 @@ def ensure_writable_dir(path: str | os.PathLike[str]) -> Path:
     """Create ``path`` if needed and check that files can be created in it.
 
     Raises:
-        DynoplanError: the folder cannot be created or written.
+        DynoplanError: the path is a file, or the folder cannot be created or written.
     """
     folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise DynoplanError(f"{folder}: is a file, expected a folder")
     try:
         folder.mkdir(parents=True, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".write-check.", dir=folder)

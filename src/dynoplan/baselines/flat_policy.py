@@ -34,6 +34,10 @@ JOINT_STEP = 0.05  # rad per decision at |a| = 1
 MAX_STEPS = 400
 FORMAT_VERSION = 1
 NET_ARCH = (128, 128)
+NET_ARCH_MAX_LAYERS = 8
+"""Hidden layers a flat policy's ``net_arch`` may list at most."""
+OBS_DIM, ACTION_DIM = 50, 7
+META_FILE, WEIGHTS_FILE = "flat_policy.json", "flat_policy.safetensors"
 F32 = npt.NDArray[np.float32]
 
 
@@ -44,8 +48,9 @@ class FlatGearTask(gym.Wrapper[Any, Any, Any, Any]):
         base = env or GearAssemblyEnv(max_episode_steps=MAX_STEPS)
         super().__init__(base)
         self.gear_env = base
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(50,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(ACTION_DIM,), dtype=np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,),
+                                            dtype=np.float32)
         self._tcp = base.model.site("l_tcp").id
 
     def reset(self, *, seed: int | None = None,
@@ -122,9 +127,51 @@ def save_flat_policy(fitted: tuple[dict[str, Any], dict[str, Any]], out: Path) -
 
     state, report = fitted
     out.mkdir(parents=True, exist_ok=True)
-    write_with(out / "flat_policy.safetensors", lambda p: save_file(state, str(p)))
-    write_json(out / "flat_policy.json", report)
+    write_with(out / WEIGHTS_FILE, lambda p: save_file(state, str(p)))
+    write_json(out / META_FILE, report)
     return report
+
+
+def read_flat_policy(folder: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The checked metadata and weights (``state_dict``, CPU tensors) of a flat policy
+    folder written by :func:`save_flat_policy`; no network is built.
+
+    Raises:
+        DynoplanError: one line naming the file and the field: a missing or malformed
+            ``flat_policy.json`` (not an object, another ``format_version``, a
+            ``net_arch`` that is not a list of 1 to :data:`NET_ARCH_MAX_LAYERS` positive
+            integers, or that describes a network larger than the weights file), an
+            unreadable weights file, or a weight that is NaN or infinite.
+    """
+    from safetensors.torch import load_file
+
+    from dynoplan.models.mlp_file import check_parameter_count
+
+    meta_path, weights = folder / META_FILE, folder / WEIGHTS_FILE
+    meta = read_json_object(meta_path, "flat policy's metadata")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise DynoplanError(f"{meta_path}: format_version {meta.get('format_version')!r}, "
+                            f"expected {FORMAT_VERSION}")
+    arch = meta.get("net_arch")
+    if (not isinstance(arch, list) or not 1 <= len(arch) <= NET_ARCH_MAX_LAYERS
+            or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
+                       for h in arch)):
+        raise DynoplanError(f"{meta_path}: field 'net_arch' must be a list of 1 to "
+                            f"{NET_ARCH_MAX_LAYERS} positive integers, got {arch!r}")
+    if not weights.is_file():
+        raise DynoplanError(f"{weights}: flat-policy weights not found")
+    try:
+        state = load_file(str(weights))
+    except Exception as exc:  # safetensors raises several types on corrupt files
+        raise DynoplanError(f"{weights}: not a valid flat-policy file "
+                            f"({exc.__class__.__name__})") from None
+    for name, tensor in state.items():
+        if tensor.is_floating_point() and not bool(tensor.isfinite().all()):
+            raise DynoplanError(f"{weights}: tensor '{name}' must be finite, it holds NaN "
+                                "or infinity")
+    check_parameter_count(weights, {k: v.numpy() for k, v in state.items()},
+                          [OBS_DIM, *arch, ACTION_DIM])
+    return meta, state
 
 
 class FlatPolicy:
@@ -132,23 +179,23 @@ class FlatPolicy:
     :class:`GearAssemblyEnv` (it applies the same action mapping as training)."""
 
     def __init__(self, folder: Path, env: GearAssemblyEnv) -> None:
-        from safetensors.torch import load_file
+        """Load the policy in ``folder`` (:func:`read_flat_policy` checks it first).
+
+        Raises:
+            DynoplanError: as :func:`read_flat_policy`, or weights of another network.
+        """
         from stable_baselines3 import PPO
 
-        meta_path = folder / "flat_policy.json"
-        weights = folder / "flat_policy.safetensors"
-        meta = read_json_object(meta_path, "flat policy's metadata")
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise DynoplanError(f"{meta_path}: format_version {meta.get('format_version')!r}, "
-                                f"expected {FORMAT_VERSION}")
+        meta, state = read_flat_policy(folder)
         self.wrapper = FlatGearTask(env)
         self.model = PPO("MlpPolicy", self.wrapper, device="cpu",
                          policy_kwargs={"net_arch": list(meta["net_arch"])})
         try:
-            self.model.policy.load_state_dict(load_file(str(weights)))
-        except Exception as exc:  # safetensors raises several types on corrupt files
-            raise DynoplanError(f"{weights}: not a valid flat-policy file "
-                                f"({exc.__class__.__name__})") from None
+            self.model.policy.load_state_dict(state)
+        except RuntimeError as exc:  # missing, unexpected or mis-shaped tensors
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise DynoplanError(f"{folder / WEIGHTS_FILE}: weights do not fit the net_arch "
+                                f"{meta['net_arch']} of {META_FILE} ({first})") from None
         self.meta = meta
         self.env = env
 
@@ -161,5 +208,5 @@ class FlatPolicy:
         return np.concatenate([np.clip(q, lim[:, 0], lim[:, 1]), [(a[6] + 1.0) / 2.0]])
 
 
-__all__ = ["FlatGearTask", "FlatPolicy", "fit_flat_policy", "save_flat_policy",
-           "train_flat_policy"]
+__all__ = ["FlatGearTask", "FlatPolicy", "fit_flat_policy", "read_flat_policy",
+           "save_flat_policy", "train_flat_policy"]

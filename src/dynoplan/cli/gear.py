@@ -6,7 +6,16 @@ from typing import Any
 
 import typer
 
+from dynoplan.cli.params import folder
 from dynoplan.cli.workers import ray_address_option, workers_option
+from dynoplan.limits import (
+    EPISODES_MAX,
+    HORIZON_MAX,
+    POINTS_MAX,
+    SAMPLES_MAX,
+    SEED_MAX,
+    STEPS_MAX,
+)
 
 gear_app = typer.Typer(
     help="The simulated PR2 gear assembly: scripted expert, demonstrations, renders.",
@@ -18,16 +27,19 @@ DEFAULT_MODELS = Path("results/gear-models")
 
 @gear_app.command("expert")
 def expert(
-    episodes: int = typer.Option(100, help="Seeded episodes to run."),
-    seed: int = typer.Option(0, help="Seed from which every episode's seed is derived."),
-    out: Path = typer.Option(Path("results/gear-expert"), help="Output folder."),
+    episodes: int = typer.Option(100, min=1, max=EPISODES_MAX, help="Seeded episodes to run."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Seed from which every episode's seed is derived."),
+    out: Path = typer.Option(Path("results/gear-expert"), callback=folder, help="Output folder."),
     human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Run the scripted expert; write OUT/summary.json (success, contacts, speed)."""
     from dynoplan.experiments.gear_expert import run_expert
+    from dynoplan.io import staged_folder
 
-    summary = run_expert(episodes, seed, out, progress=not quiet, human_mode=human)
+    with staged_folder(out) as folder:
+        summary = run_expert(episodes, seed, folder, progress=not quiet, human_mode=human)
     typer.echo(
         f"success {summary['success_rate']:.1%} ({summary['successes']}/{summary['episodes']}),"
         f" robot-human contacts {summary['contacts']}, min distance "
@@ -41,10 +53,13 @@ QUICK_STAGE_HELP = "Sizes of gear run --quick instead of gear run's."
 
 @gear_app.command("demos")
 def demos(
-    n: int | None = typer.Option(None, "--n", help="Demonstrations to record (default: gear "
+    n: int | None = typer.Option(None, "--n", min=1, max=EPISODES_MAX,
+                                 help="Demonstrations to record (default: gear "
                                  "run's, 10 as in the paper)."),
-    seed: int = typer.Option(0, help="Seed from which every episode's seed is derived."),
-    out: Path = typer.Option(Path("results/gear-demos"), help="Dataset folder to write."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Seed from which every episode's seed is derived."),
+    out: Path = typer.Option(Path("results/gear-demos"), callback=folder,
+                             help="Dataset folder to write."),
     heldout: bool = typer.Option(False, "--heldout", help="Record the held-out trials "
                                  "instead (gear run's OUT/heldout): episodes of seeds "
                                  "disjoint from the demonstrations'."),
@@ -53,7 +68,8 @@ def demos(
                                             "an operator chaining the four option "
                                             "policies) or expert (the scripted expert, "
                                             "with privileged state)."),
-    models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Folder of the neural options' networks "
                                 "for --demonstrator options (trained there first if "
                                 "missing)."),
     quick: bool = typer.Option(False, "--quick", help=QUICK_STAGE_HELP),
@@ -85,8 +101,8 @@ def demos(
 
 @gear_app.command("render")
 def render(
-    seed: int = typer.Option(0, help="Episode seed."),
-    out: Path = typer.Option(Path("results/gear-render"), help="Output folder."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Episode seed."),
+    out: Path = typer.Option(Path("results/gear-render"), callback=folder, help="Output folder."),
     video: bool = typer.Option(True, "--video/--no-video", help="Also write episode.mp4."),
     human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
 ) -> None:
@@ -94,23 +110,29 @@ def render(
     # Headless machines: MuJoCo picks its GL backend when first imported.
     os.environ.setdefault("MUJOCO_GL", "egl")
     from dynoplan.experiments.gear_expert import render_scene
+    from dynoplan.io import staged_folder
 
-    written = render_scene(out, seed=seed, video=video, human_mode=human)
-    typer.echo(" ".join(str(p) for p in written.values()))
+    with staged_folder(out) as folder:
+        written = render_scene(folder, seed=seed, video=video, human_mode=human)
+    typer.echo(" ".join(str(out / p.name) for p in written.values()))
 
 
 @gear_app.command("option")
 def option(
     name: str = typer.Argument(..., help="pick, fast_move, cautious_move, insert, or an option "
                                "registered by a module named in DYNOPLAN_GEAR_OPTIONS."),
-    trials: int = typer.Option(100, help="Seeded trials from the option's own start region."),
-    seed: int = typer.Option(0, help="Trial i uses numpy default_rng([seed, i])."),
-    out: Path = typer.Option(Path("results/gear-option"), help="Output folder."),
-    models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
+    trials: int = typer.Option(100, min=1, max=EPISODES_MAX,
+                               help="Seeded trials from the option's own start region."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Trial i uses numpy default_rng([seed, i])."),
+    out: Path = typer.Option(Path("results/gear-option"), callback=folder, help="Output folder."),
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
     human: str | None = typer.Option(None, help="Human mode (default: the option's own; "
                                      "block for cautious_move, away for the others)."),
-    max_steps: int = typer.Option(600, help="Env steps per trial before giving up."),
+    max_steps: int = typer.Option(600, min=1, max=STEPS_MAX,
+                                  help="Env steps per trial before giving up."),
     video: bool = typer.Option(False, "--video", help="Also render trial 0 to OUT/NAME.mp4."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
@@ -141,12 +163,17 @@ def option(
 
 @gear_app.command("collect")
 def collect(
-    runs: int | None = typer.Option(None, help="Runs per option (default: gear run's)."),
-    seed: int = typer.Option(0, help="Run r of option k uses default_rng([seed, k, r])."),
-    out: Path = typer.Option(Path("results/gear-transitions"), help="Dataset folder."),
-    models: Path = typer.Option(DEFAULT_MODELS, help="Folder of the neural options' networks "
+    runs: int | None = typer.Option(None, min=1, max=EPISODES_MAX,
+                                    help="Runs per option (default: gear run's)."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Run r of option k uses default_rng([seed, k, r])."),
+    out: Path = typer.Option(Path("results/gear-transitions"), callback=folder,
+                             help="Dataset folder."),
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
-    max_decisions: int | None = typer.Option(None, help="Decisions (0.5 s each) per run at "
+    max_decisions: int | None = typer.Option(None, min=1, max=STEPS_MAX,
+                                             help="Decisions (0.5 s each) per run at "
                                              "most (default: gear run's)."),
     quick: bool = typer.Option(False, "--quick", help=QUICK_STAGE_HELP),
     workers: str = workers_option(),
@@ -173,18 +200,73 @@ def collect(
     typer.echo(f"{summary['runs']} runs, transitions: {counts} -> {out}")
 
 
+@gear_app.command("outcomes")
+def outcomes(
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Models folder (gear train, or gear "
+                                "run's OUT/models): the option networks are read from it and "
+                                "the learned initiation is written into it."),
+    out: Path = typer.Option(Path("results/gear-outcomes"), callback=folder,
+                             help="Dataset folder of the outcome runs."),
+    runs: int = typer.Option(40, min=1, max=EPISODES_MAX, help="Runs per option."),
+    max_decisions: int = typer.Option(30, min=1, max=STEPS_MAX,
+                                      help="Decisions (0.5 s each) an option may run."),
+    lead_decisions: int = typer.Option(12, min=0, max=STEPS_MAX,
+                                       help="Decisions the source option may run first."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Run r of option o uses default_rng([seed, 17, o, r])."),
+    collect: bool = typer.Option(True, "--collect/--fit-only", help="Run the options first "
+                                 "(else fit on the dataset OUT as it is)."),
+    workers: str = workers_option(),
+    ray_address: str | None = ray_address_option(),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Run every option from starts beyond its own region and learn, from what came of
+    it, where each option may start (initiation from outcomes, Bagaria et al. 2023)."""
+    import json
+
+    import torch
+
+    from dynoplan.experiments.gear_outcomes import (
+        OutcomeSettings,
+        collect_outcomes,
+        fit_gear_initiation,
+    )
+    from dynoplan.io import write_json
+    from dynoplan.parallel import parse_workers, ray_session
+
+    pool = parse_workers(workers, ray_address)
+    torch.set_num_threads(1)
+    if collect:
+        with ray_session(pool):
+            summary = collect_outcomes(models, seed, out, OutcomeSettings(
+                runs, max_decisions, lead_decisions), progress=not quiet, workers=pool)
+        write_json(out / "outcomes.json", summary)
+        typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
+            f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
+            for n in summary["starts"]))
+    report = fit_gear_initiation(models, out, seed)
+    write_json(models / "initiation.json", report)
+    typer.echo(json.dumps(report["options"]))
+    typer.echo(f"-> {out}, {report['file']}, {models}/initiation.json")
+
+
 @gear_app.command("train")
 def train(
-    demos: Path = typer.Option(Path("results/gear-demos"), help="Demonstrations dataset."),
-    transitions: Path | None = typer.Option(None, help="Option transitions dataset "
+    demos: Path = typer.Option(Path("results/gear-demos"), callback=folder,
+                               help="Demonstrations dataset."),
+    transitions: Path | None = typer.Option(None, callback=folder,
+                                            help="Option transitions dataset "
                                             "(default: the demonstrations subsampled)."),
-    heldout: Path | None = typer.Option(None, help="Held-out trials (gear demos --heldout; "
+    heldout: Path | None = typer.Option(None, callback=folder,
+                                        help="Held-out trials (gear demos --heldout; "
                                         "default: recorded into OUT/heldout-demos by the "
                                         "demonstrations' demonstrator)."),
-    out: Path = typer.Option(DEFAULT_MODELS, help="Models folder (metrics.json too; the "
+    out: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                             help="Models folder (metrics.json too; the "
                              "option networks too, trained there first if the held-out "
                              "trials need them)."),
-    seed: int = typer.Option(0, help="Seed of every fit."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of every fit."),
     quick: bool = typer.Option(False, "--quick", help="Small settings (those of gear run "
                                "--quick)."),
     workers: str = workers_option(),
@@ -211,14 +293,18 @@ def train(
 
 @gear_app.command("figures")
 def figures(
-    models: Path = typer.Option(DEFAULT_MODELS, help="Models folder (dynoplan gear train)."),
-    demos: Path = typer.Option(Path("results/gear-demos"), help="Demonstrations dataset."),
-    heldout: Path | None = typer.Option(None, help="Held-out trials (default: "
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Models folder (dynoplan gear train)."),
+    demos: Path = typer.Option(Path("results/gear-demos"), callback=folder,
+                               help="Demonstrations dataset."),
+    heldout: Path | None = typer.Option(None, callback=folder, help="Held-out trials (default: "
                                         "MODELS/heldout-demos)."),
-    out: Path = typer.Option(Path("results/gear-figures"), help="Output folder."),
-    seed: int = typer.Option(0, help="t-SNE seed."),
-    trial: int = typer.Option(0, help="Held-out trial drawn in Fig. 3(a)."),
-    points: int | None = typer.Option(None, help="States embedded by t-SNE at most "
+    out: Path = typer.Option(Path("results/gear-figures"), callback=folder, help="Output folder."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX, help="t-SNE seed."),
+    trial: int = typer.Option(0, min=0, max=EPISODES_MAX - 1,
+                              help="Held-out trial drawn in Fig. 3(a)."),
+    points: int | None = typer.Option(None, min=10, max=POINTS_MAX,
+                                      help="States embedded by t-SNE at most "
                                       "(default: gear run's)."),
     quick: bool = typer.Option(False, "--quick", help=QUICK_STAGE_HELP),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -235,13 +321,16 @@ def figures(
 
 @gear_app.command("run")
 def run(
-    out: Path = typer.Option(Path("results/gear"), help="Output folder (everything goes here)."),
-    seed: int = typer.Option(0, help="Seed of every stage."),
+    out: Path = typer.Option(Path("results/gear"), callback=folder,
+                             help="Output folder (everything goes here)."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of every stage."),
     quick: bool = typer.Option(False, "--quick", help="Small settings of every stage (under "
                                "2 minutes on two free cores; the defaults: under 10)."),
-    episodes: int | None = typer.Option(None, help="Evaluation episodes per controller "
+    episodes: int | None = typer.Option(None, min=1, max=EPISODES_MAX,
+                                        help="Evaluation episodes per controller "
                                         "(default 100; --quick 6)."),
-    oracle_episodes: int | None = typer.Option(None, help="Episodes of the simulator "
+    oracle_episodes: int | None = typer.Option(None, min=0, max=EPISODES_MAX,
+                                               help="Episodes of the simulator "
                                                "oracle (the first of the same list)."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
@@ -278,17 +367,25 @@ def run(
 
 @gear_app.command("evaluate")
 def evaluate(
-    models: Path = typer.Option(DEFAULT_MODELS, help="Models folder (gear train, or gear "
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
-    out: Path = typer.Option(Path("results/gear-eval"), help="Output folder."),
+    out: Path = typer.Option(Path("results/gear-eval"), callback=folder, help="Output folder."),
     controllers: str = typer.Option("dynoplan", help="Comma-separated controllers: dynoplan, "
-                                    "oracle, fixed_script, random, flat_ppo."),
-    episodes: int = typer.Option(100, help="Episodes per controller."),
-    seed: int = typer.Option(0, help="Episodes are gear run's for the same seed."),
-    horizon: int | None = typer.Option(None, help="Planner horizon (default 10)."),
-    samples: int | None = typer.Option(None, help="Monte-Carlo rollouts per option "
+                                    "oracle, fixed_script, random, flat_ppo, or a variant on "
+                                    "other initiation sets: dynoplan_learned, random_learned, "
+                                    "dynoplan_regions, random_regions, dynoplan_everywhere, "
+                                    "random_everywhere."),
+    episodes: int = typer.Option(100, min=1, max=EPISODES_MAX, help="Episodes per controller."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Episodes are gear run's for the same seed."),
+    horizon: int | None = typer.Option(None, min=1, max=HORIZON_MAX,
+                                       help="Planner horizon (default 10)."),
+    samples: int | None = typer.Option(None, min=1, max=SAMPLES_MAX,
+                                       help="Monte-Carlo rollouts per option "
                                        "(default 64)."),
-    flat: Path | None = typer.Option(None, help="The flat policy's folder for flat_ppo "
+    flat: Path | None = typer.Option(None, callback=folder,
+                                     help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
@@ -297,19 +394,22 @@ def evaluate(
     """Evaluate controllers on trained models only; writes results and the wall time."""
     from dataclasses import replace
 
-    from dynoplan.experiments.gear_controllers import PlannerSettings
+    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
+    from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
-    planner = PlannerSettings()
+    planner = GEAR_CONTROL
     if horizon is not None:
         planner = replace(planner, horizon=horizon)
     if samples is not None:
         planner = replace(planner, samples=samples)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
-    summary = run_gear_evaluation(models, out, names, episodes, seed, planner,
-                                  flat or models.parent / "flat_ppo", pool, progress=not quiet)
+    with staged_folder(out) as folder:
+        summary = run_gear_evaluation(models, folder, names, episodes, seed, planner,
+                                      flat or models.parent / "flat_ppo", pool,
+                                      progress=not quiet)
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
@@ -317,13 +417,16 @@ def evaluate(
 
 @gear_app.command("episode")
 def episode(
-    index: int = typer.Option(..., help="Evaluation episode, 0-based (as in episodes.json)."),
-    models: Path = typer.Option(DEFAULT_MODELS, help="Models folder (gear train, or gear "
+    index: int = typer.Option(..., min=0, max=EPISODES_MAX - 1,
+                              help="Evaluation episode, 0-based (as in episodes.json)."),
+    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+                                help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
-    controller: str = typer.Option("dynoplan", help="dynoplan, oracle, fixed_script or "
-                                   "random."),
-    seed: int = typer.Option(0, help="Episodes are gear run's for the same seed."),
-    out: Path = typer.Option(Path("results/gear-episode"), help="Output folder."),
+    controller: str = typer.Option("dynoplan", help="dynoplan, oracle, fixed_script, random "
+                                   "or a variant (see gear evaluate --help)."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX,
+                             help="Episodes are gear run's for the same seed."),
+    out: Path = typer.Option(Path("results/gear-episode"), callback=folder, help="Output folder."),
     video: bool = typer.Option(False, "--video", help="Also render the episode offscreen "
                                "to OUT/episode.mp4."),
 ) -> None:
@@ -334,18 +437,19 @@ def episode(
     from dynoplan.experiments.gear_eval import seconds
     from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
     from dynoplan.experiments.gear_run import save_video, video_clip
-    from dynoplan.io import ensure_writable_dir, write_csv, write_json
+    from dynoplan.io import staged_folder, write_csv, write_json
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
     metrics, rows, human = inspect_episode(models, controller, index, seed, frames=frames)
-    ensure_writable_dir(out)
-    write_csv(out / "trace.csv", rows)
     summary = episode_summary(metrics, controller, index, seed, human)
-    if frames is not None:
-        clip = video_clip(frames, metrics.success, [o for o in metrics.options if o != "hold"])
-        summary["video"] = save_video(clip, metrics, index, out / "episode.mp4")
-    write_json(out / "summary.json", summary)
+    with staged_folder(out) as folder:
+        write_csv(folder / "trace.csv", rows)
+        if frames is not None:
+            clip = video_clip(frames, metrics.success,
+                              [o for o in metrics.options if o != "hold"])
+            summary["video"] = save_video(clip, metrics, index, folder / "episode.mp4")
+        write_json(folder / "summary.json", summary)
     events = ", ".join(human["events"]) or "away"
     measured = metrics.task_metrics
     typer.echo(f"episode {index} ({events}): {controller} "

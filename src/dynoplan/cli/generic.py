@@ -16,8 +16,18 @@ from typing import Any
 
 import typer
 
+from dynoplan.cli.params import folder
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.errors import DynoplanError, DynoplanWarning
+from dynoplan.limits import (
+    EPISODES_MAX,
+    EPOCHS_MAX,
+    HORIZON_MAX,
+    SAMPLES_MAX,
+    SEED_MAX,
+    STEPS_MAX,
+    STRIDE_MAX,
+)
 
 generic_app = typer.Typer(
     help="DynoPlan on any Gymnasium environment with a Box observation space.",
@@ -57,18 +67,26 @@ def pipeline(
         help="MODULE:FUNCTION returning the scripted demonstrator "
              "(default: make_demonstrator in the --options module)."),
     demo_dataset: Path | None = typer.Option(
-        None, "--demo-dataset", help="Use recorded demonstrations (a dataset folder) instead."),
-    demos: int = typer.Option(5, "--demos", help="Demonstrations to record."),
-    explore: int = typer.Option(20, "--explore",
+        None, "--demo-dataset", callback=folder,
+        help="Use recorded demonstrations (a dataset folder) instead."),
+    demos: int = typer.Option(5, "--demos", min=1, max=EPISODES_MAX,
+                              help="Demonstrations to record."),
+    explore: int = typer.Option(20, "--explore", min=1, max=EPISODES_MAX,
                                 help="Episodes of random options for the dynamics models."),
-    episodes: int = typer.Option(100, "--episodes", help="Evaluation episodes per controller."),
-    seed: int = typer.Option(0, "--seed", help="Seed of every random choice."),
-    out: Path = typer.Option(Path("results/pipeline"), "--out", help="Output folder."),
-    stride: int = typer.Option(1, "--stride", help="Environment steps per model step."),
-    horizon: int = typer.Option(20, "--horizon", help="Planning horizon n, in model steps."),
-    samples: int = typer.Option(32, "--samples", help="Monte-Carlo rollouts per option."),
+    episodes: int = typer.Option(100, "--episodes", min=1, max=EPISODES_MAX,
+                                 help="Evaluation episodes per controller."),
+    seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of every random choice."),
+    out: Path = typer.Option(Path("results/pipeline"), "--out", callback=folder,
+                             help="Output folder."),
+    stride: int = typer.Option(1, "--stride", min=1, max=STRIDE_MAX,
+                               help="Environment steps per model step."),
+    horizon: int = typer.Option(20, "--horizon", min=1, max=HORIZON_MAX,
+                                help="Planning horizon n, in model steps."),
+    samples: int = typer.Option(32, "--samples", min=1, max=SAMPLES_MAX,
+                                help="Monte-Carlo rollouts per option."),
     replan_every: int = typer.Option(
-        10, "--replan-every", help="Plan again after this many steps (0: only when the "
+        10, "--replan-every", min=0, max=STEPS_MAX,
+        help="Plan again after this many steps (0: only when the "
                                    "option stops)."),
     regions: bool = typer.Option(True, "--regions/--no-regions",
                                  help="Fit the safety regions (Eq. 5) and enforce them."),
@@ -77,18 +95,21 @@ def pipeline(
         help="heldout: components and thresholds chosen on held-out demonstrations; "
              "bic: BIC and in-sample thresholds (the paper's reading)."),
     region_coverage: float = typer.Option(
-        0.95, "--region-coverage",
+        0.95, "--region-coverage", min=0.0, max=1.0,
         help="Share of (held-out) demonstration states of an option inside its region."),
     region_slack: float = typer.Option(
-        0.0, "--region-slack", help="Nats subtracted from every region threshold."),
+        0.0, "--region-slack", min=0.0, help="Nats subtracted from every region threshold."),
     region_components: int | None = typer.Option(
-        None, "--region-components", help="Mixture size (default: chosen by the fit)."),
+        None, "--region-components", min=1, max=64,
+        help="Mixture size per option (default: chosen by the fit)."),
     region_undemonstrated: str = typer.Option(
         "runs", "--region-undemonstrated",
         help="Region of an option no demonstration shows: runs (from its own exploration "
              "runs), none (never admissible), everywhere (its own initiation set)."),
-    dynamics_epochs: int = typer.Option(30, "--dynamics-epochs", help="Epochs per ensemble."),
-    goal_epochs: int = typer.Option(150, "--goal-epochs", help="Epochs of the goal network."),
+    dynamics_epochs: int = typer.Option(30, "--dynamics-epochs", min=1, max=EPOCHS_MAX,
+                                        help="Epochs per ensemble."),
+    goal_epochs: int = typer.Option(150, "--goal-epochs", min=1, max=EPOCHS_MAX,
+                                    help="Epochs of the goal network."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -96,6 +117,7 @@ def pipeline(
     """Collect, fit dynamics/goal/regions, run DynoPlan and compare with each option alone
     and random choice; writes OUT/summary.json, OUT/results.md, datasets and models."""
     from dynoplan.data.dataset import read_dataset
+    from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
     from dynoplan.pipeline import (
         ControllerSettings,
@@ -107,8 +129,6 @@ def pipeline(
         run_pipeline,
     )
 
-    if replan_every < 0:
-        raise DynoplanError(f"--replan-every must be >= 0, got {replan_every}")
     pool = parse_workers(workers, ray_address)
     task = GymTask(env, options)
     made = task.make_options()
@@ -135,11 +155,12 @@ def pipeline(
                                    replan_every=replan_every or None))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     settings.validate()
-    with warnings_as_lines():
+    # nothing of a failed run, the previous run's kept
+    with warnings_as_lines(), staged_folder(out) as folder:
         result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
-                              settings=settings, out=out, progress=not quiet,
-                              status=None if quiet else
-                              lambda m: typer.echo(f"-- {m}", err=True),
+                              settings=settings, out=folder, progress=not quiet,
+                              status=None if quiet else lambda m: typer.echo(f"-- {m}",
+                                                                             err=True),
                               command=command, workers=pool, task=task)
     typer.echo(result.table)
     typer.echo(result.admissibility_table)

@@ -19,9 +19,6 @@ reader drops the first row.
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
-import uuid
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +36,7 @@ from dynoplan.data.metadata import (
     read_metadata,
 )
 from dynoplan.errors import DynoplanError
-from dynoplan.io import current_umask, ensure_writable_dir, write_json
+from dynoplan.io import staged_folder, write_json
 
 DATA_DIR = "data"
 MAIN_FILE = "main_data.hdf5"
@@ -124,10 +121,7 @@ def write_dataset(
             raise DynoplanError(f"episode {index}: {problem}")
     _check_replaceable(target)
 
-    parent = ensure_writable_dir(target.parent)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
-    os.chmod(tmp, 0o777 & ~current_umask())  # mkdtemp makes 0700; give the usual mode
-    try:
+    with staged_folder(target) as tmp:
         data = tmp / DATA_DIR
         data.mkdir()
         _write_hdf5(data / MAIN_FILE, episodes)
@@ -141,11 +135,6 @@ def write_dataset(
             size_mb=size_mb,
         )
         write_json(data / METADATA_FILE, doc)
-        _fsync_tree(tmp)
-        _move_into_place(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return target
 
 
@@ -246,44 +235,6 @@ def _check_replaceable(target: Path) -> None:
         f"{target}: exists and is not a dataset folder (holds {', '.join(entries)}); "
         "refusing to replace it"
     )
-
-
-def _move_into_place(tmp: Path, target: Path) -> None:
-    if not target.exists():
-        os.rename(tmp, target)
-        _fsync_dir(target.parent)
-        return
-    old = target.with_name(f".{target.name}.{uuid.uuid4().hex}.old")
-    os.rename(target, old)
-    try:
-        os.rename(tmp, target)
-    except BaseException:
-        os.rename(old, target)
-        raise
-    _fsync_dir(target.parent)
-    shutil.rmtree(old, ignore_errors=True)
-
-
-def _fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_tree(folder: Path) -> None:
-    """Flush file contents before the rename, so a crash cannot expose empty files."""
-    for item in sorted(folder.rglob("*")):
-        if item.is_dir():
-            _fsync_dir(item)
-        else:
-            fd = os.open(item, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-    _fsync_dir(folder)
 
 
 # --- checks shared by writer and reader ----------------------------------------------

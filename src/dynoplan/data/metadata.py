@@ -147,7 +147,8 @@ def read_metadata(file: Path) -> tuple[DatasetMetadata, int, int]:
     """Parse ``metadata.json``; return the metadata, ``total_episodes`` and ``total_steps``.
 
     Raises:
-        DynoplanError: unreadable JSON or a missing or malformed field (named).
+        DynoplanError: unreadable JSON, a missing or malformed field (named), or no
+            episodes (``write_dataset`` writes none such).
     """
     raw = read_json_object(file, "dataset metadata file")
 
@@ -168,6 +169,9 @@ def read_metadata(file: Path) -> tuple[DatasetMetadata, int, int]:
         )
     total_episodes = get(raw, "total_episodes", int)
     total_steps = get(raw, "total_steps", int)
+    if total_episodes < 1 or total_steps < 0:  # every reader needs an episode to learn from
+        raise DynoplanError(f"{file}: field 'total_episodes' is {total_episodes} and "
+                            f"'total_steps' {total_steps}: expected at least one episode")
     spaces: dict[str, Any] = {
         name: _deserialize_space(get(raw, name, str), file, name)
         for name in ("observation_space", "action_space")

@@ -22,6 +22,12 @@ because 10 demonstrations cannot teach a mixture where the task's phases begin a
 An option the demonstrations do not show has no region: its own conditions alone decide
 (as :meth:`~dynoplan.pipeline.fit.FittedModels.initiation` does).
 
+:data:`VARIANTS` names the same choosers on other initiation sets
+(:data:`INITIATION_SETS`): ``dynoplan_learned`` and ``random_learned`` on the learned sets
+alone (no hand-written condition), ``*_regions`` on the Eq. 5 regions alone (the paper),
+``*_everywhere`` with no initiation set. Each option keeps its own policy and
+termination ``beta_w`` in every variant.
+
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
 rate too: the learned models step at the decision rate.
@@ -53,18 +59,59 @@ from dynoplan.envs.gear.options.preconditions import (
 from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
+from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion, Nowhere
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
+from dynoplan.pipeline.evaluate import ControllerSettings, with_dynamics_noise
 from dynoplan.pipeline.fit import FittedModels
 from dynoplan.planning import OptionPlanner, SimulatorOracle
 from dynoplan.types import FloatArray
 
 CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
-"""Option-level controllers, in table order (the flat PPO policy is run separately)."""
+"""Option-level controllers of ``gear run``'s table, in table order (the flat PPO policy
+is run separately)."""
+
+INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
+"""Where the options may start and go on (:func:`option_sets`):
+
+- ``rules``: each option's own hand-written conditions (its registry record) intersected
+  with its learned Eq. 5 region (:func:`preconditions`);
+- ``learned``: what was learned alone, no hand-written condition: the option's Eq. 5
+  region intersected with its initiation learned from outcomes
+  (:mod:`dynoplan.models.outcome_initiation`, when the models folder holds one), and the
+  region as the continuation set; an option with neither is not admissible;
+- ``regions``: the paper's method, the Eq. 5 regions alone (an option without a region
+  is admissible everywhere, as the paper's ``I = R^12``);
+- ``everywhere``: no initiation set at all (the paper: "the initiation set of all
+  policies is R^12")."""
+
+
+@dataclass(frozen=True)
+class ControllerVariant:
+    """A named controller: how it chooses (``planner``, ``oracle``, ``random`` or
+    ``script``) and on which initiation and continuation sets (of
+    :data:`INITIATION_SETS`)."""
+
+    chooser: str
+    sets: str
+
+
+VARIANTS: dict[str, ControllerVariant] = {
+    "dynoplan": ControllerVariant("planner", "rules"),
+    "oracle": ControllerVariant("oracle", "rules"),
+    "fixed_script": ControllerVariant("script", "everywhere"),
+    "random": ControllerVariant("random", "rules"),
+    "dynoplan_learned": ControllerVariant("planner", "learned"),
+    "random_learned": ControllerVariant("random", "learned"),
+    "dynoplan_regions": ControllerVariant("planner", "regions"),
+    "random_regions": ControllerVariant("random", "regions"),
+    "dynoplan_everywhere": ControllerVariant("planner", "everywhere"),
+    "random_everywhere": ControllerVariant("random", "everywhere"),
+}
+"""Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
+accept: :data:`CONTROLLERS` and the variants on other initiation sets."""
 
 FIXED_SCRIPT = ("pick", "fast_move", "insert")
 """The fixed script's options, each run until its policy reports it is finished."""
@@ -73,29 +120,22 @@ MAX_EPISODE_SECONDS = 40.0
 """Simulated seconds an episode may last (the env's own limit)."""
 
 
-@dataclass(frozen=True)
-class PlannerSettings:
-    """Eq. 1's ``n`` and ``S``, and the controller's switching margin.
+MAX_EPISODE_STEPS = round(MAX_EPISODE_SECONDS / CONTROL_DT)
 
-    Attributes:
-        horizon: decisions (0.5 s each) a learned rollout may take.
-        samples: Monte-Carlo rollouts per option.
-        oracle_horizon: decisions the simulator oracle simulates per rollout (it pays
-            real simulation time, so it may be shorter).
-        oracle_samples: simulated rollouts per option.
-        margin: score advantage another option needs to replace a running one (0.1:
-            near the peg the goal heuristic's estimates of the moves and the insertion
-            differ by less than their noise, and a smaller margin lets them take turns).
-        dynamics_noise: std of Gaussian noise added to every learned prediction (a
-            fault; 0 for none).
-    """
+GEAR_CONTROL = ControllerSettings(
+    horizon=10, samples=64, margin=0.1, replan_every=DECISION_STEPS,
+    max_decisions=MAX_EPISODE_STEPS, max_option_steps=MAX_EPISODE_STEPS, oracle_horizon=10,
+    oracle_samples=1)
+"""How the gear's controllers plan and run (``gear run``'s defaults):
 
-    horizon: int = 10
-    samples: int = 64
-    oracle_horizon: int = 10
-    oracle_samples: int = 1
-    margin: float = 0.1
-    dynamics_noise: float = 0.0
+- ``horizon``, ``samples``: Eq. 1's ``n`` (decisions of 0.5 s) and ``S``;
+- ``margin`` 0.1: near the peg the goal heuristic's estimates of the moves and the
+  insertion differ by less than their noise, and a smaller margin lets them take turns;
+- ``replan_every``: the choosers that replan (all but the fixed script) plan again every
+  decision period (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps);
+- ``oracle_horizon``, ``oracle_samples``: the simulator oracle's (it pays real simulation
+  time);
+- an episode and an option may run as long as the environment's limit."""
 
 
 def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
@@ -111,35 +151,23 @@ def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Ini
 
 
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
-                 factories: Mapping[str, GearPolicyFactory], regions: bool = True,
-                 terminations: bool = True, dynamics_noise: float = 0.0) -> list[Option]:
+                 factories: Mapping[str, GearPolicyFactory], sets: str = "rules",
+                 terminations: bool = True) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
     Args:
-        regions: initiation sets are the options' own conditions and learned safety
-            regions (:func:`preconditions`; else everywhere).
+        sets: their initiation and continuation sets, one of :data:`INITIATION_SETS`.
         terminations: each option's own ``beta_w`` (else 0: the option runs until its
             policy reports it is finished).
-        dynamics_noise: std of Gaussian noise on every learned prediction.
     """
     missing = [n for n in models.option_names if n not in factories]
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
-    learned = models.regions
-    if regions and learned is None:
-        raise DynoplanError("the gear's options need the learned safety regions")
     options = []
     for name in models.option_names:
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
-        if dynamics_noise > 0:
-            dynamics = NoisyDynamics(dynamics, dynamics_noise)
-        if regions and learned is not None:
-            shown = name in learned.option_names  # demonstrated: it has a region
-            initiation, continuation = preconditions(
-                name, InRegion(learned, name) if shown else None)
-        else:
-            initiation, continuation = Everywhere(), None
+        initiation, continuation = option_sets(name, models, sets)
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
@@ -147,33 +175,64 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
     return options
 
 
+def option_sets(name: str, models: FittedModels,
+                sets: str) -> tuple[Initiation, Initiation | None]:
+    """Option ``name``'s initiation and continuation sets (``None``: the same as its
+    initiation) under ``sets`` (one of :data:`INITIATION_SETS`)."""
+    if sets not in INITIATION_SETS:
+        raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
+                            f"{', '.join(INITIATION_SETS)}")
+    if sets == "everywhere":
+        return Everywhere(), None
+    learned = models.regions
+    if learned is None:
+        raise DynoplanError("the gear's options need the learned safety regions")
+    region = InRegion(learned, name) if name in learned.option_names else None
+    if sets == "rules":
+        return preconditions(name, region)
+    if sets == "regions":  # not demonstrated: no region, admissible everywhere
+        return (Everywhere() if region is None else region), None
+    outcomes = models.learned_initiation
+    from_outcomes: Initiation | None = (
+        InRegion(outcomes, name)
+        if outcomes is not None and name in outcomes.option_names else None)
+    if region is None:  # not demonstrated
+        return (Nowhere() if from_outcomes is None else from_outcomes), None
+    if from_outcomes is None:
+        return region, None
+    return AllOf(region, from_outcomes), region  # start where both say; go on in the region
+
+
 def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
                          factories: Mapping[str, GearPolicyFactory],
-                         settings: PlannerSettings = PlannerSettings()) -> Controller:
-    """The controller ``name`` (one of :data:`CONTROLLERS`) on ``env``."""
-    if name not in CONTROLLERS:
+                         settings: ControllerSettings = GEAR_CONTROL) -> Controller:
+    """The controller ``name`` (one of :data:`VARIANTS`) on ``env``."""
+    if name not in VARIANTS:
         raise DynoplanError(f"unknown controller {name!r}; expected one of "
-                            f"{', '.join(CONTROLLERS)}")
-    scripted = name == "fixed_script"
-    options = gear_options(env, models, factories, regions=not scripted,
-                           terminations=not scripted,
-                           dynamics_noise=settings.dynamics_noise if name == "dynoplan" else 0.0)
+                            f"{', '.join(VARIANTS)}")
+    settings.validate()
+    variant = VARIANTS[name]
+    scripted = variant.chooser == "script"
+    options = gear_options(env, models, factories, sets=variant.sets,
+                           terminations=not scripted)
     chooser: OptionChooser
-    if name == "dynoplan":
-        chooser = OptionPlanner(options, models.goal, horizon=settings.horizon,
-                                samples=settings.samples)
-    elif name == "oracle":
+    if variant.chooser == "planner":
+        chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
+                                models.goal, horizon=settings.horizon,
+                                samples=settings.samples, risk=settings.risk)
+    elif variant.chooser == "oracle":
         chooser = gear_oracle(env, options, factories, models.goal,
                               settings.oracle_horizon, settings.oracle_samples)
-    elif name == "random":
+    elif variant.chooser == "random":
         chooser = RandomChoice(options)
     else:
         chooser = ScriptedSequence(options, FIXED_SCRIPT)
-    max_steps = round(MAX_EPISODE_SECONDS / CONTROL_DT)
-    return Controller(options, chooser, state_fn=PlannerState(), max_decisions=max_steps,
-                      max_option_steps=max_steps,
-                      replan_every=None if scripted else DECISION_STEPS,
-                      margin=settings.margin, hold_action=HoldStill(env), record_infos=True,
+    hold = HoldStill(env) if settings.hold_action is None else settings.hold_action
+    return Controller(options, chooser, state_fn=PlannerState(),
+                      max_decisions=settings.max_decisions,
+                      max_option_steps=settings.max_option_steps,
+                      replan_every=None if scripted else settings.replan_every,
+                      margin=settings.margin, hold_action=hold, record_infos=True,
                       termination_every=1 if scripted else DECISION_STEPS)
 
 
@@ -208,15 +267,19 @@ __all__ = [
     "CARRIED_GEAR_HEIGHT",
     "CONTROLLERS",
     "FIXED_SCRIPT",
+    "GEAR_CONTROL",
     "HELD_GEAR_HEIGHT",
+    "INITIATION_SETS",
     "INSERT_KEEP_CLEARANCE",
     "INSERT_START_CLEARANCE",
     "MAX_EPISODE_SECONDS",
+    "MAX_EPISODE_STEPS",
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
+    "VARIANTS",
+    "ControllerVariant",
     "FarFromGoal",
     "HoldStill",
-    "PlannerSettings",
     "gear_options",
     "gear_oracle",
     "hand_clear_of_tool",
@@ -224,6 +287,7 @@ __all__ = [
     "holding_gear",
     "make_gear_controller",
     "not_carried",
+    "option_sets",
     "preconditions",
 ]
 

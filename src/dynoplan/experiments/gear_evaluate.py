@@ -12,25 +12,26 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
+from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
-from dynoplan.experiments.gear_jobs import FLAT_POLICY
 from dynoplan.experiments.gear_run import (
     EVAL_SEED_OFFSET,
     GearRunSettings,
     evaluate_gear_controllers,
 )
+from dynoplan.experiments.gear_task import FLAT_POLICY
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
+from dynoplan.pipeline.evaluate import ControllerSettings
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
 
 
 def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], episodes: int,
-                        seed: int = 0, planner: PlannerSettings = PlannerSettings(),
+                        seed: int = 0, planner: ControllerSettings = GEAR_CONTROL,
                         flat_folder: Path | None = None, workers: Workers = SERIAL,
                         progress: bool = True) -> dict[str, Any]:
-    """Evaluate ``controllers`` (of :data:`CONTROLLERS` and ``flat_ppo``) on ``episodes``
+    """Evaluate ``controllers`` (of :data:`VARIANTS` and ``flat_ppo``) on ``episodes``
     seeded episodes each; write ``results.csv``, ``results.md``, ``episodes.json`` and
     ``summary.json`` (with ``wall_s``, Ray's start included) into ``out``; return the
     summary.
@@ -38,9 +39,10 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     Raises:
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
     """
+    from dynoplan.baselines.flat_policy import read_flat_policy
     from dynoplan.experiments.gear_model_files import load_gear_models
 
-    known = (*CONTROLLERS, FLAT_POLICY)
+    known = (*VARIANTS, FLAT_POLICY)
     unknown = [c for c in controllers if c not in known]
     if unknown or not controllers:
         raise DynoplanError(f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
@@ -49,8 +51,11 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
         raise DynoplanError(f"--episodes must be >= 1, got {episodes}")
     if planner.horizon < 1 or planner.samples < 1:
         raise DynoplanError("--horizon and --samples must be >= 1")
+    planner.validate()
     ensure_writable_dir(out)
     load_gear_models(models)  # one clear error here rather than one per worker
+    if FLAT_POLICY in controllers and flat_folder is not None:
+        read_flat_policy(flat_folder)
     settings = GearRunSettings(episodes=episodes, oracle_episodes=episodes, planner=planner)
     seeds = episode_seeds(seed + EVAL_SEED_OFFSET, episodes)
     names = [c for c in controllers if c != FLAT_POLICY]

@@ -16,14 +16,13 @@ from typing import Any
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
-from dynoplan.envs.gear.env import CONTROL_DT
+from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
-from dynoplan.experiments.gear_eval import run_episode, trace_metrics
-from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation
+from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
-from dynoplan.pipeline.evaluate import EpisodeRecord
+from dynoplan.experiments.gear_task import GearTask
+from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRecord
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 TRACE_COLUMNS = (
@@ -35,7 +34,7 @@ TRACE_COLUMNS = (
 
 
 def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
-                    planner: PlannerSettings | None = None, frames: list[Any] | None = None
+                    planner: ControllerSettings = GEAR_CONTROL, frames: list[Any] | None = None
                     ) -> tuple[EpisodeRecord, list[dict[str, Any]], dict[str, Any]]:
     """Replay evaluation episode ``index`` (0-based, as in ``episodes.json``) of
     ``controller`` on the models in ``models``; with ``frames``, render it offscreen and
@@ -48,20 +47,21 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
         the option was not admissible or the chooser does not score), and the human
         schedule (``events``, keyframe ``times`` and hand ``positions``).
     """
-    if controller not in CONTROLLERS:
+    if controller not in VARIANTS:
         raise DynoplanError(f"unknown controller {controller!r}; expected one of "
-                            f"{', '.join(CONTROLLERS)} (flat_ppo has no decisions)")
+                            f"{', '.join(VARIANTS)} (flat_ppo has no decisions)")
     episode = evaluation_episode(index, seed)
-    state = build_evaluation(EvalJob(models, controller, planner or PlannerSettings(),
-                                     render=frames is not None))
-    assert state.controller is not None
+    runner = GearTask(render=frames is not None).make_runner(controller, models, planner)
+    assert isinstance(runner, ControllerRunner)
     try:
-        trace = run_episode(state.env, state.controller, episode, frames)
+        trace = runner.run(episode, frames)
     finally:
-        state.env.close()
-    metrics = trace_metrics(trace, state.gear_env, episode.env_seed, state.regions)
-    names = tuple(o.name for o in state.controller.options)
-    schedule = state.gear_env.schedule
+        runner.env.close()
+    metrics = runner.record(trace, episode)
+    names = tuple(o.name for o in runner.controller.options)
+    gear_env = runner.env.unwrapped
+    assert isinstance(gear_env, GearAssemblyEnv)
+    schedule = gear_env.schedule
     human = {"events": list(schedule.events), "times": schedule.times.round(3).tolist(),
              "positions": schedule.positions.round(3).tolist()}
     return metrics, decision_rows(trace, names), human

@@ -33,23 +33,23 @@ is the same on one worker or many.
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
-from dynoplan.experiments.gear_eval import (
-    RESULT_COLUMNS,
-    human_mode,
-    run_episode,
-    seconds,
-    summarise,
-)
-from dynoplan.experiments.gear_jobs import FLAT_POLICY, EvalJob, build_evaluation
+from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS, human_mode, seconds, summarise
 from dynoplan.experiments.gear_model_files import load_gear_models
+from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
-from dynoplan.pipeline.evaluate import EpisodeRecord, evaluate_many
+from dynoplan.pipeline.evaluate import (
+    ControllerJob,
+    ControllerRunner,
+    ControllerSettings,
+    EpisodeRecord,
+    evaluate_many,
+)
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -78,7 +78,7 @@ class GearRunSettings:
         dynamics_noise: std of the noise added to the learned predictions in the
             dynamics fault.
         observation_noise: std (m, rad) of the observation-noise fault.
-        planner: horizon, samples and margin of the planners.
+        planner: how the controllers plan and run (horizon, samples, margin, ...).
         video: render one episode.
     """
 
@@ -92,14 +92,14 @@ class GearRunSettings:
     fault_episodes: int = 30
     dynamics_noise: float = 0.02
     observation_noise: float = 0.005
-    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    planner: ControllerSettings = GEAR_CONTROL
     video: bool = True
 
 
 QUICK_RUN = GearRunSettings(
     demos=10, collect_runs=4, collect_max_decisions=15, quick_models=True, ppo_steps=2048,
     episodes=6, oracle_episodes=2, fault_episodes=3,
-    planner=PlannerSettings(horizon=6, samples=32, oracle_horizon=3))
+    planner=replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3))
 """``--quick``: every stage on small settings (CI, a first look)."""
 
 
@@ -232,11 +232,13 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
     of them. All their episodes are one map on ``workers`` (the oracle's first), each
     worker rebuilding the controllers from ``models_dir``; rows and episodes come back in
     the order of ``names``, then the flat policy."""
-    jobs = {name: (EvalJob(models_dir, name, settings.planner),
+    gear = GearTask(flat_folder=flat_folder)
+    jobs = {name: (ControllerJob(gear, models_dir, name, settings.planner),
                    seeds[:settings.oracle_episodes] if name == "oracle" else seeds)
             for name in names}
     if flat_folder is not None:
-        jobs[FLAT_POLICY] = (EvalJob(models_dir, FLAT_POLICY, flat_folder=flat_folder), seeds)
+        jobs[FLAT_POLICY] = (ControllerJob(gear, models_dir, FLAT_POLICY, settings.planner),
+                             seeds)
     order = sorted(jobs, key=lambda name: name not in ORACLE_FIRST)  # stable
     done = dict(zip(order, evaluate_many([jobs[name] for name in order], workers,
                                          f"evaluate ({len(order)} controllers)", progress),
@@ -256,12 +258,13 @@ def evaluate_faults(models_dir: Path, seeds: Sequence[EpisodeSeed], settings: Ge
     """DynoPlan with each fault on ``seeds`` (rows like ``results.csv`` plus ``fault``);
     the episodes of all faults are one map on ``workers``."""
     jobs = {
-        "dynamics_noise": EvalJob(models_dir, "dynoplan", replace(
+        "dynamics_noise": ControllerJob(GearTask(), models_dir, "dynoplan", replace(
             settings.planner, dynamics_noise=settings.dynamics_noise)),
-        "observation_noise": EvalJob(models_dir, "dynoplan", settings.planner,
-                                     fault="observation_noise",
-                                     observation_noise=settings.observation_noise),
-        "grasp_slip": EvalJob(models_dir, "dynoplan", settings.planner, fault="grasp_slip"),
+        "observation_noise": ControllerJob(
+            GearTask(fault="observation_noise", observation_noise=settings.observation_noise),
+            models_dir, "dynoplan", settings.planner),
+        "grasp_slip": ControllerJob(GearTask(fault="grasp_slip"), models_dir, "dynoplan",
+                                    settings.planner),
     }
     results = evaluate_many([(job, seeds) for job in jobs.values()], workers,
                             f"faults ({len(jobs)})", progress)
@@ -279,19 +282,18 @@ def video_episode(episodes: Sequence[EpisodeRecord]) -> int:
         not episodes[i].success, seconds(episodes[i]), i))
 
 
-def render_video(models_dir: Path, seed: EpisodeSeed, planner: PlannerSettings,
+def render_video(models_dir: Path, seed: EpisodeSeed, planner: ControllerSettings,
                  controller_name: str = "dynoplan") -> dict[str, Any]:
     """Controller ``controller_name``'s episode ``seed`` rendered offscreen, built and run
-    as the evaluation builds and runs it (:func:`build_evaluation`, :func:`run_episode`):
-    :func:`video_clip` of it. Writes nothing but a temporary file, so it can run as a task
-    on any worker."""
-    state = build_evaluation(EvalJob(models_dir, controller_name, planner, render=True))
-    assert state.controller is not None
+    as the evaluation builds and runs it (:meth:`GearTask.make_runner`): :func:`video_clip`
+    of it. Writes nothing but a temporary file, so it can run as a task on any worker."""
+    runner = GearTask(render=True).make_runner(controller_name, models_dir, planner)
+    assert isinstance(runner, ControllerRunner)
     frames: list[Any] = []
     try:
-        trace = run_episode(state.env, state.controller, seed, frames)
+        trace = runner.run(seed, frames)
     finally:
-        state.env.close()
+        runner.env.close()
     return video_clip(frames, trace.success,
                       [d.option for d in trace.decisions if d.option is not None])
 

@@ -28,6 +28,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
 from dynoplan.experiments.gear_model_files import HELDOUT_DIR
 from dynoplan.experiments.gear_model_settings import DEFAULT_SETTINGS, QUICK_SETTINGS
+from dynoplan.io import staged_folder
 from dynoplan.parallel import SERIAL, Workers
 
 DEMONSTRATOR = "options"
@@ -124,8 +125,10 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
     if heldout is None:
         heldout = heldout_trials(demos, cfg.heldout_episodes, seed, models / HELDOUT_DIR,
                                  models, progress, workers, log)
-    return train_gear_models(demos, transitions, models, seed, heldout, quick,
-                             progress=progress, settings=cfg)
+    # the previous models stay loadable until the new folder is complete
+    with staged_folder(models, keep=True) as staged:
+        return train_gear_models(demos, transitions, staged, seed, heldout, quick,
+                                 progress=progress, settings=cfg)
 
 
 def heldout_trials(demos: Path, n: int, seed: int, out: Path, models: Path,

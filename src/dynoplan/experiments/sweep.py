@@ -26,13 +26,13 @@ from typing import Any
 
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, summarise
-from dynoplan.experiments.gear_jobs import EvalJob, build_evaluation, evaluate_episode
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
+from dynoplan.experiments.gear_task import GearTask
 from dynoplan.experiments.sweep_config import Cell, SweepConfig, load_sweep_config
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
-from dynoplan.pipeline.evaluate import EpisodeRecord
+from dynoplan.pipeline.evaluate import ControllerJob, EpisodeRecord, build_runner, runner_episode
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -78,12 +78,13 @@ def write_cell(path: Path, cell: Cell, models_sha256: str,
 
 def run_sweep(config_path: Path, out: Path, workers: Workers = SERIAL, progress: bool = True,
               log: Callable[[str], None] = lambda _: None, *,
-              setup: Callable[[EvalJob], Any] = build_evaluation,
-              run: Callable[[Any, EpisodeSeed], EpisodeRecord] = evaluate_episode,
+              setup: Callable[[ControllerJob], Any] = build_runner,
+              run: Callable[[Any, EpisodeSeed], EpisodeRecord] = runner_episode,
               ) -> dict[str, Any]:
     """Run (or finish) the sweep of ``config_path`` into ``out``; return the summary.
 
-    ``setup``/``run`` are the job's functions (:mod:`dynoplan.experiments.gear_jobs`);
+    ``setup``/``run`` are the job's functions (:func:`~dynoplan.pipeline.evaluate.build_runner`,
+    :func:`~dynoplan.pipeline.evaluate.runner_episode`);
     tests replace them.
 
     Raises:
@@ -111,7 +112,7 @@ def run_sweep(config_path: Path, out: Path, workers: Workers = SERIAL, progress:
     tasks, owner = [], []
     for i in todo:
         cell = cells[i]
-        job = EvalJob(config.models, cell.controller, cell.planner)
+        job = ControllerJob(GearTask(), config.models, cell.controller, cell.planner)
         for s in episode_seeds(cell.seed + EVAL_SEED_OFFSET, cell.episodes):
             tasks.append((job, s))
             owner.append(i)

@@ -14,7 +14,7 @@ seeds over one models folder, read from TOML or JSON.
     dynamics_noise = [0.0, 0.02]
     seed = [0, 1]
 
-Grid keys: the fields of :class:`~dynoplan.experiments.gear_controllers.PlannerSettings`
+Grid keys: fields of :class:`~dynoplan.pipeline.evaluate.ControllerSettings`
 (``horizon``, ``samples``, ``oracle_horizon``, ``oracle_samples``, ``margin``,
 ``dynamics_noise``), ``controller`` and ``seed``. Any mistake is one
 :class:`~dynoplan.errors.DynoplanError` naming the file and the field.
@@ -29,11 +29,14 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, PlannerSettings
-from dynoplan.experiments.gear_jobs import FLAT_POLICY
+from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.experiments.gear_task import FLAT_POLICY
+from dynoplan.limits import CELLS_MAX, EPISODES_MAX, HORIZON_MAX, SAMPLES_MAX, SEED_MAX
+from dynoplan.pipeline.evaluate import ControllerSettings
 
 INT_KEYS = ("horizon", "samples", "oracle_horizon", "oracle_samples")
-"""Grid keys of positive integers."""
+"""Grid keys of positive integers (at most :data:`~dynoplan.limits.HORIZON_MAX` for the
+horizons, :data:`~dynoplan.limits.SAMPLES_MAX` for the samples)."""
 FLOAT_KEYS = ("margin", "dynamics_noise")
 """Grid keys of non-negative numbers."""
 GRID_KEYS = (*INT_KEYS, *FLOAT_KEYS, "controller", "seed")
@@ -50,7 +53,7 @@ class Cell:
     controller: str
     seed: int
     episodes: int
-    planner: PlannerSettings
+    planner: ControllerSettings
 
     def settings(self) -> dict[str, Any]:
         """Everything that determines the cell's result, as plain JSON values."""
@@ -87,7 +90,7 @@ class SweepConfig:
         out = []
         for values in itertools.product(*(v for _, v in self.grid)):
             chosen = dict(zip(self.swept, values, strict=True))
-            planner = replace(PlannerSettings(), **{k: v for k, v in chosen.items()
+            planner = replace(GEAR_CONTROL, **{k: v for k, v in chosen.items()
                                                     if k in INT_KEYS + FLOAT_KEYS})
             out.append(Cell(chosen.get("controller", self.controller),
                             chosen.get("seed", self.seed), self.episodes, planner))
@@ -99,7 +102,8 @@ def load_sweep_config(path: Path) -> SweepConfig:
 
     Raises:
         DynoplanError: (one line) unreadable file, unknown or missing key, wrong type
-            or range of a value, empty grid.
+            or range of a value (bounds of :mod:`dynoplan.limits`), empty grid or more
+            than :data:`~dynoplan.limits.CELLS_MAX` cells.
     """
     raw = _read(path)
     unknown = sorted(set(raw) - set(TOP_KEYS))
@@ -109,8 +113,8 @@ def load_sweep_config(path: Path) -> SweepConfig:
     models = raw.get("models")
     if not isinstance(models, str) or not models:
         raise DynoplanError(f"{path}: models: expected the models folder (a string)")
-    episodes = _integer(path, "episodes", raw.get("episodes", 20), minimum=1)
-    seed = _integer(path, "seed", raw.get("seed", 0), minimum=0)
+    episodes = _integer(path, "episodes", raw.get("episodes", 20), 1, EPISODES_MAX)
+    seed = _integer(path, "seed", raw.get("seed", 0), 0, SEED_MAX)
     controller = _controller(path, "controller", raw.get("controller", "dynoplan"))
     grid = raw.get("grid")
     if not isinstance(grid, dict) or not grid:
@@ -125,16 +129,20 @@ def load_sweep_config(path: Path) -> SweepConfig:
             raise DynoplanError(f"{path}: grid.{key}: expected a non-empty list of values")
         field = f"grid.{key}"
         if key in INT_KEYS:
-            vals: tuple[Any, ...] = tuple(_integer(path, field, v, minimum=1) for v in values)
+            top = HORIZON_MAX if key.endswith("horizon") else SAMPLES_MAX
+            vals: tuple[Any, ...] = tuple(_integer(path, field, v, 1, top) for v in values)
         elif key in FLOAT_KEYS:
             vals = tuple(_number(path, field, v) for v in values)
         elif key == "seed":
-            vals = tuple(_integer(path, field, v, minimum=0) for v in values)
+            vals = tuple(_integer(path, field, v, 0, SEED_MAX) for v in values)
         else:
             vals = tuple(_controller(path, field, v) for v in values)
         if len(set(vals)) != len(vals):
             raise DynoplanError(f"{path}: {field}: repeated values {list(vals)}")
         checked.append((key, vals))
+    cells = math.prod(len(v) for _, v in checked)
+    if cells > CELLS_MAX:
+        raise DynoplanError(f"{path}: grid: {cells} cells, expected at most {CELLS_MAX}")
     folder = Path(models)
     if not folder.is_absolute():
         folder = path.parent / folder
@@ -166,10 +174,11 @@ def _read(path: Path) -> dict[str, Any]:
     return raw
 
 
-def _integer(path: Path, field: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise DynoplanError(f"{path}: {field}: expected an integer >= {minimum}, "
-                            f"got {value!r}")
+def _integer(path: Path, field: str, value: Any, minimum: int, maximum: int) -> int:
+    if (isinstance(value, bool) or not isinstance(value, int)
+            or not minimum <= value <= maximum):
+        raise DynoplanError(f"{path}: {field}: expected an integer in {minimum}.."
+                            f"{maximum}, got {value!r}")
     return value
 
 

@@ -9,7 +9,11 @@ says what the folder holds and how to read it back::
      "goal": {"file": "goal.safetensors", "sha256": "...", "features": null},
      "regions": {"file": "regions.safetensors", "sha256": "...", "features": null},
      "dynamics": {"<option>": {"file": "dynamics-<option>.safetensors", "sha256": "..."}},
+     "initiation": {"file": "initiation.safetensors", "sha256": "...", "features": null},
      ...}
+
+``initiation`` (optional, ``null`` or absent when not learned) is the initiation learned
+from the options' own outcomes (:mod:`dynoplan.models.outcome_initiation`).
 
 ``features`` names the feature map a model reads (``null``: the planner state itself);
 any further top-level field (the seed, the settings, what fitting measured) is kept as
@@ -36,8 +40,9 @@ FORMAT_VERSION = 3
 kind; 2: ``gear_models``) are rejected: train the models again."""
 GOAL_FILE = "goal.safetensors"
 REGIONS_FILE = "regions.safetensors"
+INITIATION_FILE = "initiation.safetensors"
 _CORE = ("kind", "format_version", "task", "state_dim", "option_names", "stride",
-         "use_regions", "goal", "regions", "dynamics")
+         "use_regions", "goal", "regions", "dynamics", "initiation")
 
 
 def dynamics_file(option: str) -> str:
@@ -82,6 +87,7 @@ class Manifest:
         regions: the regions' file (``None``: not fitted).
         dynamics: per option its dynamics file (``None``: a model that cannot be saved).
         extra: every other top-level field (seed, settings, report, ...).
+        initiation: the initiation learned from outcomes (``None``: not learned).
     """
 
     folder: Path
@@ -94,13 +100,15 @@ class Manifest:
     regions: ModelEntry | None
     dynamics: dict[str, Path | None]
     extra: dict[str, Any] = field(default_factory=dict)
+    initiation: ModelEntry | None = None
 
 
 def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
                    option_names: Sequence[str], stride: int, use_regions: bool,
                    goal: tuple[str, str | None], regions: tuple[str, str | None] | None,
                    dynamics: Mapping[str, str | None],
-                   extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                   extra: Mapping[str, Any] | None = None,
+                   initiation: tuple[str, str | None] | None = None) -> dict[str, Any]:
     """Write ``folder/models.json`` for model files already in ``folder``; return it.
 
     Args:
@@ -108,6 +116,8 @@ def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
         regions: ``(file, features)`` of the regions, or ``None``.
         dynamics: per option its file name (``None``: not saved).
         extra: further top-level fields (JSON-serialisable; not one of the core fields).
+        initiation: ``(file, features)`` of the initiation learned from outcomes, or
+            ``None``.
     """
     root = Path(folder)
 
@@ -133,6 +143,7 @@ def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
         "regions": None if regions is None else entry(*regions),
         "dynamics": {name: None if file is None else entry(file, with_features=False)
                      for name, file in dynamics.items()},
+        "initiation": None if initiation is None else entry(*initiation),
         **(extra or {}),
     }
     write_json(root / MANIFEST_FILE, manifest)
@@ -212,9 +223,27 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
     dynamics = {name: None if entries[name] is None else inside(entries[name],
                                                                 f"dynamics of {name}")
                 for name in names}
+    initiation = (None if doc.get("initiation") is None
+                  else model("initiation", "the learned initiation"))
     return Manifest(root, task, state_dim, [str(n) for n in names], stride, use_regions,
-                    goal, regions, dynamics, {k: v for k, v in doc.items() if k not in _CORE})
+                    goal, regions, dynamics, {k: v for k, v in doc.items() if k not in _CORE},
+                    initiation)
 
 
-__all__ = ["FORMAT_VERSION", "GOAL_FILE", "KIND", "MANIFEST_FILE", "REGIONS_FILE", "Manifest",
-           "ModelEntry", "dynamics_file", "file_sha256", "read_manifest", "write_manifest"]
+def set_initiation(folder: str | os.PathLike[str], file: str,
+                   features: str | None = None) -> dict[str, Any]:
+    """Record the initiation learned from outcomes (``folder/file``, already written) in
+    the manifest of the complete models folder ``folder``; return the new manifest."""
+    m = read_manifest(folder)
+    return write_manifest(
+        m.folder, task=m.task, state_dim=m.state_dim, option_names=m.option_names,
+        stride=m.stride, use_regions=m.use_regions,
+        goal=(m.goal.path.name, m.goal.features),
+        regions=None if m.regions is None else (m.regions.path.name, m.regions.features),
+        dynamics={n: None if p is None else p.name for n, p in m.dynamics.items()},
+        extra=m.extra, initiation=(file, features))
+
+
+__all__ = ["FORMAT_VERSION", "GOAL_FILE", "INITIATION_FILE", "KIND", "MANIFEST_FILE",
+           "REGIONS_FILE", "Manifest", "ModelEntry", "dynamics_file", "file_sha256",
+           "read_manifest", "set_initiation", "write_manifest"]

@@ -39,7 +39,12 @@ from dynoplan.data.episodes import Episode, StateFn
 from dynoplan.errors import DynoplanError
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.mlp import MLP, uniform_init
-from dynoplan.models.mlp_file import linear_arrays, load_linears, require_finite
+from dynoplan.models.mlp_file import (
+    check_parameter_count,
+    linear_arrays,
+    load_linears,
+    require_finite,
+)
 from dynoplan.models.storage import as_states, load_arrays, save_arrays
 from dynoplan.models.trainer import HoldOut, KeepBest, shuffled, train
 from dynoplan.types import FloatArray, Generator, IntArray
@@ -340,6 +345,7 @@ class GoalNetwork:
                 f"{path}: architecture {meta.get('architecture')!r} (kappa_floor "
                 f"{meta.get('kappa_floor')!r}, logit_clamp {meta.get('logit_clamp')!r}) is not "
                 f"this version's {_ARCHITECTURE!r} ({_KAPPA_FLOOR}, {_LOGIT_CLAMP})")
+        check_parameter_count(path, arrays, [d, h, h, 2], m)
         net = _BetaEnsemble(d, h, m, torch.Generator())
         load_linears(net.mlp, arrays, path, "w{}", "b{}", first=1)
         for name in ("in_mean", "in_std"):

@@ -10,6 +10,8 @@ one :class:`~dynoplan.errors.DynoplanError` line.
 """
 
 import os
+from collections.abc import Sequence
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -17,20 +19,30 @@ import torch
 
 from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp import MLP
-from dynoplan.models.storage import require
+from dynoplan.models.storage import require_finite
 
 
-def require_finite(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, ...],
-                   dtype: type, path: str | os.PathLike[str]) -> np.ndarray:
-    """A copy of ``arrays[name]`` after checking its shape, its dtype and that every value
-    is finite."""
-    a = require(arrays, name, shape, path)
-    if a.dtype != dtype:
-        raise DynoplanError(f"{path}: array '{name}' has dtype {a.dtype}, expected "
-                            f"{np.dtype(dtype)}")
-    if not np.all(np.isfinite(a)):
-        raise DynoplanError(f"{path}: array '{name}' must be finite, it holds NaN or infinity")
-    return a.copy()
+def check_parameter_count(path: str | os.PathLike[str], arrays: dict[str, np.ndarray],
+                          sizes: Sequence[int], members: int = 1) -> None:
+    """Refuse metadata that describes a network larger than its file, before the network
+    is built.
+
+    Every parameter of an MLP with layer widths ``sizes`` (input, hidden..., output) and
+    ``members`` ensemble members is read from the file, so a forged ``hidden_sizes`` (or
+    state size, or member count) would otherwise allocate memory without bound. A network
+    of more than twice the values the file holds is refused here, so a file never makes
+    dynoplan allocate much more than its own size; a smaller mismatch is reported array by
+    array when the weights are read (:func:`load_linears`).
+
+    Raises:
+        DynoplanError: one line naming the file, the widths and both counts.
+    """
+    needed = members * sum((a + 1) * b for a, b in pairwise(sizes))
+    stored = sum(int(a.size) for a in arrays.values())
+    if needed > 2 * stored:
+        raise DynoplanError(f"{path}: metadata describes a network of {needed} parameters "
+                            f"(layer widths {list(sizes)}, {members} member(s)) but the file "
+                            f"holds only {stored} values")
 
 
 def hidden_sizes(meta: dict[str, Any], path: str | os.PathLike[str]) -> list[int]:
@@ -74,4 +86,5 @@ def load_linears(mlp: MLP, arrays: dict[str, np.ndarray], path: str | os.PathLik
     return read
 
 
-__all__ = ["hidden_sizes", "linear_arrays", "load_linears", "require_finite"]
+__all__ = ["check_parameter_count", "hidden_sizes", "linear_arrays", "load_linears",
+           "require_finite"]

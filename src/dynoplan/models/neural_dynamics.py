@@ -28,7 +28,13 @@ from dynoplan.models.dynamics import LoopStackedDynamics, StackedDynamics
 from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
 from dynoplan.models.evaluation import mixture_quantile
 from dynoplan.models.mlp import MLP, truncated_normal_init
-from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
+from dynoplan.models.mlp_file import (
+    check_parameter_count,
+    hidden_sizes,
+    linear_arrays,
+    load_linears,
+    require_finite,
+)
 from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.models.trainer import HoldOut, KeepBest, TrainingReport, bootstrapped, train
 from dynoplan.types import FloatArray, Generator
@@ -371,6 +377,7 @@ class MLPEnsembleDynamics:
         d = _meta_int(meta, "state_dim", path)
         members = _meta_int(meta, "members", path)
         hidden = hidden_sizes(meta, path)
+        check_parameter_count(path, arrays, [d, *hidden, 2 * d], members)
         model = cls(d, hidden, members, option=str(meta.get("option", "")))
         net = model.network
         expected = load_linears(net.mlp, arrays, path)

@@ -31,7 +31,7 @@ import numpy as np
 from sklearn.mixture import GaussianMixture
 
 from dynoplan.errors import DynoplanError
-from dynoplan.models.storage import as_states, load_arrays, require, save_arrays
+from dynoplan.models.storage import as_states, load_arrays, require, require_finite, save_arrays
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
 _KIND = "safety_regions"
@@ -283,12 +283,13 @@ class SafetyRegions:
 
     @classmethod
     def nowhere(cls, option_names: Sequence[str], state_dim: int) -> "SafetyRegions":
-        """Regions of options that are admissible nowhere (no component; threshold inf)."""
+        """Regions of options that are admissible nowhere (no component: ``log L = -inf``,
+        below any threshold; the stored threshold is 0, files hold finite numbers)."""
         names = list(option_names)
         return cls(option_names=names, means=np.zeros((0, state_dim)),
                    precisions_cholesky=np.zeros((0, state_dim, state_dim)),
                    members=np.zeros((len(names), 0), dtype=bool),
-                   log_thresholds=np.full(len(names), np.inf))
+                   log_thresholds=np.zeros(len(names)))
 
     # --- storage ---------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> Path:
@@ -312,14 +313,16 @@ class SafetyRegions:
         d = meta.get("state_dim")
         if not isinstance(names, list) or not isinstance(d, int):
             raise DynoplanError(f"{path}: metadata lacks option_names or state_dim")
-        means = require(arrays, "means", (None, d), path)
+        means = require_finite(arrays, "means", (None, d), None, path)
         m, o = means.shape[0], len(names)
         return cls(
             option_names=[str(n) for n in names],
             means=means.astype(np.float64),
-            precisions_cholesky=require(arrays, "precisions_cholesky", (m, d, d), path),
+            precisions_cholesky=require_finite(arrays, "precisions_cholesky", (m, d, d), None,
+                                               path),
             members=require(arrays, "members", (o, m), path).astype(bool),
-            log_thresholds=require(arrays, "log_thresholds", (o,), path).astype(np.float64),
+            log_thresholds=require_finite(arrays, "log_thresholds", (o,), None,
+                                          path).astype(np.float64),
         )
 
 

@@ -87,3 +87,21 @@ def require(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, .
                                                                              strict=True)):
         raise DynoplanError(f"{file}: array '{name}' has shape {a.shape}, expected {shape}")
     return a
+
+
+def require_finite(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, ...],
+                   dtype: type | None, path: str | os.PathLike[str]) -> np.ndarray:
+    """A copy of ``arrays[name]`` after checking its shape, its dtype (``None``: any
+    floating-point type) and that every value is finite: a NaN or infinite weight is
+    refused at load, whatever checksum the manifest records."""
+    a = require(arrays, name, shape, path)
+    if (a.dtype != dtype) if dtype is not None else not np.issubdtype(a.dtype, np.floating):
+        raise DynoplanError(f"{path}: array '{name}' has dtype {a.dtype}, expected "
+                            f"{'a floating-point type' if dtype is None else np.dtype(dtype)}")
+    if not np.all(np.isfinite(a)):
+        raise DynoplanError(f"{path}: array '{name}' must be finite, it holds NaN or infinity")
+    return a.copy()
+
+
+__all__ = ["FORMAT_VERSION", "as_states", "load_arrays", "require", "require_finite",
+           "save_arrays"]

@@ -22,6 +22,14 @@ class Everywhere:
         return np.ones(states.shape[:-1], dtype=bool)
 
 
+class Nowhere:
+    """The empty set: the option may start nowhere (an option with no learned initiation
+    set when only learned sets count)."""
+
+    def contains(self, states: FloatArray) -> BoolArray:
+        return np.zeros(states.shape[:-1], dtype=bool)
+
+
 class InitiationFromCallable:
     """Wrap ``fn(states (batch, d)) -> (batch,)`` booleans."""
 
@@ -64,6 +72,11 @@ class AnyOf(_Combined):
 class RegionModel(Protocol):
     """What :class:`InRegion` needs of a region model (for example
     :class:`~dynoplan.models.regions.SafetyRegions`)."""
+
+    @property
+    def option_names(self) -> list[str]:
+        """The options that have a region, in order."""
+        ...
 
     def option_index(self, option: str | int) -> int: ...
 

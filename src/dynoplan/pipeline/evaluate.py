@@ -4,8 +4,8 @@ Every controller runs the same seeded episodes (:func:`~dynoplan.seeding.episode
 so the rows of a results table differ only by the controller.
 """
 
-from collections.abc import Hashable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Hashable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -15,7 +15,9 @@ import numpy as np
 from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
 from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.errors import DynoplanError
+from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.goal import GoalHeuristic
+from dynoplan.options.initiation import RegionModel
 from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.pipeline.task import Task
@@ -42,7 +44,14 @@ class ControllerSettings:
         margin: score advantage needed to replace a running option at a replan.
         max_decisions: planning steps before an episode is given up.
         max_option_steps: environment steps one option may run between decisions.
-        hold_action: action when no option is admissible (``None``: end the episode).
+        hold_action: action when no option is admissible (``None``: the task's own, if
+            it has one, else end the episode).
+        oracle_horizon: decisions a simulator oracle simulates per rollout (tasks whose
+            environment can be simulated from a state; it pays real simulation time, so
+            it may be shorter than ``horizon``).
+        oracle_samples: simulated rollouts per option of the oracle.
+        dynamics_noise: std of Gaussian noise added to every learned prediction of
+            DynoPlan's planner (a fault; 0 for none).
     """
 
     horizon: int = 20
@@ -53,11 +62,20 @@ class ControllerSettings:
     max_decisions: int = 1000
     max_option_steps: int = 1000
     hold_action: Any = None
+    oracle_horizon: int = 10
+    oracle_samples: int = 1
+    dynamics_noise: float = 0.0
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
             raise DynoplanError(
                 f"horizon and samples must be >= 1, got {self.horizon} and {self.samples}")
+        if self.oracle_horizon < 1 or self.oracle_samples < 1:
+            raise DynoplanError(
+                f"oracle_horizon and oracle_samples must be >= 1, got {self.oracle_horizon} "
+                f"and {self.oracle_samples}")
+        if not self.dynamics_noise >= 0.0:
+            raise DynoplanError(f"dynamics_noise must be >= 0, got {self.dynamics_noise}")
         if self.replan_every is not None and self.replan_every < 1:
             raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
         if self.max_decisions < 1 or self.max_option_steps < 1:
@@ -104,6 +122,14 @@ def controller_names(options: Sequence[Option]) -> list[str]:
     return [DYNOPLAN, *(OPTION_PREFIX + o.name for o in options), RANDOM]
 
 
+def with_dynamics_noise(options: Sequence[Option], noise: float) -> list[Option]:
+    """``options`` with Gaussian noise of std ``noise`` on every learned prediction (the
+    dynamics fault; ``noise == 0``: the options as they are)."""
+    if noise <= 0:
+        return list(options)
+    return [replace(o, dynamics=NoisyDynamics(o.dynamics, noise)) for o in options]
+
+
 def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                     settings: ControllerSettings,
                     planner_options: Sequence[Option] | None = None) -> Controller:
@@ -119,8 +145,10 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
     settings.validate()
     chooser: OptionChooser
     if kind == DYNOPLAN:
-        chooser = OptionPlanner(planner_options or options, goal, horizon=settings.horizon,
-                                samples=settings.samples, risk=settings.risk)
+        chooser = OptionPlanner(with_dynamics_noise(planner_options or options,
+                                                    settings.dynamics_noise), goal,
+                                horizon=settings.horizon, samples=settings.samples,
+                                risk=settings.risk)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):
@@ -243,11 +271,14 @@ class EpisodeJob(Hashable, Protocol):
     def build(self) -> EpisodeRunner: ...
 
 
-def _build(job: EpisodeJob) -> EpisodeRunner:
+def build_runner(job: EpisodeJob) -> EpisodeRunner:
+    """``job.build()``: what a worker does once per job (the ``setup`` of
+    :func:`~dynoplan.parallel.imap_unordered`)."""
     return job.build()
 
 
-def _episode(runner: EpisodeRunner, seed: EpisodeSeed) -> Any:
+def runner_episode(runner: EpisodeRunner, seed: EpisodeSeed) -> Any:
+    """``runner.episode(seed)``: what a worker does per episode (``run``)."""
     return runner.episode(seed)
 
 
@@ -261,7 +292,8 @@ def evaluate_many(batches: Sequence[tuple[EpisodeJob, Sequence[EpisodeSeed]]],
     the same on one worker or many."""
     tasks = [(job, seed) for job, seeds in batches for seed in seeds]
     results: list[Any] = [None] * len(tasks)
-    for i, result in imap_unordered(_build, _episode, tasks, workers, description, progress):
+    for i, result in imap_unordered(build_runner, runner_episode, tasks, workers, description,
+                                    progress):
         results[i] = result
     out: list[list[Any]] = []
     for _, seeds in batches:
@@ -272,33 +304,81 @@ def evaluate_many(batches: Sequence[tuple[EpisodeJob, Sequence[EpisodeSeed]]],
 
 @dataclass
 class ControllerRunner:
-    """A controller and its environment: runs seeded episodes as :class:`EpisodeRecord`."""
+    """A controller and its environment: runs seeded episodes as :class:`EpisodeRecord`.
+
+    Attributes:
+        env: the environment (possibly wrapped, for example by a fault).
+        controller: the controller.
+        task_metrics: the task's own measurements of an episode, ``(env, trace) ->
+            JSON values`` (``None``: none).
+        regions: count option starts outside these learned regions (options without a
+            region never start outside), so that a controller that ignores the regions
+            is measured on the same sets as the others; ``None``: as the controller saw
+            its options' initiation sets.
+        before_episode: called with the episode's reset seed before it starts (for
+            example to reseed a motion planner's global random generator, so that an
+            episode does not depend on the episodes run before it in the process).
+    """
 
     env: gym.Env[Any, Any]
     controller: Controller
+    task_metrics: Callable[[gym.Env[Any, Any], EpisodeTrace], dict[str, Any]] | None = None
+    regions: RegionModel | None = None
+    before_episode: Callable[[int], None] | None = None
+
+    def run(self, seed: EpisodeSeed, frames: list[Any] | None = None) -> EpisodeTrace:
+        """The trace of episode ``seed``; with ``frames``, ``env.render()`` is appended
+        after every step (``env`` made with ``render_mode="rgb_array"``)."""
+        if self.before_episode is not None:
+            self.before_episode(seed.env_seed)
+        env = self.env if frames is None else _FrameRecorder(self.env, frames)
+        return self.controller.run(env, seed.rng(), seed=seed.env_seed)
+
+    def record(self, trace: EpisodeTrace, seed: EpisodeSeed) -> EpisodeRecord:
+        """The record of ``trace``, episode ``seed`` of this runner."""
+        metrics = None if self.task_metrics is None else self.task_metrics(self.env, trace)
+        outside = None if self.regions is None else starts_outside(trace, self.regions)
+        return EpisodeRecord.of(trace, seed.env_seed, metrics, outside)
 
     def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
-        trace = self.controller.run(self.env, seed.rng(), seed=seed.env_seed)
-        return EpisodeRecord.of(trace, seed.env_seed)
+        return self.record(self.run(seed), seed)
+
+
+def starts_outside(trace: EpisodeTrace, regions: RegionModel) -> int:
+    """Options of ``trace`` started outside their learned region in ``regions`` (an
+    option without a region, one the demonstrations do not show, never is)."""
+    shown = set(regions.option_names)
+    return sum(1 for d in trace.decisions
+               if d.option is not None and d.option in shown
+               and not bool(regions.contains(d.state[None], d.option)[0]))
+
+
+class _FrameRecorder(gym.Wrapper[Any, Any, Any, Any]):
+    """Appends a rendered frame to ``frames`` after every step."""
+
+    def __init__(self, env: gym.Env[Any, Any], frames: list[Any]) -> None:
+        super().__init__(env)
+        self.frames = frames
+
+    def step(self, action: Any) -> Any:
+        out = self.env.step(action)
+        self.frames.append(self.env.render())
+        return out
 
 
 @dataclass(frozen=True)
 class ControllerJob:
-    """Controller ``controller`` of ``task`` on the models in ``models`` (a folder written
-    by :meth:`~dynoplan.pipeline.FittedModels.save`), as a worker rebuilds it."""
+    """Controller ``controller`` of ``task`` on the models in ``models`` (a models folder,
+    :mod:`dynoplan.models.folder`), as a worker rebuilds it
+    (:meth:`~dynoplan.pipeline.task.Task.make_runner`)."""
 
     task: Task
     models: Path
     controller: str
     settings: ControllerSettings
 
-    def build(self) -> ControllerRunner:
-        from dynoplan.pipeline.fit import FittedModels
-
-        models = FittedModels.load(self.models)
-        run_options, planner_options = models.build(self.task.make_options())
-        return ControllerRunner(self.task.make_env(), make_controller(
-            self.controller, run_options, models.goal, self.settings, planner_options))
+    def build(self) -> EpisodeRunner:
+        return self.task.make_runner(self.controller, self.models, self.settings)
 
 
 def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],

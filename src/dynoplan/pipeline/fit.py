@@ -30,12 +30,13 @@ import numpy as np
 from dynoplan.adapters.spec import OptionSpec
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError, DynoplanWarning
-from dynoplan.io import ensure_writable_dir
+from dynoplan.io import staged_folder
 from dynoplan.models.dynamics import DynamicsModel, StackedDynamics
 from dynoplan.models.evaluation import one_step_error
 from dynoplan.models.features import FeatureMap, GoalOnFeatures, RegionsOnFeatures
 from dynoplan.models.folder import (
     GOAL_FILE,
+    INITIATION_FILE,
     MANIFEST_FILE,
     REGIONS_FILE,
     dynamics_file,
@@ -44,6 +45,7 @@ from dynoplan.models.folder import (
 )
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
+from dynoplan.models.outcome_initiation import OutcomeInitiation, OutcomeInitiationOnFeatures
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
@@ -410,6 +412,8 @@ GoalModel = GoalNetwork | GoalOnFeatures
 """A goal heuristic as fitted: on the planner state, or on a named feature map of it."""
 RegionsModel = SafetyRegions | RegionsOnFeatures
 """Safety regions as fitted: on the planner state, or on a named feature map of it."""
+OutcomeModel = OutcomeInitiation | OutcomeInitiationOnFeatures
+"""Initiation learned from outcomes as fitted: on the planner state or a feature map."""
 
 
 @dataclass
@@ -430,6 +434,8 @@ class FittedModels:
         use_regions: whether the regions are the options' initiation sets.
         task: the task's name (recorded in the manifest).
         extra: further manifest fields (seed, settings, ...), kept as they are.
+        learned_initiation: per option ``P(ok | s)`` learned from its runs' outcomes
+            (:mod:`dynoplan.models.outcome_initiation`), or ``None``.
     """
 
     option_names: list[str]
@@ -441,6 +447,7 @@ class FittedModels:
     use_regions: bool = True
     task: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    learned_initiation: OutcomeModel | None = None
 
     @property
     def state_dim(self) -> int:
@@ -491,9 +498,15 @@ class FittedModels:
     def save(self, folder: str | os.PathLike[str]) -> Path:
         """Write every model file, then ``models.json`` (the manifest) into ``folder``.
 
-        Dynamics models without a ``save`` method are listed with ``null``.
+        Dynamics models without a ``save`` method are listed with ``null``. The files are
+        written into a folder beside ``folder`` that replaces it when complete
+        (:func:`~dynoplan.io.staged_folder`): a failed save leaves the previous models.
         """
-        out = ensure_writable_dir(folder)
+        with staged_folder(folder, keep=True) as staged:
+            self._write(staged)
+        return Path(folder)
+
+    def _write(self, out: Path) -> None:
         files: dict[str, str | None] = {}
         for name, model in self.dynamics.items():
             save = getattr(model, "save", None)
@@ -507,12 +520,19 @@ class FittedModels:
             fitted, region_features = _unwrap_regions(self.regions)
             fitted.save(out / REGIONS_FILE)
             regions = (REGIONS_FILE, region_features)
+        initiation = None
+        if self.learned_initiation is not None:
+            outcome, outcome_features = (
+                (self.learned_initiation.initiation, self.learned_initiation.features.name)
+                if isinstance(self.learned_initiation, OutcomeInitiationOnFeatures)
+                else (self.learned_initiation, None))
+            outcome.save(out / INITIATION_FILE)
+            initiation = (INITIATION_FILE, outcome_features)
         write_manifest(out, task=self.task, state_dim=self.state_dim,
                        option_names=self.option_names, stride=self.stride,
                        use_regions=self.use_regions, goal=(GOAL_FILE, goal_features),
                        regions=regions, dynamics=files,
-                       extra={"report": self.report, **self.extra})
-        return out
+                       extra={"report": self.report, **self.extra}, initiation=initiation)
 
     @classmethod
     def load(cls, folder: str | os.PathLike[str],
@@ -576,11 +596,18 @@ class FittedModels:
                                     f"{model.state_dim} values, expected '{name}' on "
                                     f"{manifest.state_dim}")
             dynamics[name] = model
+        learned: OutcomeModel | None = None
+        if manifest.initiation is not None:
+            outcome_map = feature_map(manifest.initiation.features, "the learned initiation")
+            outcome = OutcomeInitiation.load(manifest.initiation.path)
+            reads(manifest.initiation.path, outcome.state_dim, outcome_map)
+            learned = (outcome if outcome_map is None
+                       else OutcomeInitiationOnFeatures(outcome, outcome_map))
         extra = dict(manifest.extra)
         report = extra.pop("report", {})
         return cls(manifest.option_names, dynamics, goal, regions, manifest.stride,
                    report if isinstance(report, dict) else {}, manifest.use_regions,
-                   manifest.task, extra)
+                   manifest.task, extra, learned)
 
     def stacked_dynamics(self) -> StackedDynamics:
         """All options' ensembles as one ``(options, samples, state_dim)`` sampler."""

@@ -3,20 +3,26 @@
 A *task* names an environment and the options that act in it, in a form that any worker
 process can rebuild from (references, not live objects): the pipeline's stages take a
 task, and the evaluation ships it to Ray workers, which rebuild the environment, the
-options and the controller from it and from the models folder.
+options and the controller from it and from the models folder
+(:class:`~dynoplan.pipeline.evaluate.ControllerJob`).
 
 :class:`GymTask` is the task of a user's Gymnasium environment with user-written options
-(``dynoplan pipeline --env ID --options MODULE:FUNCTION``).
+(``dynoplan pipeline --env ID --options MODULE:FUNCTION``);
+:class:`~dynoplan.experiments.gear_task.GearTask` is the gear assembly's.
 """
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import gymnasium as gym
 
 from dynoplan.adapters.spec import OptionSpec, as_spec
 from dynoplan.errors import DynoplanError
 from dynoplan.imports import import_user_module
+
+if TYPE_CHECKING:
+    from dynoplan.pipeline.evaluate import ControllerSettings, EpisodeRunner
 
 
 class Task(Protocol):
@@ -35,8 +41,12 @@ class Task(Protocol):
         """A new instance of the task's environment."""
         ...
 
-    def make_options(self) -> list[OptionSpec]:
-        """The task's options (without dynamics; the pipeline learns those), in order."""
+    def make_runner(self, controller: str, models: Path,
+                    settings: "ControllerSettings") -> "EpisodeRunner":
+        """Controller ``controller`` on a new environment, built from the models folder
+        ``models``: what runs and records the task's seeded episodes (an
+        :class:`~dynoplan.pipeline.evaluate.EpisodeRunner`, usually a
+        :class:`~dynoplan.pipeline.evaluate.ControllerRunner`)."""
         ...
 
 
@@ -71,6 +81,19 @@ class GymTask:
             raise DynoplanError(f"'{self.options}' must return a non-empty list of options, "
                                 f"got {type(made).__name__}")
         return [as_spec(o) for o in made]
+
+    def make_runner(self, controller: str, models: Path,
+                    settings: "ControllerSettings") -> "EpisodeRunner":
+        """The options with the learned models of ``models``
+        (:meth:`~dynoplan.pipeline.fit.FittedModels.build`), under controller
+        ``controller`` (:func:`~dynoplan.pipeline.evaluate.make_controller`)."""
+        from dynoplan.pipeline.evaluate import ControllerRunner, make_controller
+        from dynoplan.pipeline.fit import FittedModels
+
+        fitted = FittedModels.load(models)
+        run_options, planner_options = fitted.build(self.make_options())
+        return ControllerRunner(self.make_env(), make_controller(
+            controller, run_options, fitted.goal, settings, planner_options))
 
 
 def load_object(reference: str) -> Any:

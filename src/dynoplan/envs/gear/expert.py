@@ -84,8 +84,9 @@ def _up(height: float) -> FloatArray:
 class GearExpert:
     """Privileged scripted demonstrator for :class:`GearAssemblyEnv`.
 
-    Lifecycle: ``reset()`` after every ``env.reset``; then ``act(info)`` once per step,
-    with the ``info`` of the last ``reset``/``step``; it never steps the env itself.
+    Lifecycle: ``reset()`` after every ``env.reset``; then ``act(observation, info)`` once
+    per step, with the observation and ``info`` of the last ``reset``/``step``; it never
+    steps the env itself.
     Deterministic: the same env state gives the same action.
     """
 

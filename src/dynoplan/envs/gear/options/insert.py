@@ -47,7 +47,13 @@ from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
 from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
 from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp import MLP, uniform_weight_init
-from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
+from dynoplan.models.mlp_file import (
+    check_parameter_count,
+    hidden_sizes,
+    linear_arrays,
+    load_linears,
+    require_finite,
+)
 from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
@@ -196,6 +202,7 @@ class InsertionNetwork:
                 raise DynoplanError(f"{path}: metadata '{key}' is {meta.get(key)!r}, this "
                                     f"dynoplan's insertion policy needs {want!r}")
         hidden = hidden_sizes(meta, path)
+        check_parameter_count(path, arrays, [FEATURE_DIM, *hidden, OUTPUT_DIM])
         model = cls(hidden)
         expected = {"input_mean", "input_std", "output_mean", "output_std"}
         expected |= load_linears(model.network, arrays, path)

@@ -56,7 +56,13 @@ from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp import MLP, uniform_weight_init
-from dynoplan.models.mlp_file import hidden_sizes, linear_arrays, load_linears, require_finite
+from dynoplan.models.mlp_file import (
+    check_parameter_count,
+    hidden_sizes,
+    linear_arrays,
+    load_linears,
+    require_finite,
+)
 from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.models.trainer import shuffled, train
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
@@ -204,6 +210,7 @@ class GraspRecognizer:
             raise DynoplanError(f"{path}: recogniser features {meta.get('feature_names')!r} "
                                 f"do not match this dynoplan's {list(FEATURE_NAMES)}")
         hidden = hidden_sizes(meta, path)
+        check_parameter_count(path, arrays, [FEATURE_DIM, *hidden, 1])
         model = cls(hidden)
         expected = {"feature_mean", "feature_std"}
         expected |= load_linears(model.network, arrays, path)

@@ -1,0 +1,22 @@
+"""Checks of command-line values that typer's types do not make (counts and seeds use
+typer's ``min``/``max`` with the bounds of :mod:`dynoplan.limits`)."""
+
+from pathlib import Path
+
+import typer
+
+
+def folder(value: Path | None) -> Path | None:
+    """typer callback of a folder option (``--out``, ``--models``, a dataset): the path
+    may be missing (an output is created), but not a file.
+
+    Raises:
+        typer.BadParameter: ``Invalid value for '--flag': PATH is a file, expected a
+            folder`` (one line, exit 2).
+    """
+    if value is not None and value.exists() and not value.is_dir():
+        raise typer.BadParameter(f"{value} is a file, expected a folder")
+    return value
+
+
+__all__ = ["folder"]

@@ -1,0 +1,166 @@
+"""The gear assembly as a :class:`~dynoplan.pipeline.task.Task` of the pipeline.
+
+A :class:`GearTask` is what a worker rebuilds a gear controller from: the environment
+(with a fault wrapped around it, or rendering for a video), and, from a models folder,
+the options bound to that environment under one of the controllers of
+:mod:`~dynoplan.experiments.gear_controllers` (or the flat PPO policy). Its episodes are
+the pipeline's (:class:`~dynoplan.pipeline.evaluate.ControllerRunner`): OMPL is reseeded
+from the episode's seed first, the gear measures its own metrics (the human's behaviour,
+contacts, the smallest robot-human distance), and out-of-region starts are counted
+against the learned regions for every controller, so that the fixed script, which ignores
+them, is measured on the same sets.
+
+Jobs are :class:`~dynoplan.pipeline.evaluate.ControllerJob` ``(GearTask(...), models,
+controller, settings)``; an episode depends on its seed alone, so the metrics are the same
+on one worker or many (only the measured decision latencies differ).
+"""
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan.control.controller import EpisodeTrace
+from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.errors import DynoplanError
+from dynoplan.experiments.gear_controllers import VARIANTS
+from dynoplan.experiments.gear_model_files import TASK_NAME
+from dynoplan.pipeline.evaluate import (
+    ControllerRunner,
+    ControllerSettings,
+    EpisodeRecord,
+    EpisodeRunner,
+)
+from dynoplan.seeding import EpisodeSeed
+from dynoplan.types import FloatArray
+
+FLAT_POLICY = "flat_ppo"
+"""The flat end-to-end baseline's controller name (it needs ``GearTask.flat_folder``)."""
+
+FAULTS = ("observation_noise", "grasp_slip")
+"""Environment faults a :class:`GearTask` can wrap around the env (dynamics noise is a
+controller setting: ``ControllerSettings.dynamics_noise``)."""
+
+
+@dataclass(frozen=True)
+class GearTask:
+    """The gear assembly, as workers rebuild it.
+
+    Attributes:
+        fault: None, or one of :data:`FAULTS` wrapped around the environment.
+        observation_noise: std (m, rad) of the ``observation_noise`` fault.
+        flat_folder: the flat policy's folder (for the :data:`FLAT_POLICY` controller).
+        render: make the environment with ``render_mode="rgb_array"`` (for a video).
+    """
+
+    fault: str | None = None
+    observation_noise: float = 0.005
+    flat_folder: Path | None = None
+    render: bool = False
+
+    def __post_init__(self) -> None:
+        if self.fault is not None and self.fault not in FAULTS:
+            raise DynoplanError(f"unknown fault {self.fault!r}; expected one of "
+                                f"{', '.join(FAULTS)}")
+
+    @property
+    def name(self) -> str:
+        return TASK_NAME
+
+    def make_env(self) -> gym.Env[Any, Any]:
+        """The gear environment, wrapped by the fault if any (``env.unwrapped`` is the
+        :class:`~dynoplan.envs.gear.env.GearAssemblyEnv`)."""
+        from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
+
+        gear_env = GearAssemblyEnv(render_mode="rgb_array" if self.render else None)
+        if self.fault == "observation_noise":
+            return ObservationNoise(gear_env, self.observation_noise)
+        if self.fault == "grasp_slip":
+            return GraspSlip(gear_env)
+        return gear_env
+
+    def make_runner(self, controller: str, models: Path,
+                    settings: ControllerSettings) -> EpisodeRunner:
+        """Controller ``controller`` (of :data:`~dynoplan.experiments.gear_controllers.VARIANTS` or
+        :data:`FLAT_POLICY`) on a
+        new environment, built from the models folder ``models`` (once per process).
+        PyTorch runs on one thread, as in the serial command line, so predictions, and
+        hence episodes, are bit-identical in every process."""
+        import torch
+
+        from dynoplan.envs.gear.options.catalog import policy_factories
+        from dynoplan.envs.gear.options.motion import reseed_ompl
+        from dynoplan.experiments.gear_controllers import make_gear_controller
+        from dynoplan.experiments.gear_model_files import load_gear_models
+
+        if controller not in (*VARIANTS, FLAT_POLICY):
+            raise DynoplanError(f"unknown controller {controller!r}; expected one of "
+                                f"{', '.join((*VARIANTS, FLAT_POLICY))}")
+        torch.set_num_threads(1)
+        env = self.make_env()
+        gear_env = env.unwrapped
+        assert isinstance(gear_env, GearAssemblyEnv)
+        if controller == FLAT_POLICY:
+            from dynoplan.baselines.flat_policy import FlatPolicy
+
+            if self.flat_folder is None:
+                raise DynoplanError(f"{FLAT_POLICY} needs the flat policy's folder")
+            return FlatPolicyRunner(gear_env, FlatPolicy(self.flat_folder, gear_env).act)
+        fitted = load_gear_models(models)
+        return ControllerRunner(
+            env, make_gear_controller(controller, gear_env, fitted, policy_factories(models),
+                                      settings),
+            task_metrics=episode_metrics, regions=fitted.regions, before_episode=reseed_ompl)
+
+
+def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
+                 min_distance: float = np.inf) -> dict[str, Any]:
+    """The gear's own measurements of an episode from its steps' ``infos``: the human's
+    behaviour, robot-human contacts and the smallest robot-human distance (m; also
+    over ``min_distance``, for example the distance at the reset)."""
+    return {"human_mode": env.schedule.mode,
+            "contacts": int(sum(int(i["human_contacts"]) for i in infos)),
+            "min_human_distance": float(min([min_distance, *(
+                float(i["min_human_distance"]) for i in infos)]))}
+
+
+def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, Any]:
+    """:func:`gear_metrics` of a controller's episode (recorded with ``record_infos``)."""
+    gear_env = env.unwrapped
+    assert isinstance(gear_env, GearAssemblyEnv)
+    return gear_metrics(gear_env, trace.infos)
+
+
+@dataclass
+class FlatPolicyRunner:
+    """A flat policy ``act(observation) -> action`` on the gear: no options, no decisions
+    (its "decision latency" is the time of one ``act`` call)."""
+
+    env: GearAssemblyEnv
+    act: Callable[[FloatArray], FloatArray]
+
+    def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
+        obs, info = self.env.reset(seed=seed.env_seed)
+        first_distance = float(info["min_human_distance"])
+        infos: list[dict[str, Any]] = []
+        ms: list[float] = []
+        reward, done, success = 0.0, False, False
+        while not done:
+            t0 = time.perf_counter()
+            action = self.act(obs)
+            ms.append(1e3 * (time.perf_counter() - t0))
+            obs, r, terminated, truncated, info = self.env.step(action)
+            infos.append(info)
+            reward += float(r)
+            success = bool(info["is_success"])
+            done = terminated or truncated
+        return EpisodeRecord(seed.env_seed, success, len(infos), reward, 0, 0, 0, 0,
+                             tuple(ms), (), (), gear_metrics(self.env, infos, first_distance))
+
+
+__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "episode_metrics",
+           "gear_metrics"]
