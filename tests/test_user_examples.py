@@ -65,7 +65,7 @@ def test_the_panda_pipeline_runs_end_to_end(tmp_path):
     from examples.panda_pick import options as panda
 
     env = gym.make(panda.ENV_ID)
-    assert probe_options(env, panda.make_options()) == 22
+    assert probe_options(env, panda.make_options()) == 7
     result = run_pipeline(panda.ENV_ID, panda.make_options(),
                           demonstrator=panda.make_demonstrator(), settings=TINY, out=tmp_path)
     assert result.summary["demonstrations"]["episodes"] == 3
