@@ -102,6 +102,10 @@ def pipeline(
     region_components: int | None = typer.Option(
         None, "--region-components", min=1, max=64,
         help="Mixture size per option (default: chosen by the fit)."),
+    outcome_initiation: bool = typer.Option(
+        False, "--outcome-initiation/--no-outcome-initiation",
+        help="Also learn where each option may start from the outcomes of its exploration "
+             "runs (did the goal heuristic rise?), intersected with its region."),
     region_undemonstrated: str = typer.Option(
         "runs", "--region-undemonstrated",
         help="Region of an option no demonstration shows: runs (from its own exploration "
@@ -150,7 +154,8 @@ def pipeline(
                         goal_epochs=goal_epochs, region_fit=region_fit,
                         region_coverage=region_coverage, region_slack=region_slack,
                         region_components=region_components,
-                        region_undemonstrated=region_undemonstrated),
+                        region_undemonstrated=region_undemonstrated,
+                        outcome_initiation=outcome_initiation),
         control=ControllerSettings(horizon=horizon, samples=samples,
                                    replan_every=replan_every or None))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
