@@ -21,6 +21,7 @@ from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import (
     CARRIED_GEAR_HEIGHT,
+    VARIANTS,
     holding_gear,
     not_carried,
     preconditions,
@@ -222,6 +223,6 @@ def test_gear_episode_rejects_an_unknown_controller_without_writing(tmp_path: Pa
         capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
-        "dynoplan: error: unknown controller 'flat_ppo'; expected one of dynoplan, oracle, "
-        "fixed_script, random (flat_ppo has no decisions)"]
+        "dynoplan: error: unknown controller 'flat_ppo'; expected one of "
+        f"{', '.join(VARIANTS)} (flat_ppo has no decisions)"]
     assert not out.exists()

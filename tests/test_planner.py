@@ -119,3 +119,57 @@ def test_duplicate_option_names_are_rejected():
 
     with pytest.raises(DynoplanError, match="unique"):
         OptionPlanner([_option("a", Drift(1)), _option("a", Drift(2))], Linear())
+
+
+class Shift:
+    """Moves the robot (state[:3]) by a fixed step; the hand (state[3:]) stays put."""
+
+    def __init__(self, step) -> None:
+        self.step = np.concatenate([np.asarray(step, dtype=float), np.zeros(3)])
+
+    @property
+    def state_dim(self) -> int:
+        return 6
+
+    def sample(self, states, rng):
+        return states + self.step
+
+
+class RobotX:
+    """G(s) = robot x / 10: going toward +x is progress."""
+
+    def sample(self, states, rng):
+        return states[:, 0] / 10.0
+
+    def mean_std(self, states):
+        return self.sample(states, None), np.zeros(len(states))
+
+
+def _safe_planner(hand_velocity):
+    from dynoplan.safety.constraint import ConstantVelocityHuman, SeparationConstraint
+
+    human = ConstantVelocityHuman(position=lambda s: s[3:6],
+                                  velocity=lambda: np.asarray(hand_velocity, dtype=float))
+    constraint = SeparationConstraint(lambda s: s[:, None, :3], human, step_seconds=1.0)
+    options = [_option("toward", Shift([0.5, 0, 0])), _option("away", Shift([-0.1, 0, 0]))]
+    return OptionPlanner(options, RobotX(), horizon=4, samples=8, constraint=constraint,
+                         risk_level=0.05)
+
+
+def test_the_safety_constraint_rejects_an_option_whose_rollouts_cross_the_predicted_hand():
+    state = np.array([0.0, 0, 0, 2.0, 0, 0])  # the hand 2 m ahead of the robot, still
+    unconstrained = OptionPlanner(_safe_planner([0, 0, 0]).options, RobotX(), horizon=4,
+                                  samples=8).plan(state, np.random.default_rng(0))
+    assert unconstrained.chosen_name == "toward"  # Eq. 1 alone runs into the hand
+    plan = _safe_planner([0, 0, 0]).plan(state, np.random.default_rng(0))
+    assert plan.unsafe_shares.tolist() == [1.0, 0.0]
+    assert plan.scores[0] == -np.inf and plan.chosen_name == "away"
+    # the hand predicted to leave at 10 m/s: going toward where it was is safe again
+    plan = _safe_planner([0, 10.0, 0]).plan(state, np.random.default_rng(0))
+    assert plan.unsafe_shares.tolist() == [0.0, 0.0] and plan.chosen_name == "toward"
+
+
+def test_with_every_option_unsafe_the_planner_chooses_none_so_the_controller_holds():
+    state = np.array([0.0, 0, 0, 0.05, 0, 0])  # the hand at the robot
+    plan = _safe_planner([0, 0, 0]).plan(state, np.random.default_rng(0))
+    assert plan.unsafe_shares.tolist() == [1.0, 1.0] and plan.chosen is None

@@ -6,7 +6,7 @@ from typing import Any
 
 import typer
 
-from dynoplan.cli.params import folder
+from dynoplan.cli.params import folder, human_mode
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
     EPISODES_MAX,
@@ -31,7 +31,8 @@ def expert(
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Seed from which every episode's seed is derived."),
     out: Path = typer.Option(Path("results/gear-expert"), callback=folder, help="Output folder."),
-    human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Force the human: away, cross or block."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Run the scripted expert; write OUT/summary.json (success, contacts, speed)."""
@@ -63,7 +64,8 @@ def demos(
     heldout: bool = typer.Option(False, "--heldout", help="Record the held-out trials "
                                  "instead (gear run's OUT/heldout): episodes of seeds "
                                  "disjoint from the demonstrations'."),
-    human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Force the human: away, cross or block."),
     demonstrator: str | None = typer.Option(None, help="options (the default, as gear run: "
                                             "an operator chaining the four option "
                                             "policies) or expert (the scripted expert, "
@@ -104,7 +106,8 @@ def render(
     seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Episode seed."),
     out: Path = typer.Option(Path("results/gear-render"), callback=folder, help="Output folder."),
     video: bool = typer.Option(True, "--video/--no-video", help="Also write episode.mp4."),
-    human: str | None = typer.Option(None, help="Force the human: away, cross or block."),
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Force the human: away, cross or block."),
 ) -> None:
     """Write OUT/scene.png and OUT/episode.mp4 of the expert's episode (offscreen)."""
     # Headless machines: MuJoCo picks its GL backend when first imported.
@@ -129,7 +132,8 @@ def option(
     models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
                                 help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
-    human: str | None = typer.Option(None, help="Human mode (default: the option's own; "
+    human: str | None = typer.Option(None, callback=human_mode,
+                                     help="Human mode (default: the option's own; "
                                      "block for cautious_move, away for the others)."),
     max_steps: int = typer.Option(600, min=1, max=STEPS_MAX,
                                   help="Env steps per trial before giving up."),
@@ -217,6 +221,9 @@ def outcomes(
                              help="Run r of option o uses default_rng([seed, 17, o, r])."),
     collect: bool = typer.Option(True, "--collect/--fit-only", help="Run the options first "
                                  "(else fit on the dataset OUT as it is)."),
+    merge: Path | None = typer.Option(None, help="Also write, into OUT/transitions-beyond, "
+                                      "these collected transitions (gear collect) with the "
+                                      "outcome runs', for gear train --transitions."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -231,6 +238,7 @@ def outcomes(
         OutcomeSettings,
         collect_outcomes,
         fit_gear_initiation,
+        transitions_beyond,
     )
     from dynoplan.io import write_json
     from dynoplan.parallel import parse_workers, ray_session
@@ -245,6 +253,9 @@ def outcomes(
         typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
             f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
             for n in summary["starts"]))
+    if merge is not None:
+        merged = transitions_beyond(merge, out, out / "transitions-beyond")
+        typer.echo(f"{merged['episodes']} episodes -> {merged['dataset']}")
     report = fit_gear_initiation(models, out, seed)
     write_json(models / "initiation.json", report)
     typer.echo(json.dumps(report["options"]))
@@ -269,6 +280,9 @@ def train(
     seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of every fit."),
     quick: bool = typer.Option(False, "--quick", help="Small settings (those of gear run "
                                "--quick)."),
+    goal_ranking: float | None = typer.Option(None, help="Weight of the goal network's "
+                                              "ranking loss along demonstrations (default "
+                                              "0: none)."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -284,7 +298,7 @@ def train(
     torch.set_num_threads(1)
     with ray_session(pool):
         m = learned_models(demos, transitions, out, seed, heldout, quick, progress=not quiet,
-                           workers=pool, log=typer.echo)
+                           workers=pool, log=typer.echo, goal_ranking=goal_ranking)
     typer.echo(f"goal spearman {m['goal_spearman']:.3f}, mae {m['goal_mae']:.3f}; regions "
                f"inside {m['region_inside_rate']:.3f}, far outside "
                f"{m['region_far_outside_rate']:.3f}; dynamics coverage_90 "
@@ -384,9 +398,21 @@ def evaluate(
     samples: int | None = typer.Option(None, min=1, max=SAMPLES_MAX,
                                        help="Monte-Carlo rollouts per option "
                                        "(default 64)."),
+    epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
+                                           help="Weight of the dynamics ensemble's "
+                                           "disagreement in the planner's score (default "
+                                           "0)."),
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
+    human: str | None = typer.Option(
+        None, "--human", help="Human behaviours the episodes draw from, uniformly: "
+        "comma-separated of away, cross, block (the demonstrations' mix, the default) and "
+        "reach, linger, fast_cross, two_passes (never demonstrated), or 'unseen' (those "
+        "four) or 'all'."),
+    shield: bool = typer.Option(False, "--shield", help="Run every episode under the runtime "
+                                "monitor: a protective stop whenever the arm moves closer to "
+                                "the hand than ISO/TS 15066's S_p."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -396,6 +422,7 @@ def evaluate(
 
     from dynoplan.experiments.gear_controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
+    from dynoplan.experiments.gear_task import GearTask
     from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
@@ -405,11 +432,15 @@ def evaluate(
         planner = replace(planner, horizon=horizon)
     if samples is not None:
         planner = replace(planner, samples=samples)
+    if epistemic is not None:
+        planner = replace(planner, epistemic=epistemic)
+    behaviours = _behaviours(human)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
         summary = run_gear_evaluation(models, folder, names, episodes, seed, planner,
                                       flat or models.parent / "flat_ppo", pool,
-                                      progress=not quiet)
+                                      progress=not quiet,
+                                      task=GearTask(human=behaviours, shield=shield))
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
@@ -472,3 +503,19 @@ def _echo_results(rows: list[dict[str, Any]]) -> None:
                    f"{row['episodes']}, contacts {row['contacts']}, out-of-region starts "
                    f"{row['out_of_region_starts']}, decision p50 "
                    f"{'-' if ms is None else f'{ms:.2f} ms'}")
+
+
+def _behaviours(human: str | None) -> tuple[str, ...] | None:
+    """``--human``: None, or the behaviours it names (``unseen``, ``all`` or a list)."""
+    from dynoplan.envs.gear.human import BEHAVIOURS, UNSEEN_BEHAVIOURS
+    from dynoplan.errors import DynoplanError
+
+    if human is None:
+        return None
+    names = {"all": BEHAVIOURS, "unseen": UNSEEN_BEHAVIOURS}.get(
+        human.strip(), tuple(h.strip() for h in human.split(",") if h.strip()))
+    unknown = [n for n in names if n not in BEHAVIOURS]
+    if unknown or not names:
+        raise DynoplanError(f"--human: unknown behaviour(s) {', '.join(unknown) or '(none)'}; "
+                            f"expected some of {', '.join(BEHAVIOURS)}, 'unseen' or 'all'")
+    return tuple(names)

@@ -100,7 +100,7 @@ def pipeline(
     region_slack: float = typer.Option(
         0.0, "--region-slack", min=0.0, help="Nats subtracted from every region threshold."),
     region_components: int | None = typer.Option(
-        None, "--region-components", min=1, max=64,
+        None, "--region-components", min=1, max=100,
         help="Mixture size per option (default: chosen by the fit)."),
     outcome_initiation: bool = typer.Option(
         False, "--outcome-initiation/--no-outcome-initiation",
@@ -160,8 +160,8 @@ def pipeline(
                                    replan_every=replan_every or None))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     settings.validate()
-    # nothing of a failed run, the previous run's kept
-    with warnings_as_lines(), staged_folder(out) as folder:
+    with staged_folder(out) as folder, warnings_as_lines():
+        # nothing of a failed run, the previous run's kept
         result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
                               settings=settings, out=folder, progress=not quiet,
                               status=None if quiet else lambda m: typer.echo(f"-- {m}",

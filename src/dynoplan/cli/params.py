@@ -19,4 +19,18 @@ def folder(value: Path | None) -> Path | None:
     return value
 
 
-__all__ = ["folder"]
+def human_mode(value: str | None) -> str | None:
+    """typer callback of ``--human``: one of the gear's human modes, checked before any
+    work (an option's networks are trained before its trials run).
+
+    Raises:
+        typer.BadParameter: another value (one line, exit 2).
+    """
+    from dynoplan.envs.gear.human import HUMAN_MODES
+
+    if value is not None and value not in HUMAN_MODES:
+        raise typer.BadParameter(f"expected one of {', '.join(HUMAN_MODES)}, got {value!r}")
+    return value
+
+
+__all__ = ["folder", "human_mode"]

@@ -219,7 +219,8 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
     if variant.chooser == "planner":
         chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
                                 models.goal, horizon=settings.horizon,
-                                samples=settings.samples, risk=settings.risk)
+                                samples=settings.samples, risk=settings.risk,
+                                epistemic=settings.epistemic)
     elif variant.chooser == "oracle":
         chooser = gear_oracle(env, options, factories, models.goal,
                               settings.oracle_horizon, settings.oracle_samples)

@@ -25,11 +25,13 @@ import numpy as np
 
 from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
+from dynoplan.reports.tables import markdown_table
 
 RESULT_COLUMNS = (
     "controller", "episodes", "success_rate", "time_to_success_s", "contacts",
-    "episodes_with_contact", "min_human_distance", "out_of_region_starts", "switches",
-    "holds", "decision_ms_p50", "decision_ms_p99",
+    "episodes_with_contact", "contacts_moving", "contacts_at_rest", "sp_violations_moving",
+    "protective_stops", "min_human_distance", "out_of_region_starts", "switches", "holds",
+    "decision_ms_p50", "decision_ms_p99",
 )
 """Columns of ``results.csv``, in order."""
 
@@ -56,6 +58,9 @@ def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
         "time_to_success_s": float(np.median([seconds(e) for e in ok])) if ok else None,
         "contacts": int(sum(contacts)),
         "episodes_with_contact": int(sum(c > 0 for c in contacts)),
+        **{key: int(sum(int(e.task_metrics.get(key, 0)) for e in episodes))
+           for key in ("contacts_moving", "contacts_at_rest", "sp_violations_moving",
+                       "protective_stops")},
         "min_human_distance": float(min(e.task_metrics["min_human_distance"]
                                         for e in episodes)),
         "out_of_region_starts": int(sum(e.out_of_region_starts for e in episodes)),
@@ -74,4 +79,19 @@ def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
     return row
 
 
-__all__ = ["RESULT_COLUMNS", "human_mode", "seconds", "summarise"]
+def behaviour_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown: per controller (row of :func:`summarise`), success and contacts by the
+    human's behaviour."""
+    modes = sorted({m for r in rows for m in r["by_human_mode"]})
+    return markdown_table([
+        {"controller": r["controller"], **{m: _mode_cell(r["by_human_mode"].get(m))
+                                           for m in modes}} for r in rows])
+
+
+def _mode_cell(entry: dict[str, Any] | None) -> str:
+    if not entry:
+        return "–"
+    return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
+
+
+__all__ = ["RESULT_COLUMNS", "behaviour_table", "human_mode", "seconds", "summarise"]

@@ -13,13 +13,13 @@ from typing import Any
 
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS, behaviour_table
 from dynoplan.experiments.gear_run import (
     EVAL_SEED_OFFSET,
     GearRunSettings,
     evaluate_gear_controllers,
 )
-from dynoplan.experiments.gear_task import FLAT_POLICY
+from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.evaluate import ControllerSettings
@@ -30,11 +30,13 @@ from dynoplan.seeding import episode_seeds
 def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], episodes: int,
                         seed: int = 0, planner: ControllerSettings = GEAR_CONTROL,
                         flat_folder: Path | None = None, workers: Workers = SERIAL,
-                        progress: bool = True) -> dict[str, Any]:
+                        progress: bool = True,
+                        task: GearTask = GearTask()) -> dict[str, Any]:
     """Evaluate ``controllers`` (of :data:`VARIANTS` and ``flat_ppo``) on ``episodes``
     seeded episodes each; write ``results.csv``, ``results.md``, ``episodes.json`` and
     ``summary.json`` (with ``wall_s``, Ray's start included) into ``out``; return the
-    summary.
+    summary. ``task``: the gear as the episodes see it: the human behaviours they draw
+    from (``results.md`` has the success by behaviour) and the runtime monitor.
 
     Raises:
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
@@ -63,9 +65,11 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     t0 = time.perf_counter()
     with ray_session(workers):
         rows, per_episode = evaluate_gear_controllers(models, seeds, settings, flat, progress,
-                                                 workers, names)
+                                                      workers, names, task)
     wall = time.perf_counter() - t0
     summary = {"models": str(models), "seed": seed, "episodes": episodes,
+               "human": list(task.human) if task.human is not None else None,
+               "shield": task.shield,
                "planner": asdict(planner), "workers": asdict(workers),
                "wall_s": round(wall, 2), "results": rows}
     write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
@@ -76,7 +80,11 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
         f"Models {models}; seed {seed}; {episodes} episodes per controller; planner "
         f"horizon {planner.horizon}, samples {planner.samples}; {workers.count} worker(s)"
         f"{'' if workers.address is None else ' on ' + workers.address}; "
-        f"{wall:.1f} s wall.", "", markdown_table(rows, RESULT_COLUMNS)]))
+        f"{wall:.1f} s wall; human behaviours "
+        f"{', '.join(task.human or ('away, cross, block (the demonstrations mix)',))}; "
+        f"runtime monitor {'on' if task.shield else 'off'}.",
+        "", markdown_table(rows, RESULT_COLUMNS), "", "Success by human behaviour:", "",
+        behaviour_table(rows)]))
     write_json(out / "summary.json", summary)
     return summary
 

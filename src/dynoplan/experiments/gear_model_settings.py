@@ -18,6 +18,8 @@ class GearTrainSettings:
     Attributes:
         goal_hidden, goal_members, goal_epochs: the goal network (width of both hidden
             layers, ensemble size, epochs).
+        goal_ranking: weight of the goal network's ranking loss along demonstrations
+            (:meth:`~dynoplan.models.goal_network.GoalNetwork.fit`; 0: none).
         region_reg_covar: variance (rad^2 or m^2) added to every mixture covariance's
             diagonal: a floor of about 5 cm / 0.05 rad on the regions' width, so that
             directions the 10 demonstrations hardly vary in do not make regions
@@ -51,6 +53,7 @@ class GearTrainSettings:
     goal_hidden: int = 64
     goal_members: int = 3
     goal_epochs: int = 150
+    goal_ranking: float = 0.0
     region_reg_covar: float = 3e-3
     region_max_components: int = 8
     region_coverage: float = 0.99

@@ -201,8 +201,10 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
     f = GOAL_FEATURES
     x = np.concatenate([f(s) for s, _, _ in train])
     y = np.concatenate([p for _, p, _ in train])
+    groups = np.concatenate([np.full(len(p), i) for i, (_, p, _) in enumerate(train)])
     network, report = GoalNetwork.fit(x, y, hidden=cfg.goal_hidden, members=cfg.goal_members,
-                                      epochs=cfg.goal_epochs, seed=seed)
+                                      epochs=cfg.goal_epochs, seed=seed, groups=groups,
+                                      ranking=cfg.goal_ranking)
     network.save(out / GOAL_FILE)
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])

@@ -4,18 +4,19 @@ of dynamics that have seen where an option does not belong.
 
 Run ``r`` of option ``o`` (everything seeded from ``[seed, OUTCOME_STREAM, o, r]``):
 
-1. a *source* option is drawn among all registered ones and the env is driven to a start
-   of the source (:func:`~dynoplan.envs.gear.options.starts.reach_start`, the human in a
-   random mode);
-2. the source runs for a random number of decisions (0 to ``lead_decisions``), so that
-   the starts cover the states the other options visit, not only where they begin;
+1. with probability ``own_fraction`` the env is driven to a start of ``o`` itself, else
+   to a start of another registered option, the *source*
+   (:func:`~dynoplan.envs.gear.options.starts.reach_start`, the human in a random mode);
+2. another source runs for a random number of decisions (0 to ``lead_decisions``), so
+   that the starts cover the states the other options visit, not only where they begin;
 3. option ``o`` starts there and runs until it finishes, the episode ends or
    ``max_decisions`` decisions pass.
 
 Each decision state ``s_i`` of ``o``'s run is a start with a known outcome: the run from
 ``s_i`` on *ended well* (:func:`run_outcomes`) when the option reached its own end
-(``status == "done"`` and its own ``succeeded(info)``) and did not finish at once: more
-than one decision remained, or the step ended the task with success. The runs are
+(``status == "done"`` and its own ``succeeded(info)``) without touching the human, and
+did not finish at once: more than one decision remained, or the step ended the task with
+success. The runs are
 written in the dataset format of ``gear collect`` (one episode per phase offset of the
 decision period, observations one decision apart, ``infos["option"]``), plus
 ``infos["outcome"]`` ``(T,)``: the outcome of starting at each observation.
@@ -41,7 +42,7 @@ from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_collect import CollectJob, CollectState, build_collection
 from dynoplan.parallel import SERIAL, Workers, parallel_map
-from dynoplan.types import BoolArray, FloatArray
+from dynoplan.types import BoolArray, FloatArray, IntArray
 
 DATASET_ID = "dynoplan/gear-assembly/option-outcomes-v0"
 OUTCOME_KEY = "outcome"
@@ -56,24 +57,33 @@ class OutcomeSettings:
     Attributes:
         runs: runs per option.
         max_decisions: decisions (0.5 s each) the option may run.
-        lead_decisions: decisions the source option may run first (drawn uniformly in
-            ``0..lead_decisions``).
+        lead_decisions: decisions another source option may run first (drawn uniformly
+            in ``0..lead_decisions``).
+        own_fraction: share of the runs started in the option's own start region (no
+            lead), so that where it works is as well sampled as where it does not.
     """
 
     runs: int = 40
     max_decisions: int = 30
     lead_decisions: int = 12
+    own_fraction: float = 0.5
 
 
-def run_outcomes(steps: int, ended_well: bool, task_success: bool) -> BoolArray:
-    """Outcomes of starting at each decision of a run that lasted ``steps`` env steps:
-    ``(D,)`` booleans for its ``D = ceil(steps / DECISION_STEPS)`` decision states. From
-    decision ``i`` the option ended well when the run did and, from there, it took more
-    than one decision (or its last step was the task's success): an option that would
-    finish at once where it starts is not admissible there."""
-    decisions = max(1, -(-steps // DECISION_STEPS))
-    remaining = steps - DECISION_STEPS * np.arange(decisions)
-    out: BoolArray = ended_well & ((remaining > DECISION_STEPS) | task_success)
+def run_outcomes(contacts: IntArray, reached_end: bool, task_success: bool) -> BoolArray:
+    """Outcomes of starting the option at each step of a run: ``(T,)`` booleans for a run
+    of ``T`` env steps with ``contacts`` ``(T,)`` robot-human contacts per step.
+
+    From step ``t`` the option ended well when the run reached the option's own end
+    (``reached_end``), no contact happened from ``t`` on, and from there it took more
+    than one decision (:data:`DECISION_STEPS` steps), unless its last step was the task's
+    success: an option that would finish at once where it starts is not admissible
+    there."""
+    c = np.asarray(contacts, dtype=np.int64)
+    steps = len(c)
+    later = np.cumsum(c[::-1])[::-1]  # contacts from step t on
+    remaining = steps - np.arange(steps)
+    out: BoolArray = reached_end & (later == 0) & ((remaining > DECISION_STEPS)
+                                                   | task_success)
     return out
 
 
@@ -87,11 +97,13 @@ def outcome_run(state: CollectState, run: tuple[str, int], settings: OutcomeSett
     key = [state.job.seed, OUTCOME_STREAM, GEAR_OPTIONS.index(option), index]
     reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
     rng = np.random.default_rng(key)
-    source = names[int(rng.integers(len(names)))]
+    own = bool(rng.random() < settings.own_fraction)
+    others = [n for n in names if n != option] or [option]
+    source = option if own else others[int(rng.integers(len(others)))]
     mode = HUMAN_MODES[int(rng.integers(len(HUMAN_MODES)))]
     start = reach_start(env, source, rng, human_mode=mode)
     obs, info = start.observation, start.info
-    lead = int(rng.integers(settings.lead_decisions + 1)) * DECISION_STEPS
+    lead = 0 if own else int(rng.integers(settings.lead_decisions + 1)) * DECISION_STEPS
     if lead:
         lead_policy = state.policies[source]
         lead_policy.reset(obs, rng)
@@ -103,17 +115,21 @@ def outcome_run(state: CollectState, run: tuple[str, int], settings: OutcomeSett
     label = GEAR_OPTIONS.index(option)
     observations: list[FloatArray] = [obs]
     terminated = truncated = False
+    contacts: list[int] = []
     if not (bool(info.get("is_success")) or bool(info.get("gear_dropped"))):
         policy.reset(obs, rng)
         for _ in range(settings.max_decisions * DECISION_STEPS):
             obs, _, terminated, truncated, info = env.step(policy.act(obs))
             observations.append(obs)
+            contacts.append(int(info["human_contacts"]))
             if policy.finished() or terminated or truncated:
                 break
     steps = len(observations) - 1
     success = bool(info.get("is_success"))
-    ended_well = steps > 0 and policy.status == "done" and bool(policy.succeeded(info))
-    outcomes = run_outcomes(steps, ended_well, success)
+    # the task's success ends the episode before the policy can say it is done
+    reached_end = (steps > 0 and (policy.status == "done" or success)
+                   and bool(policy.succeeded(info)))
+    outcomes = run_outcomes(np.asarray(contacts, dtype=np.int64), reached_end, success)
     all_obs = np.asarray(observations)
     episodes = []
     for offset in range(min(DECISION_STEPS, len(all_obs) - 1)):
@@ -124,10 +140,7 @@ def outcome_run(state: CollectState, run: tuple[str, int], settings: OutcomeSett
         if n < 1:
             continue
         # the outcome of starting at rows[:-1]: that of the decision it falls in
-        start_outcome = outcomes[np.minimum(rows[:-1] // DECISION_STEPS, len(outcomes) - 1)]
-        if offset:  # a start inside a decision: its own remaining time decides
-            remaining = steps - rows[:-1]
-            start_outcome = ended_well & ((remaining > DECISION_STEPS) | success)
+        start_outcome = outcomes[rows[:-1]]
         episodes.append(Episode(
             observations=all_obs[rows], actions=np.full(n, label, dtype=np.int64),
             rewards=np.zeros(n), terminations=np.zeros(n, dtype=bool),
@@ -233,6 +246,25 @@ def fit_gear_initiation(models: Path, outcomes: Path, seed: int,
             "file": str(models / INITIATION_FILE)}
 
 
+def transitions_beyond(transitions: Path, outcomes: Path, out: Path) -> dict[str, Any]:
+    """The option transitions of ``gear collect`` (``transitions``) and those of the
+    outcome runs (``outcomes``, options started beyond their own regions) as one dataset
+    ``out`` for ``gear train --transitions``: dynamics that have seen where each option
+    does not belong. Only ``infos["option"]`` is kept."""
+    source = read_dataset(transitions)
+    episodes = [Episode(e.observations, e.actions, e.rewards, e.terminations, e.truncations,
+                        {"option": np.asarray(e.infos["option"])}, e.seed)
+                for e in [*source, *read_outcomes(outcomes)]]
+    meta = source.metadata
+    metadata = DatasetMetadata(
+        dataset_id="dynoplan/gear-assembly/option-transitions-beyond-v0", env_id=meta.env_id,
+        option_names=list(meta.option_names), seed=meta.seed,
+        extra={**meta.extra, "human_modes": None, "sources": [str(transitions), str(outcomes)]},
+        observation_space=meta.observation_space)
+    write_dataset(out, episodes, metadata)
+    return {"dataset": str(out), "episodes": len(episodes)}
+
+
 def read_outcomes(path: Path) -> list[Episode]:
     """The episodes of an outcome dataset (:func:`collect_outcomes`), checked."""
     dataset = read_dataset(path)
@@ -242,6 +274,15 @@ def read_outcomes(path: Path) -> list[Episode]:
     return list(dataset)
 
 
-__all__ = ["DATASET_ID", "OUTCOME_KEY", "OutcomeSettings", "collect_outcomes",
-           "fit_gear_initiation",
-           "outcome_run", "outcome_starts", "read_outcomes", "run_outcomes"]
+__all__ = [
+    "DATASET_ID",
+    "OUTCOME_KEY",
+    "OutcomeSettings",
+    "collect_outcomes",
+    "fit_gear_initiation",
+    "outcome_run",
+    "outcome_starts",
+    "read_outcomes",
+    "run_outcomes",
+    "transitions_beyond",
+]

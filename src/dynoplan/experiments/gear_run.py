@@ -38,7 +38,13 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS, human_mode, seconds, summarise
+from dynoplan.experiments.gear_eval import (
+    RESULT_COLUMNS,
+    behaviour_table,
+    human_mode,
+    seconds,
+    summarise,
+)
 from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
@@ -226,13 +232,15 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          settings: GearRunSettings, flat_folder: Path | None,
                          progress: bool, workers: Workers = SERIAL,
                          names: Sequence[str] = CONTROLLERS,
+                         task: GearTask = GearTask(),
                          ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
     """The controllers ``names`` (of :data:`CONTROLLERS`), and the flat policy if
     ``flat_folder``, on ``seeds``; the oracle on the first ``settings.oracle_episodes``
     of them. All their episodes are one map on ``workers`` (the oracle's first), each
     worker rebuilding the controllers from ``models_dir``; rows and episodes come back in
-    the order of ``names``, then the flat policy."""
-    gear = GearTask(flat_folder=flat_folder)
+    the order of ``names``, then the flat policy. ``task``: the gear as the episodes see it
+    (the human behaviours they draw from, the runtime monitor)."""
+    gear = replace(task, flat_folder=flat_folder)
     jobs = {name: (ControllerJob(gear, models_dir, name, settings.planner),
                    seeds[:settings.oracle_episodes] if name == "oracle" else seeds)
             for name in names}
@@ -333,11 +341,7 @@ def results_markdown(summary: dict[str, Any]) -> str:
                  f"{s['planner']['horizon']}, samples {s['planner']['samples']}; flat PPO "
                  f"{s['ppo_steps']} env steps.")
     lines += ["", markdown_table(summary["results"], RESULT_COLUMNS), "",
-              "Success by human mode:", ""]
-    modes = sorted({m for r in summary["results"] for m in r["by_human_mode"]})
-    lines.append(markdown_table([
-        {"controller": r["controller"], **{m: _mode_cell(r["by_human_mode"].get(m))
-                                           for m in modes}} for r in summary["results"]]))
+              "Success by human mode:", "", behaviour_table(summary["results"])]
     lines += ["", "## Faults (DynoPlan)", "",
               markdown_table(summary["faults"], ("fault", "episodes", "success_rate",
                                                  "contacts", "switches", "holds")),
@@ -353,12 +357,6 @@ def results_markdown(summary: dict[str, Any]) -> str:
                   + ("; flat_ppo and video ran beside the other stages." if
                      workers["count"] > 1 or workers["address"] else ".")]
     return "\n".join(lines)
-
-
-def _mode_cell(entry: dict[str, Any] | None) -> str:
-    if not entry:
-        return "–"
-    return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
 
 
 __all__ = [

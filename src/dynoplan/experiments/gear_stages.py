@@ -19,6 +19,7 @@ chained into one folder write what ``gear run --out DIR`` writes there for the s
 """
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -108,7 +109,8 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
 def learned_models(demos: Path, transitions: Path | None, models: Path, seed: int,
                    heldout: Path | None, quick: bool, progress: bool = True,
                    workers: Workers = SERIAL,
-                   log: Callable[[str], None] = _silent) -> dict[str, Any]:
+                   log: Callable[[str], None] = _silent,
+                   goal_ranking: float | None = None) -> dict[str, Any]:
     """Stage ``train``: the goal heuristic, the safety regions and the dynamics into
     ``models`` (:func:`~dynoplan.experiments.gear_models.train_gear_models` on
     :data:`~dynoplan.experiments.gear_model_settings.QUICK_SETTINGS` or
@@ -122,6 +124,8 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
     from dynoplan.experiments.gear_models import train_gear_models
 
     cfg = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
+    if goal_ranking is not None:  # the goal network's ranking loss (its ablation)
+        cfg = replace(cfg, goal_ranking=goal_ranking)
     if heldout is None:
         heldout = heldout_trials(demos, cfg.heldout_episodes, seed, models / HELDOUT_DIR,
                                  models, progress, workers, log)

@@ -25,7 +25,9 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
-from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.human import BEHAVIOURS
+from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import VARIANTS
 from dynoplan.experiments.gear_model_files import TASK_NAME
@@ -35,6 +37,8 @@ from dynoplan.pipeline.evaluate import (
     EpisodeRecord,
     EpisodeRunner,
 )
+from dynoplan.safety import AT_REST_SPEED, protective_separation
+from dynoplan.safety.shield import SeparationShield
 from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray
 
@@ -55,17 +59,30 @@ class GearTask:
         observation_noise: std (m, rad) of the ``observation_noise`` fault.
         flat_folder: the flat policy's folder (for the :data:`FLAT_POLICY` controller).
         render: make the environment with ``render_mode="rgb_array"`` (for a video).
+        human: the human behaviours an episode draws from, uniformly (of
+            :data:`~dynoplan.envs.gear.human.BEHAVIOURS`; ``None``: the demonstrations'
+            mix of ``away``, ``cross`` and ``block``).
+        shield: wrap the environment in the runtime monitor
+            (:class:`~dynoplan.safety.shield.SeparationShield`, outermost): a protective
+            stop (the arm held where it is) on every step that starts with the arm moving
+            closer to the hand than ``S_p``.
     """
 
     fault: str | None = None
     observation_noise: float = 0.005
     flat_folder: Path | None = None
     render: bool = False
+    human: tuple[str, ...] | None = None
+    shield: bool = False
 
     def __post_init__(self) -> None:
         if self.fault is not None and self.fault not in FAULTS:
             raise DynoplanError(f"unknown fault {self.fault!r}; expected one of "
                                 f"{', '.join(FAULTS)}")
+        unknown = [b for b in self.human or () if b not in BEHAVIOURS]
+        if unknown or self.human == ():
+            raise DynoplanError(f"unknown human behaviour(s) {', '.join(unknown) or '(none)'}; "
+                                f"expected some of {', '.join(BEHAVIOURS)}")
 
     @property
     def name(self) -> str:
@@ -76,12 +93,16 @@ class GearTask:
         :class:`~dynoplan.envs.gear.env.GearAssemblyEnv`)."""
         from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
 
-        gear_env = GearAssemblyEnv(render_mode="rgb_array" if self.render else None)
+        gear_env = GearAssemblyEnv(render_mode="rgb_array" if self.render else None,
+                                   human_behaviours=self.human)
+        env: gym.Env[Any, Any] = gear_env
         if self.fault == "observation_noise":
-            return ObservationNoise(gear_env, self.observation_noise)
-        if self.fault == "grasp_slip":
-            return GraspSlip(gear_env)
-        return gear_env
+            env = ObservationNoise(gear_env, self.observation_noise)
+        elif self.fault == "grasp_slip":
+            env = GraspSlip(gear_env)
+        if self.shield:
+            env = SeparationShield(env, StopWhereItIs(gear_env))
+        return env
 
     def make_runner(self, controller: str, models: Path,
                     settings: ControllerSettings) -> EpisodeRunner:
@@ -119,13 +140,34 @@ class GearTask:
 
 def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
                  min_distance: float = np.inf) -> dict[str, Any]:
-    """The gear's own measurements of an episode from its steps' ``infos``: the human's
-    behaviour, robot-human contacts and the smallest robot-human distance (m; also
-    over ``min_distance``, for example the distance at the reset)."""
+    """The gear's own measurements of an episode from its steps' ``infos``:
+
+    - ``human_mode``: the human's behaviour;
+    - ``contacts``: env steps' physics steps with a robot-human contact, split into
+      ``contacts_moving`` (the robot's fastest point at :data:`AT_REST_SPEED` or more after
+      the step, and the step not a protective stop: a stopped arm that the hand pushes
+      moves, but is not driven) and ``contacts_at_rest``;
+    - ``sp_violations_moving``: steps after which the robot moves closer to the hand than
+      the protective separation distance ``S_p`` of ISO/TS 15066 for the robot's and the
+      hand's measured speeds (:func:`~dynoplan.safety.protective_separation`);
+    - ``protective_stops``: steps the runtime monitor stopped (:attr:`GearTask.shield`);
+    - ``min_human_distance``: the smallest robot-human distance (m; also over
+      ``min_distance``, for example the distance at the reset).
+    """
+    contacts = np.array([int(i["human_contacts"]) for i in infos], dtype=np.int64)
+    stopped = np.array([bool(i.get("protective_stop", False)) for i in infos], dtype=bool)
+    moving = np.array([float(i["robot_speed"]) >= AT_REST_SPEED for i in infos],
+                      dtype=bool) & ~stopped
+    distance = np.array([float(i["min_human_distance"]) for i in infos])
+    s_p = protective_separation(np.array([float(i["robot_speed"]) for i in infos]),
+                                np.array([float(i["human_speed"]) for i in infos]))
     return {"human_mode": env.schedule.mode,
-            "contacts": int(sum(int(i["human_contacts"]) for i in infos)),
-            "min_human_distance": float(min([min_distance, *(
-                float(i["min_human_distance"]) for i in infos)]))}
+            "contacts": int(contacts.sum()),
+            "contacts_moving": int(contacts[moving].sum()),
+            "contacts_at_rest": int(contacts[~moving].sum()),
+            "sp_violations_moving": int(np.sum(moving & (distance < s_p))),
+            "protective_stops": int(stopped.sum()),
+            "min_human_distance": float(min([min_distance, *distance.tolist()]))}
 
 
 def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, Any]:
@@ -133,6 +175,18 @@ def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, An
     gear_env = env.unwrapped
     assert isinstance(gear_env, GearAssemblyEnv)
     return gear_metrics(gear_env, trace.infos)
+
+
+class StopWhereItIs:
+    """The gear's protective stop: both arms commanded to the joint angles they have now,
+    the gripper as it is (observation (50,) -> action (13,))."""
+
+    def __init__(self, env: GearAssemblyEnv) -> None:
+        self.env = env
+
+    def __call__(self, observation: FloatArray) -> FloatArray:
+        closed = float(np.asarray(observation)[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
+        return np.concatenate([self.env.arm_qpos, [1.0 if closed else 0.0]])
 
 
 @dataclass
@@ -162,5 +216,5 @@ class FlatPolicyRunner:
                              tuple(ms), (), (), gear_metrics(self.env, infos, first_distance))
 
 
-__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "episode_metrics",
-           "gear_metrics"]
+__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "StopWhereItIs",
+           "episode_metrics", "gear_metrics"]

@@ -16,7 +16,7 @@ seeds over one models folder, read from TOML or JSON.
 
 Grid keys: fields of :class:`~dynoplan.pipeline.evaluate.ControllerSettings`
 (``horizon``, ``samples``, ``oracle_horizon``, ``oracle_samples``, ``margin``,
-``dynamics_noise``), ``controller`` and ``seed``. Any mistake is one
+``dynamics_noise``, ``epistemic``), ``controller`` and ``seed``. Any mistake is one
 :class:`~dynoplan.errors.DynoplanError` naming the file and the field.
 """
 
@@ -37,7 +37,7 @@ from dynoplan.pipeline.evaluate import ControllerSettings
 INT_KEYS = ("horizon", "samples", "oracle_horizon", "oracle_samples")
 """Grid keys of positive integers (at most :data:`~dynoplan.limits.HORIZON_MAX` for the
 horizons, :data:`~dynoplan.limits.SAMPLES_MAX` for the samples)."""
-FLOAT_KEYS = ("margin", "dynamics_noise")
+FLOAT_KEYS = ("margin", "dynamics_noise", "epistemic")
 """Grid keys of non-negative numbers."""
 GRID_KEYS = (*INT_KEYS, *FLOAT_KEYS, "controller", "seed")
 TOP_KEYS = ("models", "episodes", "controller", "seed", "grid")

@@ -38,6 +38,19 @@ if TYPE_CHECKING:
 _MAX_LAYOUTS = 8  # work-buffer sets kept per stack (one per batch size seen, newest kept)
 
 
+class MemberStep:
+    """A rollout step function ``(options, samples, d) -> same shape`` that keeps every
+    rollout on one ensemble member, and says which: ``members`` ``(options, samples)``,
+    the member index of each rollout (for the planner's epistemic term)."""
+
+    def __init__(self, step: Callable[[FloatArray], FloatArray], members: np.ndarray) -> None:
+        self._step = step
+        self.members = members
+
+    def __call__(self, states: FloatArray) -> FloatArray:
+        return self._step(states)
+
+
 class StackedMLPEnsemble:
     """Several options' ensembles of one architecture as one float32 tensor program.
 
@@ -98,13 +111,16 @@ class StackedMLPEnsemble:
         lay = self._layout(samples)
         gather, scatter = lay.draw(rng)
         o, d = self.options, self.state_dim
+        # the member of every rollout: slot p of the blocks belongs to member (p // m) % e
+        member = np.empty(lay.result_rows, dtype=np.int64)
+        member[scatter] = (np.arange(len(scatter)) // lay.slots) % self.members
 
         def step(states: FloatArray) -> FloatArray:
             x = np.asarray(states, dtype=np.float64)
             if x.shape != (o, samples, d):
                 raise ValueError(f"states must be {(o, samples, d)}, got {x.shape}")
             return self._sample(x, lay, gather, scatter, rng)
-        return step
+        return MemberStep(step, member[:o * samples].reshape(o, samples))
 
     def _layout(self, samples: int) -> "_Layout":
         lay = self._layouts.get(samples)
@@ -229,4 +245,4 @@ def _folded_layers(models: Sequence["MLPEnsembleDynamics"]) -> tuple[list[torch.
             [torch.from_numpy(np.concatenate(b).astype(np.float32)) for b in biases])
 
 
-__all__ = ["StackedMLPEnsemble"]
+__all__ = ["MemberStep", "StackedMLPEnsemble"]

@@ -10,7 +10,11 @@ The network outputs a **Beta distribution** over ``[0, 1]`` for each state,
 
 trained by the Beta negative log-likelihood of the targets (clipped to
 ``[eps, 1 - eps]`` so that the first and last states of a demonstration have finite
-density).
+density), plus, with ``ranking > 0``, a pairwise ranking loss along each demonstration:
+for states ``s_i`` before ``s_j`` of one demonstration, ``softplus(a(s_i) - a(s_j))``
+on the logit of the mean (RankNet's logistic loss), so that later states score higher
+even where the likelihood alone lets two phases blur (the last phase, where a half-done
+insertion must score above the pose it started from).
 
 Why a Beta and not a Gaussian on the logit: the Beta's support is exactly ``[0, 1]``, its
 mean ``mu`` and variance ``mu (1 - mu) / (kappa + 1)`` are closed-form (the planner's
@@ -46,7 +50,7 @@ from dynoplan.models.mlp_file import (
     require_finite,
 )
 from dynoplan.models.storage import as_states, load_arrays, save_arrays
-from dynoplan.models.trainer import HoldOut, KeepBest, shuffled, train
+from dynoplan.models.trainer import BatchLoss, HoldOut, KeepBest, shuffled, train
 from dynoplan.types import FloatArray, Generator, IntArray
 
 _KIND = "goal_network"
@@ -114,9 +118,22 @@ class _BetaEnsemble(nn.Module):
         nll = _beta_nll(self(x), y)
         return nll, nll
 
+    def ranked_loss(self, ranking: float) -> BatchLoss:
+        """The loss with a pairwise ranking term of weight ``ranking``: targets
+        ``(batch, 2)`` hold the clipped progress and the demonstration id of each state;
+        returns ``(nll + ranking * rank, nll)``."""
+
+        def loss(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            raw = self(x)
+            nll = _beta_nll(raw, y[:, 0])
+            return nll + ranking * _ranking_loss(raw, y[:, 0], y[:, 1]), nll
+
+        return loss
+
     def holdout_nll(self, x: torch.Tensor, y: torch.Tensor) -> float:
-        """:func:`_beta_nll` per member (the mean over members of their mean NLL)."""
-        return float(_beta_nll(self(x), y)) / self.members
+        """:func:`_beta_nll` per member (the mean over members of their mean NLL); ``y``
+        ``(batch,)`` or ``(batch, 2)`` (progress first)."""
+        return float(_beta_nll(self(x), y if y.ndim == 1 else y[:, 0])) / self.members
 
 
 def _beta_params(raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -125,6 +142,19 @@ def _beta_params(raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     kappa = nn.functional.softplus(raw[..., 1]) + _KAPPA_FLOOR
     # sigmoid(-a) rather than 1 - sigmoid(a): keeps beta > 0 when mu rounds to 1
     return torch.sigmoid(a) * kappa, torch.sigmoid(-a) * kappa
+
+
+def _ranking_loss(raw: torch.Tensor, progress: torch.Tensor,
+                  group: torch.Tensor) -> torch.Tensor:
+    """Sum over members of the mean ``softplus(a_i - a_j)`` over the minibatch's pairs
+    ``(i, j)`` of one demonstration with ``progress_j > progress_i`` (0 without pairs);
+    ``raw`` ``(members, batch, 2)``, ``progress`` and ``group`` ``(batch,)``."""
+    a = raw[..., 0].clamp(-_LOGIT_CLAMP, _LOGIT_CLAMP)  # (members, batch)
+    later = (group[:, None] == group[None, :]) & (progress[None, :] > progress[:, None])
+    if not bool(later.any()):
+        return raw.sum() * 0.0
+    diff = a[:, :, None] - a[:, None, :]  # (members, i, j): a_i - a_j
+    return nn.functional.softplus(diff[:, later]).mean(dim=1).sum()
 
 
 def _beta_nll(raw: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -242,6 +272,7 @@ class GoalNetwork:
         holdout_fraction: float = 0.0,
         groups: IntArray | None = None,
         keep_best: bool = True,
+        ranking: float = 0.0,
     ) -> tuple["GoalNetwork", GoalTrainingReport]:
         """Fit ``G`` to demonstration states and their progress by Beta maximum likelihood.
 
@@ -263,6 +294,9 @@ class GoalNetwork:
                 demonstrations are held out rather than scattered states.
             keep_best: with a hold-out, return the weights of the epoch with the lowest
                 held-out loss (the concentration overfits first when trained long).
+            ranking: weight of the pairwise ranking loss along demonstrations (module
+                docstring; 0: likelihood alone); pairs come from one group of ``groups``
+                (all states are one group without them).
 
         Returns:
             The fitted network and a :class:`GoalTrainingReport`.
@@ -280,6 +314,8 @@ class GoalNetwork:
             raise DynoplanError(f"lr must be positive, got {lr}")
         if not (math.isfinite(weight_decay) and weight_decay >= 0.0):
             raise DynoplanError(f"weight_decay must be >= 0, got {weight_decay}")
+        if not (math.isfinite(ranking) and ranking >= 0.0):
+            raise DynoplanError(f"ranking must be >= 0, got {ranking}")
         if not 0.0 <= holdout_fraction < 1.0:
             raise DynoplanError(f"holdout_fraction must be in [0, 1), got {holdout_fraction}")
         train_idx, held_idx = _split(len(x), holdout_fraction, groups, seed)
@@ -288,6 +324,9 @@ class GoalNetwork:
         net = _BetaEnsemble(x.shape[1], hidden, members, generator)
         xt = torch.as_tensor(x, dtype=torch.float32)
         yt = torch.as_tensor(np.clip(y, _TARGET_EPS, 1.0 - _TARGET_EPS), dtype=torch.float32)
+        if ranking > 0.0:  # targets carry the demonstration id for the pairs
+            ids = np.zeros(len(y)) if groups is None else np.asarray(groups, np.float64)
+            yt = torch.stack([yt, torch.as_tensor(ids, dtype=torch.float32)], dim=1)
         x_train, y_train = xt[train_idx], yt[train_idx]
         with torch.no_grad():
             net.in_mean.copy_(x_train.mean(dim=0))
@@ -300,7 +339,8 @@ class GoalNetwork:
             optimiser, lambda epoch: 0.5 * (1.0 + math.cos(math.pi * epoch / epochs)))
         holdout = HoldOut(xt[held_idx], yt[held_idx], net.holdout_nll) if len(held_idx) else None
         rows = shuffled(len(train_idx), generator)
-        result = train(net, net.loss, x_train, y_train, optimiser, rows, epochs=epochs,
+        loss = net.ranked_loss(ranking) if ranking > 0.0 else net.loss
+        result = train(net, loss, x_train, y_train, optimiser, rows, epochs=epochs,
                        batch_size=batch_size, schedule=schedule, holdout=holdout,
                        keep_best=KeepBest(ties="last") if keep_best else None)
         report = GoalTrainingReport(

@@ -52,6 +52,8 @@ class ControllerSettings:
         oracle_samples: simulated rollouts per option of the oracle.
         dynamics_noise: std of Gaussian noise added to every learned prediction of
             DynoPlan's planner (a fault; 0 for none).
+        epistemic: weight of the dynamics ensemble's disagreement in the planner's score
+            (:class:`~dynoplan.planning.OptionPlanner`; 0: the paper's expectation).
     """
 
     horizon: int = 20
@@ -65,6 +67,7 @@ class ControllerSettings:
     oracle_horizon: int = 10
     oracle_samples: int = 1
     dynamics_noise: float = 0.0
+    epistemic: float = 0.0
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -76,6 +79,8 @@ class ControllerSettings:
                 f"and {self.oracle_samples}")
         if not self.dynamics_noise >= 0.0:
             raise DynoplanError(f"dynamics_noise must be >= 0, got {self.dynamics_noise}")
+        if not self.epistemic >= 0.0:
+            raise DynoplanError(f"epistemic must be >= 0, got {self.epistemic}")
         if self.replan_every is not None and self.replan_every < 1:
             raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
         if self.max_decisions < 1 or self.max_option_steps < 1:
@@ -148,7 +153,7 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
         chooser = OptionPlanner(with_dynamics_noise(planner_options or options,
                                                     settings.dynamics_noise), goal,
                                 horizon=settings.horizon, samples=settings.samples,
-                                risk=settings.risk)
+                                risk=settings.risk, epistemic=settings.epistemic)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):

@@ -8,7 +8,11 @@ option's dynamics model, each running until the option's termination ``beta_w`` 
 (its initiation set unless it has another), or ``horizon`` steps pass; ensemble models
 keep one member per rollout (PETS's TS-infinity). The goal heuristic scores each end
 state; an option's score is the mean over its rollouts minus ``risk`` times their
-standard deviation (``risk=0`` is the paper's expectation).
+standard deviation (``risk=0`` is the paper's expectation), minus ``epistemic`` times
+the ensemble's disagreement about it: the standard deviation over the dynamics
+ensemble's members of the mean ``G`` of each member's rollouts (PETS's and MOPO's idea:
+where the members disagree the model has not seen the data, and a rollout that promises
+progress there is not to be trusted).
 
 All admissible options x samples advance together, one stacked array computation per
 horizon step; the only Python loop is over the horizon.
@@ -25,6 +29,7 @@ from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import Everywhere
 from dynoplan.options.option import Option, admissible
 from dynoplan.options.termination import StackedTermination, stack_terminations
+from dynoplan.safety.constraint import SafetyConstraint
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
 
@@ -37,11 +42,17 @@ class Rollouts:
         steps: ``(options, samples)``, steps taken before stopping.
         valid: ``(options, samples)``, False where the model produced a non-finite state
             (the rollout is stopped at its last finite state and scored 0).
+        members: ``(options, samples)``, the ensemble member each rollout followed, or
+            ``None`` when the dynamics are not ensembles that say so.
+        unsafe: ``(options, samples)``, True where the safety constraint found an unsafe
+            step of the rollout (``None`` without a constraint).
     """
 
     end_states: FloatArray
     steps: IntArray
     valid: BoolArray
+    members: IntArray | None = None
+    unsafe: BoolArray | None = None
 
 
 @dataclass(frozen=True)
@@ -54,11 +65,16 @@ class Plan:
     Attributes:
         option_names: ``(options,)``.
         admissible: ``(options,)``, ``1_{I_w}(s_t)``.
-        scores: ``(options,)``, ``E[G] - risk * std[G]`` over rollouts.
+        scores: ``(options,)``, ``E[G] - risk * std[G] - epistemic * disagreement``.
         spreads: ``(options,)``, ``std[G]`` over rollouts.
+        disagreements: ``(options,)``, std over ensemble members of each member's mean
+            ``G`` (0 without member information).
         end_states: ``(options, samples, state_dim)``.
         steps: ``(options, samples)``.
         chosen: index of the argmax, or ``None`` when no option is admissible.
+        unsafe_shares: ``(options,)``, the share of an option's rollouts with an unsafe
+            step (``None`` without a safety constraint). An option above the planner's
+            risk level is not admissible now: its score is ``-inf``.
     """
 
     option_names: tuple[str, ...]
@@ -68,10 +84,32 @@ class Plan:
     end_states: FloatArray
     steps: IntArray
     chosen: int | None
+    disagreements: FloatArray | None = None
+    unsafe_shares: FloatArray | None = None
 
     @property
     def chosen_name(self) -> str | None:
         return None if self.chosen is None else self.option_names[self.chosen]
+
+
+def member_disagreement(g: FloatArray, members: IntArray | None) -> FloatArray:
+    """Std over ensemble members of the mean of each member's rollout scores.
+
+    Args:
+        g: ``(options, samples)`` goal values of the rollouts' end states.
+        members: ``(options, samples)`` member index of each rollout, or ``None``.
+
+    Returns:
+        ``(options,)``; 0 where there is no member information or one member.
+    """
+    if members is None:
+        return np.zeros(g.shape[0])
+    out = np.zeros(g.shape[0])
+    for o in range(g.shape[0]):
+        ids = np.unique(members[o])
+        if len(ids) > 1:
+            out[o] = float(np.std([g[o][members[o] == k].mean() for k in ids]))
+    return out
 
 
 class OptionPlanner:
@@ -84,13 +122,23 @@ class OptionPlanner:
         horizon: ``n``, the most steps a rollout may take.
         samples: ``S``, Monte-Carlo rollouts per option.
         risk: ``k`` in ``mean - k * std``; 0 reproduces the paper.
+        epistemic: weight of the ensemble disagreement subtracted from the score (0
+            reproduces the paper).
         respect_regions: stop a rollout when it leaves the option's continuation set
             (its initiation set unless given; the controller would stop the real option
             there too).
+        constraint: the chance constraint of the safe Eq. 1
+            (:class:`~dynoplan.safety.constraint.SafetyConstraint`; ``None``: the paper's
+            Eq. 1).
+        risk_level: ``epsilon``: an option whose share of rollouts with an unsafe step
+            exceeds it is not admissible now (score ``-inf``); with none left, no option
+            is chosen and the controller holds.
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
-                 samples: int = 64, risk: float = 0.0, respect_regions: bool = True) -> None:
+                 samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
+                 epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
+                 risk_level: float = 0.05) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -103,7 +151,12 @@ class OptionPlanner:
         self.horizon = int(horizon)
         self.samples = int(samples)
         self.risk = float(risk)
+        self.epistemic = float(epistemic)
         self.respect_regions = respect_regions
+        if not 0.0 <= risk_level <= 1.0:
+            raise DynoplanError(f"risk_level must be in [0, 1], got {risk_level}")
+        self.constraint = constraint
+        self.risk_level = float(risk_level)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
 
     @property
@@ -131,21 +184,34 @@ class OptionPlanner:
         may_run = self.admissible(s, running)
         scores = np.full(n_opt, np.nan)
         spreads = np.full(n_opt, np.nan)
+        disagreements = np.full(n_opt, np.nan)
         end_states = np.full((n_opt, self.samples, d), np.nan)
         steps = np.zeros((n_opt, self.samples), dtype=np.int64)
         idx = tuple(int(i) for i in np.flatnonzero(may_run))
         chosen: int | None = None
+        shares = None if self.constraint is None else np.full(n_opt, np.nan)
         if idx:
+            if self.constraint is not None:
+                self.constraint.prepare(s)
             roll = self.rollout(idx, s, rng)
             g = self.goal.sample(roll.end_states.reshape(-1, d), rng).reshape(len(idx), -1)
             g = np.where(roll.valid, g, 0.0)
             mean, std = g.mean(axis=1), g.std(axis=1)
-            scores[list(idx)] = mean - self.risk * std
+            split = member_disagreement(g, roll.members)
+            scores[list(idx)] = mean - self.risk * std - self.epistemic * split
             spreads[list(idx)] = std
+            disagreements[list(idx)] = split
             end_states[list(idx)] = roll.end_states
             steps[list(idx)] = roll.steps
-            chosen = idx[int(np.argmax(scores[list(idx)]))]
-        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen)
+            if shares is not None and roll.unsafe is not None:
+                shares[list(idx)] = roll.unsafe.mean(axis=1)
+                scores[list(idx)] = np.where(shares[list(idx)] > self.risk_level, -np.inf,
+                                             scores[list(idx)])
+            best = int(np.argmax(scores[list(idx)]))
+            unsafe_everywhere = shares is not None and scores[idx[best]] == -np.inf
+            chosen = None if unsafe_everywhere else idx[best]
+        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen,
+                    disagreements, shares)
 
     def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator) -> Rollouts:
         """Roll the given options forward from ``state``: one batched step per horizon step.
@@ -163,6 +229,7 @@ class OptionPlanner:
                        self.options[i].continuation_set, Everywhere)]
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
         step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
+        unsafe = None if self.constraint is None else np.zeros_like(alive)
         for t in range(self.horizon):
             if not alive.any():
                 break
@@ -172,12 +239,17 @@ class OptionPlanner:
                 finite = np.isfinite(nxt).all(axis=-1)
                 valid &= finite | ~alive
                 moved = alive & finite
+            if unsafe is not None and self.constraint is not None:
+                unsafe |= moved & self.constraint.unsafe(x, np.where(moved[..., None], nxt, x),
+                                                         t + 1)
             np.copyto(x, nxt, where=moved[..., None])
             steps += moved
             alive = moved & (stop_draws[t] >= termination.probability(x))
             for j, initiation in regions:
                 alive[j] &= initiation.contains(x[j])
-        return Rollouts(x, steps, valid)
+        members = getattr(step, "members", None)
+        return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
+                        unsafe)
 
     def _stack(self, idx: tuple[int, ...]) -> tuple[StackedDynamics, StackedTermination]:
         if idx not in self._stacks:

@@ -19,7 +19,7 @@ from dynoplan.envs.gear.collision import (
     count_contacts,
     min_distance,
 )
-from dynoplan.envs.gear.human import HUMAN_MODES, HumanSchedule, sample_schedule
+from dynoplan.envs.gear.human import BEHAVIOURS, HumanSchedule, sample_schedule
 from dynoplan.envs.gear.render import SceneRenderer
 from dynoplan.envs.gear.scene import (
     ARM_ACTUATORS,
@@ -102,18 +102,31 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
     ``min_human_distance`` (m, robot-human, after the step), ``human_contacts`` (physics
     steps in this env step with a robot-human contact), ``human_contacts_total``,
     ``robot_collisions`` (robot contacts with the table or itself after the step),
-    ``pads_on_gear`` (0..2), ``insertion_depth`` (m), ``gear_tilt`` (rad), ``time`` (s).
+    ``pads_on_gear`` (0..2), ``insertion_depth`` (m), ``gear_tilt`` (rad), ``time`` (s),
+    ``robot_speed`` (m/s, the fastest centre of the robot's colliding geoms: the arm, not
+    the tool point alone) and ``human_speed`` (m/s, the hand's).
 
-    ``reset(options=...)`` accepts ``gear_pose=(x, y, yaw)``, ``human_mode`` (``"away"``,
-    ``"cross"``, ``"block"``) and ``human_schedule`` (a :class:`HumanSchedule`).
+    ``reset(options=...)`` accepts ``gear_pose=(x, y, yaw)``, ``human_mode`` (one of
+    :data:`~dynoplan.envs.gear.human.BEHAVIOURS`) and ``human_schedule`` (a
+    :class:`HumanSchedule`).
+
+    ``human_behaviours``: the behaviours a reset draws from, uniformly (``None``: the
+    demonstrations' mix of ``away``, ``cross`` and ``block``,
+    :func:`~dynoplan.envs.gear.human.sample_schedule`'s default).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}  # noqa: RUF012
 
     def __init__(self, render_mode: str | None = None, max_episode_steps: int = 800,
-                 width: int = 640, height: int = 480, camera: str = "overview") -> None:
+                 width: int = 640, height: int = 480, camera: str = "overview",
+                 human_behaviours: tuple[str, ...] | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        unknown = [b for b in human_behaviours or () if b not in BEHAVIOURS]
+        if unknown or human_behaviours == ():
+            raise ValueError(f"human_behaviours must be some of {BEHAVIOURS}, got "
+                             f"{human_behaviours!r}")
+        self.human_behaviours = human_behaviours
         if max_episode_steps < 1:
             raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         self.render_mode = render_mode
@@ -192,8 +205,10 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
             self.schedule = schedule
         else:
             mode = options.get("human_mode")
-            if mode is not None and mode not in HUMAN_MODES:
-                raise ValueError(f"human_mode must be one of {HUMAN_MODES}, got {mode!r}")
+            if mode is not None and mode not in BEHAVIOURS:
+                raise ValueError(f"human_mode must be one of {BEHAVIOURS}, got {mode!r}")
+            if mode is None and self.human_behaviours is not None:
+                mode = self.human_behaviours[int(rng.integers(len(self.human_behaviours)))]
             self.schedule = sample_schedule(rng, np.array([x, y]),
                                             d.site_xpos[self._peg_tip].copy(), mode=mode)
         self._set_human(0.0)
@@ -349,8 +364,20 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
             "gear_tilt": rel.tilt,
             "gear_dropped": bool(gear_pos[2] < TABLE_TOP_Z - 0.2),
             "time": float(d.time),
+            "robot_speed": self.robot_speed(),
+            "human_speed": float(np.linalg.norm(self.schedule.velocity(float(d.time)))),
         }
         return info
+
+    def robot_speed(self) -> float:
+        """m/s: the largest linear speed of the centre of any colliding robot geom."""
+        m, d = self.model, self.data
+        velocity = np.empty(6)
+        fastest = 0.0
+        for geom in self.geoms.robot:
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_GEOM, int(geom), velocity, 0)
+            fastest = max(fastest, float(np.linalg.norm(velocity[3:])))
+        return fastest
 
 
 __all__ = ["OBS_SLICES", "STAGES", "STAGE_INDEX", "GearAssemblyEnv"]

@@ -12,12 +12,23 @@ Between events the hand rests. Speeds are drawn per event. The schedule is a lis
 keyframes; the pose at any time is known in advance, so a privileged expert (or a
 planner using the simulator as its model) can predict where the hand will be.
 The forearm points from the hand towards the operator's shoulder.
+
+These three (:data:`HUMAN_MODES`) are the behaviours of every demonstration, collection
+and default episode. Four more (:data:`UNSEEN_BEHAVIOURS`) appear in no demonstration or
+training run; an evaluation selects them to test the models on behaviours they never saw:
+
+- ``reach``: the hand reaches for the gear on the table (a few cm above it), stays
+  there, and goes back;
+- ``linger``: the hand goes over the peg and stays there for several seconds;
+- ``fast_cross``: a crossing at the arm's height (lower than ``cross``), at 1-1.6 m/s;
+- ``two_passes``: two crossings, there and back, with a short pause between them.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
+from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.types import FloatArray, Generator
 
 REST = np.array([1.25, 0.35, 0.95])
@@ -25,7 +36,14 @@ SHOULDER_X = 1.6
 SHOULDER_Z = 1.3
 
 HUMAN_MODES = ("away", "cross", "block")
-"""Episode kinds: no event, at least one crossing, at least one blocking event."""
+"""Episode kinds of the demonstrations, the collection and the default evaluation: no
+event, at least one crossing, at least one blocking event."""
+
+UNSEEN_BEHAVIOURS = ("reach", "linger", "fast_cross", "two_passes")
+"""Behaviours no demonstration or training run shows (module docstring), for evaluation."""
+
+BEHAVIOURS = (*HUMAN_MODES, *UNSEEN_BEHAVIOURS)
+"""Every behaviour ``sample_schedule`` can draw (an episode's ``mode``)."""
 
 SPEED_RANGE = (0.2, 0.6)  # m/s, per event
 CROSS_X_RANGE = (0.6, 0.85)
@@ -36,6 +54,14 @@ BLOCK_Z_RANGE = (0.9, 1.02)
 BLOCK_DWELL_RANGE = (1.5, 4.0)  # s
 FIRST_EVENT_RANGE = (0.5, 8.0)  # s, start of the first event
 GAP_RANGE = (1.0, 4.0)  # s of rest between two events
+REACH_HEIGHT_RANGE = (0.04, 0.10)  # m above the table, over the gear
+REACH_DWELL_RANGE = (1.0, 3.0)  # s
+REACH_SPEED_RANGE = (0.4, 0.8)  # m/s
+LINGER_HEIGHT_RANGE = (0.08, 0.16)  # m above the peg's tip
+LINGER_DWELL_RANGE = (3.0, 6.0)  # s
+FAST_CROSS_SPEED_RANGE = (1.0, 1.6)  # m/s
+FAST_CROSS_Z_RANGE = (0.92, 1.0)  # the arm's height, below ``cross``
+PASS_GAP_RANGE = (0.3, 1.0)  # s between the two passes
 
 
 @dataclass(frozen=True)
@@ -114,20 +140,26 @@ def sample_schedule(rng: Generator, gear_xy: FloatArray, peg_position: FloatArra
         rng: the only source of randomness.
         gear_xy: (2,) where the gear lies on the table.
         peg_position: (3,) the peg's tip (the end of the left arm's path).
-        mode: force ``"away"``, ``"cross"`` or ``"block"`` for the first event; ``None``
-            draws it with ``mode_probabilities``. A second event (of either kind) follows
-            the first with probability 0.3.
+        mode: force ``"away"``, ``"cross"`` or ``"block"`` for the first event, or one
+            of :data:`UNSEEN_BEHAVIOURS` (a single event); ``None`` draws one of
+            :data:`HUMAN_MODES` with ``mode_probabilities``. After a ``cross`` or ``block``
+            a second event (of either kind) follows with probability 0.3.
     """
     if mode is None:
         mode = HUMAN_MODES[int(rng.choice(3, p=np.asarray(mode_probabilities)))]
-    if mode not in HUMAN_MODES:
-        raise ValueError(f"unknown human mode {mode!r}; expected one of {HUMAN_MODES}")
+    if mode not in BEHAVIOURS:
+        raise ValueError(f"unknown human mode {mode!r}; expected one of {BEHAVIOURS}")
     rest = REST + np.array([0.0, rng.uniform(-0.1, 0.1), 0.0])
     shoulder = np.array([SHOULDER_X, rest[1] - 0.15, SHOULDER_Z])
     times: list[float] = [0.0]
     points: list[FloatArray] = [rest]
     events: list[str] = []
-    if mode != "away":
+    if mode in UNSEEN_BEHAVIOURS:
+        _hold(times, points, rng.uniform(*FIRST_EVENT_RANGE))
+        _unseen_event(mode, rng, times, points, gear_xy, peg_position)
+        _move(times, points, rest, rng.uniform(*SPEED_RANGE))
+        events.append(mode)
+    elif mode != "away":
         kinds = [mode]
         if rng.random() < 0.3:
             kinds.append(str(rng.choice(["cross", "block"])))
@@ -152,3 +184,37 @@ def sample_schedule(rng: Generator, gear_xy: FloatArray, peg_position: FloatArra
             events.append(kind)
     return HumanSchedule(times=np.array(times), positions=np.array(points),
                          shoulder=shoulder, events=tuple(events))
+
+
+def _cross(rng: Generator, times: list[float], points: list[FloatArray], speed: float,
+           z_range: tuple[float, float], backwards: bool) -> None:
+    """A sweep across the workspace at a height drawn from ``z_range``."""
+    x = rng.uniform(*CROSS_X_RANGE)
+    z = rng.uniform(*z_range)
+    y0, y1 = CROSS_Y_ENDS[::-1] if backwards else CROSS_Y_ENDS
+    _move(times, points, np.array([x, y0, z]), speed)
+    _move(times, points, np.array([x + rng.uniform(-0.08, 0.08), y1, z]), speed)
+
+
+def _unseen_event(kind: str, rng: Generator, times: list[float], points: list[FloatArray],
+                  gear_xy: FloatArray, peg_position: FloatArray) -> None:
+    """Append the keyframes of one of :data:`UNSEEN_BEHAVIOURS` (without the way back)."""
+    if kind == "reach":
+        target = np.array([gear_xy[0], gear_xy[1],
+                           TABLE_TOP_Z + rng.uniform(*REACH_HEIGHT_RANGE)])
+        _move(times, points, target, rng.uniform(*REACH_SPEED_RANGE))
+        _hold(times, points, rng.uniform(*REACH_DWELL_RANGE))
+    elif kind == "linger":
+        target = np.asarray(peg_position, dtype=np.float64) + np.array(
+            [0.0, 0.0, rng.uniform(*LINGER_HEIGHT_RANGE)])
+        _move(times, points, target, rng.uniform(*SPEED_RANGE))
+        _hold(times, points, rng.uniform(*LINGER_DWELL_RANGE))
+    elif kind == "fast_cross":
+        _cross(rng, times, points, rng.uniform(*FAST_CROSS_SPEED_RANGE), FAST_CROSS_Z_RANGE,
+               backwards=bool(rng.random() < 0.5))
+    else:  # two_passes: there and back
+        speed = rng.uniform(*SPEED_RANGE)
+        backwards = bool(rng.random() < 0.5)
+        _cross(rng, times, points, speed, CROSS_Z_RANGE, backwards)
+        _hold(times, points, rng.uniform(*PASS_GAP_RANGE))
+        _cross(rng, times, points, speed, CROSS_Z_RANGE, not backwards)

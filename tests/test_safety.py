@@ -1,0 +1,163 @@
+"""ISO/TS 15066 separation, the human behaviours no demonstration shows, and the safety
+columns of the gear's evaluation."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from typer.testing import CliRunner
+
+from dynoplan.cli.main import app
+from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.human import (
+    BEHAVIOURS,
+    HUMAN_MODES,
+    UNSEEN_BEHAVIOURS,
+    sample_schedule,
+)
+from dynoplan.safety import SeparationParameters, protective_separation
+from dynoplan.safety.shield import SeparationShield
+
+
+def test_protective_separation_matches_the_formula_by_hand():
+    # v_h (T_r + T_s) + v_r T_r + v_r T_s / 2 + C + Z_d + Z_r
+    # = 1.0 * 0.3 + 0.5 * 0.1 + 0.5 * 0.2 / 2 + 0.05 + 0.02 + 0.01 = 0.48
+    assert protective_separation(0.5, 1.0) == pytest.approx(0.48)
+    # unmeasured human: ISO 13855's 1.6 m/s; a robot at rest keeps the static terms only
+    assert protective_separation(0.0) == pytest.approx(1.6 * 0.3 + 0.08)
+    params = SeparationParameters(reaction_time=0.2, stopping_time=0.4, intrusion=0.0,
+                                  human_uncertainty=0.0, robot_uncertainty=0.0)
+    speeds = protective_separation(np.array([0.0, 1.0]), np.array([2.0, 0.0]), params)
+    assert speeds == pytest.approx([2.0 * 0.6, 0.2 + 0.2])
+    with pytest.raises(ValueError):
+        protective_separation(-0.1, 1.0)
+    with pytest.raises(ValueError):
+        SeparationParameters(stopping_time=float("nan"))
+
+
+class _Measured(gym.Env):
+    """Reports scripted (distance, robot speed, hand speed) after reset and each step, and
+    remembers the actions it was given."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,))
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,))
+
+    def __init__(self, measured):
+        self.measured, self.actions, self.t = measured, [], 0
+
+    def _info(self):
+        d, v_r, v_h = self.measured[self.t]
+        return {"min_human_distance": d, "robot_speed": v_r, "human_speed": v_h}
+
+    def reset(self, *, seed=None, options=None):
+        self.t = 0
+        return np.zeros(1, dtype=np.float32), self._info()
+
+    def step(self, action):
+        self.actions.append(float(action[0]))
+        self.t += 1
+        return np.zeros(1, dtype=np.float32), 0.0, False, False, self._info()
+
+
+def test_the_shield_stops_a_moving_robot_below_s_p_and_only_then():
+    # S_p(0.5 m/s, hand still) = 0.5 * 0.1 + 0.05 + 0.08 = 0.18 m
+    env = _Measured([(1.0, 0.5, 0.0), (0.1, 0.5, 0.0), (0.1, 0.0, 0.0), (0.17, 0.5, 0.0),
+                     (0.19, 0.5, 0.0), (0.19, 0.5, 0.0)])
+    shield = SeparationShield(env, stop_action=lambda obs: np.array([-1.0]))
+    _, info = shield.reset(seed=0)
+    assert info["protective_stops"] == 0
+    stopped = [shield.step(np.array([0.5]))[4]["protective_stop"] for _ in range(5)]
+    # step 1 starts 1 m away: runs; step 2 starts 0.1 m away moving: stopped; step 3 starts
+    # at rest: runs; step 4 at 0.17 m < 0.18 m moving: stopped; step 5 at 0.19 m: runs
+    assert stopped == [False, True, False, True, False]
+    assert env.actions == [0.5, -1.0, 0.5, -1.0, 0.5]
+    assert shield.stops == 2
+    with pytest.raises(KeyError):
+        SeparationShield(gym.make("Pendulum-v1"), lambda obs: obs).must_stop({})
+
+
+def test_the_unseen_behaviours_are_not_in_the_training_mix_and_are_deterministic():
+    assert set(HUMAN_MODES) == {"away", "cross", "block"}
+    assert not set(UNSEEN_BEHAVIOURS) & set(HUMAN_MODES)
+    assert len(UNSEEN_BEHAVIOURS) >= 3
+    gear_xy, peg = np.array([0.6, 0.35]), np.array([0.62, -0.09, 0.91])
+    for behaviour in UNSEEN_BEHAVIOURS:
+        a = sample_schedule(np.random.default_rng(5), gear_xy, peg, mode=behaviour)
+        b = sample_schedule(np.random.default_rng(5), gear_xy, peg, mode=behaviour)
+        assert a.mode == behaviour and a.events == (behaviour,)
+        assert np.array_equal(a.times, b.times) and np.array_equal(a.positions, b.positions)
+        assert np.all(np.diff(a.times) > 0)
+        assert np.allclose(a.positions[-1], a.positions[0])  # back to rest at the end
+    # what each does: reaches the gear, lingers over the peg, crosses fast, twice
+    rng = np.random.default_rng(1)
+    reach = sample_schedule(rng, gear_xy, peg, mode="reach")
+    assert np.min(np.linalg.norm(reach.positions[:, :2] - gear_xy, axis=1)) < 1e-9
+    linger = sample_schedule(rng, gear_xy, peg, mode="linger")
+    over = np.linalg.norm(linger.positions[:, :2] - peg[:2], axis=1) < 1e-9
+    assert over.any() and np.max(np.diff(linger.times)[over[1:] & over[:-1]]) >= 3.0
+    fast = sample_schedule(rng, gear_xy, peg, mode="fast_cross")
+    speeds = np.linalg.norm(np.diff(fast.positions, axis=0), axis=1) / np.diff(fast.times)
+    assert speeds.max() >= 1.0
+    twice = sample_schedule(rng, gear_xy, peg, mode="two_passes")
+    assert len(twice.times) >= 7  # rest, hold, two sweeps with a pause, back
+
+
+def test_the_env_draws_the_given_behaviours_by_seed_and_passes_the_checker():
+    env = GearAssemblyEnv(human_behaviours=UNSEEN_BEHAVIOURS)
+    check_env(env)
+    modes = [env.reset(seed=s)[1] and env.schedule.mode for s in range(12)]
+    assert set(modes) <= set(UNSEEN_BEHAVIOURS) and len(set(modes)) >= 3
+    again = [env.reset(seed=s)[1] and env.schedule.mode for s in range(12)]
+    assert modes == again
+    _, info = env.reset(seed=0, options={"human_mode": "linger"})
+    assert env.schedule.mode == "linger"
+    assert info["robot_speed"] == 0.0 and info["human_speed"] == 0.0
+    env.close()
+    default = GearAssemblyEnv()  # the demonstrations' mix is unchanged
+    assert {default.reset(seed=s)[1] and default.schedule.mode for s in range(30)} <= set(
+        HUMAN_MODES)
+    default.close()
+    with pytest.raises(ValueError):
+        GearAssemblyEnv(human_behaviours=("dance",))
+    assert set(BEHAVIOURS) == set(HUMAN_MODES) | set(UNSEEN_BEHAVIOURS)
+
+
+def test_gear_evaluate_rejects_an_unknown_behaviour_in_one_line(tmp_path: Path):
+    result = subprocess.run(
+        [sys.executable, "-c", "from dynoplan.cli.main import main; main()", "gear",
+         "evaluate", "--human", "dance", "--out", str(tmp_path / "eval")],
+        capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "dynoplan: error: --human: unknown behaviour(s) dance; expected some of away, cross, "
+        "block, reach, linger, fast_cross, two_passes, 'unseen' or 'all'"]
+    assert not (tmp_path / "eval").exists()
+
+
+@pytest.mark.slow
+def test_gear_evaluate_on_unseen_behaviours_reports_the_safety_columns(quick_gear_run: Path,
+                                                                     tmp_path: Path):
+    out = tmp_path / "eval"
+    result = CliRunner().invoke(app, [
+        "gear", "evaluate", "--models", str(quick_gear_run / "models"), "--out", str(out),
+        "--controllers", "dynoplan,fixed_script", "--episodes", "4", "--human", "unseen",
+        "--horizon", "6", "--samples", "32", "--workers", "1", "--quiet", "--shield"])
+    assert result.exit_code == 0, result.output
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    for row in rows:
+        contacts = int(row["contacts"])
+        assert int(row["contacts_moving"]) + int(row["contacts_at_rest"]) == contacts
+        assert row["sp_violations_moving"].isdigit() and row["protective_stops"].isdigit()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["human"] == list(UNSEEN_BEHAVIOURS) and summary["shield"] is True
+    for row in summary["results"]:
+        assert set(row["by_human_mode"]) <= set(UNSEEN_BEHAVIOURS)
+    episodes = json.loads((out / "episodes.json").read_text())
+    assert {e["task_metrics"]["human_mode"] for e in episodes["dynoplan"]} <= set(
+        UNSEEN_BEHAVIOURS)
