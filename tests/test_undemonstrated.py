@@ -60,3 +60,34 @@ def test_the_fitted_initiation_set_of_an_undemonstrated_option_is_not_everywhere
     for spec in specs[1:]:
         share = models.initiation(spec).contains(xs).mean()
         assert 0.0 < share < 0.5, (spec.name, share)
+
+
+class _Ramp:
+    """A goal heuristic ``G(x) = x / 10`` on 1-D states."""
+
+    state_dim = 1
+
+    def mean_std(self, states):
+        x = np.asarray(states, float)[:, 0]
+        return x / 10.0, np.zeros_like(x)
+
+
+def test_outcome_initiation_learns_where_runs_made_progress():
+    """Known answer: 'right' gains from x < 0 and loses from x > 2 (a wall)."""
+    from dynoplan.pipeline import fit_outcome_initiation, option_runs
+
+    rng = np.random.default_rng(0)
+    episodes = []
+    for _ in range(40):
+        x0 = rng.uniform(-5.0, 5.0)
+        end = x0 + 1.0 if x0 < 1.0 else x0 - 0.5
+        states = np.linspace(x0, end, 4)  # one run of 3 steps of option 0
+        episodes.append(_episode(np.r_[states, states[-1]], 0))
+        episodes[-1].infos["option"][-1] = 1  # then one step of option 1
+    runs = option_runs(episodes, ["right", "stay"])
+    assert runs["right"][0].shape == (40, 1) and (runs["right"][2] == 3).all()
+    learned, report = fit_outcome_initiation(episodes, ["right", "stay"], _Ramp(),
+                                             FitSettings(), seed=0)
+    assert report["right"]["kind"] == "network" and report["stay"]["kind"] == "never"
+    assert learned.contains(np.array([[-3.0], [-1.0]]), "right").all()
+    assert not learned.contains(np.array([[3.0], [4.0]]), "right").any()

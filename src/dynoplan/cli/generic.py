@@ -98,10 +98,14 @@ def pipeline(
         0.95, "--region-coverage", min=0.0, max=1.0,
         help="Share of (held-out) demonstration states of an option inside its region."),
     region_slack: float = typer.Option(
-        0.0, "--region-slack", help="Nats subtracted from every region threshold."),
+        0.0, "--region-slack", min=0.0, help="Nats subtracted from every region threshold."),
     region_components: int | None = typer.Option(
         None, "--region-components", min=1, max=100,
-        help="Mixture size (default: chosen by the fit)."),
+        help="Mixture size per option (default: chosen by the fit)."),
+    outcome_initiation: bool = typer.Option(
+        False, "--outcome-initiation/--no-outcome-initiation",
+        help="Also learn where each option may start from the outcomes of its exploration "
+             "runs (did the goal heuristic rise?), intersected with its region."),
     region_undemonstrated: str = typer.Option(
         "runs", "--region-undemonstrated",
         help="Region of an option no demonstration shows: runs (from its own exploration "
@@ -150,7 +154,8 @@ def pipeline(
                         goal_epochs=goal_epochs, region_fit=region_fit,
                         region_coverage=region_coverage, region_slack=region_slack,
                         region_components=region_components,
-                        region_undemonstrated=region_undemonstrated),
+                        region_undemonstrated=region_undemonstrated,
+                        outcome_initiation=outcome_initiation),
         control=ControllerSettings(horizon=horizon, samples=samples,
                                    replan_every=replan_every or None))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])

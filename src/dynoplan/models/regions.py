@@ -283,12 +283,13 @@ class SafetyRegions:
 
     @classmethod
     def nowhere(cls, option_names: Sequence[str], state_dim: int) -> "SafetyRegions":
-        """Regions of options that are admissible nowhere (no component; threshold inf)."""
+        """Regions of options that are admissible nowhere (no component: ``log L = -inf``,
+        below any threshold; the stored threshold is 0, files hold finite numbers)."""
         names = list(option_names)
         return cls(option_names=names, means=np.zeros((0, state_dim)),
                    precisions_cholesky=np.zeros((0, state_dim, state_dim)),
                    members=np.zeros((len(names), 0), dtype=bool),
-                   log_thresholds=np.full(len(names), np.inf))
+                   log_thresholds=np.zeros(len(names)))
 
     # --- storage ---------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str]) -> Path:

@@ -38,7 +38,9 @@ from dynoplan.pipeline.fit import (
     fit_goal,
     fit_models,
     fit_option_regions,
+    fit_outcome_initiation,
     fit_regions,
+    option_runs,
     option_transitions,
 )
 from dynoplan.pipeline.run import (
@@ -79,11 +81,13 @@ __all__ = [
     "fit_goal",
     "fit_models",
     "fit_option_regions",
+    "fit_outcome_initiation",
     "fit_regions",
     "flat_state",
     "load_object",
     "make_controller",
     "make_env",
+    "option_runs",
     "option_transitions",
     "probe_options",
     "record_demonstrations",

@@ -45,7 +45,11 @@ from dynoplan.models.folder import (
 )
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
-from dynoplan.models.outcome_initiation import OutcomeInitiation, OutcomeInitiationOnFeatures
+from dynoplan.models.outcome_initiation import (
+    OutcomeInitiation,
+    OutcomeInitiationOnFeatures,
+    fit_report_dict,
+)
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
@@ -82,6 +86,11 @@ class FitSettings:
         region_folds: folds of whole demonstrations for ``"heldout"``.
         region_reg_covar: added to every covariance's diagonal, in units of each
             dimension's spread for ``"heldout"`` (absolute for ``"bic"``: 1e-6).
+        outcome_initiation: also learn where each option may start from the outcomes
+            of its exploration runs (Bagaria et al. 2023; :func:`fit_outcome_initiation`)
+            and intersect its initiation set with that.
+        outcome_min_gain: a run is good when the goal heuristic's mean rose by more than
+            this from its start to its end.
         region_undemonstrated: what an option that no demonstration shows gets:
             ``"runs"``: a region fitted (as above) on the states where it ran while
             collecting transitions, i.e. where its dynamics model has data; ``"none"``:
@@ -105,6 +114,8 @@ class FitSettings:
     region_folds: int = 5
     region_reg_covar: float = 1e-2
     region_undemonstrated: str = "runs"
+    outcome_initiation: bool = False
+    outcome_min_gain: float = 0.0
 
     def validate(self) -> None:
         if self.stride < 1:
@@ -351,6 +362,57 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
     return regions, report
 
 
+def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
+                state_fn: ObservationFn = flat_state,
+                ) -> dict[str, tuple[FloatArray, FloatArray, np.ndarray]]:
+    """Every run of every option: where it started, where it ended and how long it ran.
+
+    A run is a maximal stretch of steps with the same option label.
+
+    Returns:
+        ``{name: (starts (R, d), ends (R, d), steps (R,))}``, ``R`` possibly 0.
+    """
+    found: dict[str, tuple[list[FloatArray], list[FloatArray], list[int]]] = {
+        n: ([], [], []) for n in option_names}
+    d = 0
+    for index, episode in enumerate(episodes):
+        labels = _labels(episode, index, len(option_names))
+        rows = episode_states(episode, state_fn)
+        d = rows.shape[1]
+        cuts = np.flatnonzero(np.diff(labels)) + 1
+        for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
+            name = option_names[int(labels[start])]
+            found[name][0].append(rows[start])
+            found[name][1].append(rows[end])
+            found[name][2].append(int(end - start))
+    return {n: (np.array(a).reshape(-1, d), np.array(b).reshape(-1, d),
+                np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
+
+
+def fit_outcome_initiation(transitions: Sequence[Episode], option_names: Sequence[str],
+                           goal: "GoalModel", settings: FitSettings, seed: int,
+                           state_fn: ObservationFn = flat_state,
+                           ) -> tuple[OutcomeInitiation, dict[str, Any]]:
+    """Initiation sets from the options' own outcomes, for any task.
+
+    Every run of an option in ``transitions`` (:func:`option_runs`) is labelled good when
+    the goal heuristic's mean rose by more than ``settings.outcome_min_gain`` from its
+    start state to its end state; one classifier per option learns ``P(good | start)``
+    (:class:`~dynoplan.models.outcome_initiation.OutcomeInitiation`). An option that
+    never ran has none (its initiation set is not changed).
+    """
+    runs = option_runs(transitions, option_names, state_fn)
+    starts, outcomes = {}, {}
+    for name, (begin, end, _) in runs.items():
+        if len(begin):
+            gain = goal.mean_std(end)[0] - goal.mean_std(begin)[0]
+            starts[name], outcomes[name] = begin, gain > settings.outcome_min_gain
+    if not starts:
+        raise DynoplanError("no option runs to learn initiation from outcomes")
+    learned, fit_report = OutcomeInitiation.fit(starts, outcomes, seed=seed)
+    return learned, fit_report_dict(fit_report)
+
+
 def _labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
                      ) -> tuple[FloatArray, np.ndarray, np.ndarray]:
     """Every state an option acted in: ``(N, d)`` states, ``(N,)`` labels and episode ids."""
@@ -460,19 +522,37 @@ class FittedModels:
             return InRegion(self.regions, name)
         return None
 
-    def initiation(self, spec: OptionSpec) -> Initiation:
-        """The option's own initiation set intersected with its region when it has one."""
+    def outcome(self, name: str) -> Initiation | None:
+        """Option ``name``'s initiation set learned from its runs' outcomes, or ``None``."""
+        learned = self.learned_initiation
+        if learned is not None and name in learned.option_names:
+            return InRegion(learned, name)
+        return None
+
+    def _own_and_region(self, spec: OptionSpec) -> Initiation:
         region = self.region(spec.name)
         if region is None:
             return spec.initiation
         return region if isinstance(spec.initiation, Everywhere) else AllOf(spec.initiation,
                                                                               region)
 
+    def initiation(self, spec: OptionSpec) -> Initiation:
+        """The option's own initiation set intersected with its region when it has one,
+        and with its set learned from outcomes when it has one."""
+        base = self._own_and_region(spec)
+        outcome = self.outcome(spec.name)
+        if outcome is None:
+            return base
+        return outcome if isinstance(base, Everywhere) else AllOf(base, outcome)
+
     def continuation(self, spec: OptionSpec) -> Initiation | None:
         """The option's own continuation set intersected with its region (``None``: the
-        same as :meth:`initiation`)."""
+        same as :meth:`initiation`). The set learned from outcomes says where to *start*:
+        a running option goes on while it is in its own set and region."""
         region = self.region(spec.name)
-        if spec.continuation is None or region is None:
+        if spec.continuation is None:
+            return self._own_and_region(spec) if self.outcome(spec.name) is not None else None
+        if region is None:
             return spec.continuation
         return AllOf(spec.continuation, region)
 
@@ -658,7 +738,13 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
         region_report["options"] = regions.option_names
         for message in region_report["warnings"]:
             warnings.warn(message, DynoplanWarning, stacklevel=2)
+    learned: OutcomeInitiation | None = None
+    outcome_report: dict[str, Any] | None = None
+    if settings.outcome_initiation:
+        say("outcome initiation")
+        learned, outcome_report = fit_outcome_initiation(transitions, names, goal, settings,
+                                                         seed, state_fn)
     report = {"settings": asdict(settings), "dynamics": dyn_report, "goal": goal_report,
-              "regions": region_report}
+              "regions": region_report, "outcome_initiation": outcome_report}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
-                        settings.regions, task)
+                        settings.regions, task, learned_initiation=learned)
