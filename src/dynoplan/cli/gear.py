@@ -460,11 +460,17 @@ def episode(
     out: Path = typer.Option(Path("results/gear-episode"), callback=folder, help="Output folder."),
     video: bool = typer.Option(False, "--video", help="Also render the episode offscreen "
                                "to OUT/episode.mp4."),
+    epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
+                                           help="Weight of the dynamics ensemble's "
+                                           "disagreement in the planner's score (as gear "
+                                           "evaluate's)."),
 ) -> None:
     """Replay one evaluation episode; write its decisions (OUT/trace.csv) and metrics."""
+    from dataclasses import replace
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
+    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_eval import seconds
     from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
     from dynoplan.experiments.gear_run import save_video, video_clip
@@ -472,7 +478,9 @@ def episode(
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
-    metrics, rows, human = inspect_episode(models, controller, index, seed, frames=frames)
+    planner = GEAR_CONTROL if epistemic is None else replace(GEAR_CONTROL, epistemic=epistemic)
+    metrics, rows, human = inspect_episode(models, controller, index, seed, planner,
+                                           frames=frames)
     summary = episode_summary(metrics, controller, index, seed, human)
     with staged_folder(out) as folder:
         write_csv(folder / "trace.csv", rows)

@@ -81,7 +81,8 @@ INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
 - ``learned``: what was learned alone, no hand-written condition: the option's Eq. 5
   region intersected with its initiation learned from outcomes
   (:mod:`dynoplan.models.outcome_initiation`, when the models folder holds one), and the
-  region as the continuation set; an option with neither is not admissible;
+  region as the continuation set; an option with neither is not admissible; where the
+  learned initiation rules out every option, the regions decide (:func:`option_fallback`);
 - ``regions``: the paper's method, the Eq. 5 regions alone (an option without a region
   is admissible everywhere, as the paper's ``I = R^12``);
 - ``everywhere``: no initiation set at all (the paper: "the initiation set of all
@@ -171,7 +172,8 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
-            initiation=initiation, continuation=continuation))
+            initiation=initiation, continuation=continuation,
+            fallback=option_fallback(name, models, sets)))
     return options
 
 
@@ -201,6 +203,19 @@ def option_sets(name: str, models: FittedModels,
     if from_outcomes is None:
         return region, None
     return AllOf(region, from_outcomes), region  # start where both say; go on in the region
+
+
+def option_fallback(name: str, models: FittedModels, sets: str) -> Initiation | None:
+    """Where option ``name`` may start when no option may under ``sets``
+    (:attr:`~dynoplan.options.option.Option.fallback`): under the ``learned`` sets its
+    Eq. 5 region, when an initiation learned from outcomes narrows it (that classifier,
+    fitted on a few dozen runs whose outcome also depends on the human's unseen schedule,
+    can rule out every option at a start no demonstration would refuse); else ``None``."""
+    learned, outcomes = models.regions, models.learned_initiation
+    if (sets != "learned" or learned is None or outcomes is None
+            or name not in learned.option_names or name not in outcomes.option_names):
+        return None
+    return InRegion(learned, name)
 
 
 def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
@@ -288,6 +303,7 @@ __all__ = [
     "holding_gear",
     "make_gear_controller",
     "not_carried",
+    "option_fallback",
     "option_sets",
     "preconditions",
 ]
