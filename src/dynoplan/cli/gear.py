@@ -402,6 +402,10 @@ def evaluate(
                                            help="Weight of the dynamics ensemble's "
                                            "disagreement in the planner's score (default "
                                            "0)."),
+    end_inside: bool = typer.Option(False, "--end-inside", help="The planner's rollouts "
+                                    "that leave an option's continuation set end at their "
+                                    "last state inside it (scored where the dynamics had "
+                                    "data)."),
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
@@ -434,6 +438,8 @@ def evaluate(
         planner = replace(planner, samples=samples)
     if epistemic is not None:
         planner = replace(planner, epistemic=epistemic)
+    if end_inside:
+        planner = replace(planner, end_inside=True)
     behaviours = _behaviours(human)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
@@ -464,6 +470,10 @@ def episode(
                                            help="Weight of the dynamics ensemble's "
                                            "disagreement in the planner's score (as gear "
                                            "evaluate's)."),
+    end_inside: bool = typer.Option(False, "--end-inside", help="The planner's rollouts "
+                                    "that leave an option's continuation set end at their "
+                                    "last state inside it (scored where the dynamics had "
+                                    "data)."),
 ) -> None:
     """Replay one evaluation episode; write its decisions (OUT/trace.csv) and metrics."""
     from dataclasses import replace
@@ -478,7 +488,9 @@ def episode(
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
-    planner = GEAR_CONTROL if epistemic is None else replace(GEAR_CONTROL, epistemic=epistemic)
+    planner = replace(GEAR_CONTROL, end_inside=end_inside or GEAR_CONTROL.end_inside)
+    if epistemic is not None:
+        planner = replace(planner, epistemic=epistemic)
     metrics, rows, human = inspect_episode(models, controller, index, seed, planner,
                                            frames=frames)
     summary = episode_summary(metrics, controller, index, seed, human)

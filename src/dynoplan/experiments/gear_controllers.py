@@ -235,7 +235,8 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
         chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
                                 models.goal, horizon=settings.horizon,
                                 samples=settings.samples, risk=settings.risk,
-                                epistemic=settings.epistemic)
+                                epistemic=settings.epistemic,
+                                end_inside=settings.end_inside)
     elif variant.chooser == "oracle":
         chooser = gear_oracle(env, options, factories, models.goal,
                               settings.oracle_horizon, settings.oracle_samples)

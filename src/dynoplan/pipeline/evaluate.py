@@ -54,6 +54,8 @@ class ControllerSettings:
             DynoPlan's planner (a fault; 0 for none).
         epistemic: weight of the dynamics ensemble's disagreement in the planner's score
             (:class:`~dynoplan.planning.OptionPlanner`; 0: the paper's expectation).
+        end_inside: the planner's rollouts that leave an option's continuation set end
+            at their last state inside it (:class:`~dynoplan.planning.OptionPlanner`).
     """
 
     horizon: int = 20
@@ -68,6 +70,7 @@ class ControllerSettings:
     oracle_samples: int = 1
     dynamics_noise: float = 0.0
     epistemic: float = 0.0
+    end_inside: bool = False
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -153,7 +156,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
         chooser = OptionPlanner(with_dynamics_noise(planner_options or options,
                                                     settings.dynamics_noise), goal,
                                 horizon=settings.horizon, samples=settings.samples,
-                                risk=settings.risk, epistemic=settings.epistemic)
+                                risk=settings.risk, epistemic=settings.epistemic,
+                                end_inside=settings.end_inside)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):

@@ -119,11 +119,16 @@ class OptionPlanner:
         respect_regions: stop a rollout when it leaves the option's continuation set
             (its initiation set unless given; the controller would stop the real option
             there too).
+        end_inside: a rollout that leaves the continuation set ends at its last state
+            inside it, not at the first state beyond it: the goal heuristic then scores
+            only states where the option's dynamics had data (a model that carries an
+            insertion on past the seat, or a move on past its end, into states no
+            demonstration showed, cannot win or lose a decision there).
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
                  samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
-                 epistemic: float = 0.0) -> None:
+                 epistemic: float = 0.0, end_inside: bool = False) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -138,6 +143,7 @@ class OptionPlanner:
         self.risk = float(risk)
         self.epistemic = float(epistemic)
         self.respect_regions = respect_regions
+        self.end_inside = bool(end_inside)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
 
     @property
@@ -210,11 +216,17 @@ class OptionPlanner:
                 finite = np.isfinite(nxt).all(axis=-1)
                 valid &= finite | ~alive
                 moved = alive & finite
+            before = x.copy() if self.end_inside and regions else None
             np.copyto(x, nxt, where=moved[..., None])
             steps += moved
             alive = moved & (stop_draws[t] >= termination.probability(x))
             for j, initiation in regions:
-                alive[j] &= initiation.contains(x[j])
+                inside = initiation.contains(x[j])
+                alive[j] &= inside
+                if before is not None:  # back to the last state inside the set
+                    left = moved[j] & ~inside
+                    x[j][left] = before[j][left]
+                    steps[j] -= left
         members = getattr(step, "members", None)
         return Rollouts(x, steps, valid, None if members is None else np.asarray(members))
 
