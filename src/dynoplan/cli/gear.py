@@ -212,11 +212,16 @@ def outcomes(
                                 "the learned initiation is written into it."),
     out: Path = typer.Option(Path("results/gear-outcomes"), callback=folder,
                              help="Dataset folder of the outcome runs."),
-    runs: int = typer.Option(40, min=1, max=EPISODES_MAX, help="Runs per option."),
-    max_decisions: int = typer.Option(30, min=1, max=STEPS_MAX,
-                                      help="Decisions (0.5 s each) an option may run."),
-    lead_decisions: int = typer.Option(12, min=0, max=STEPS_MAX,
-                                       help="Decisions the source option may run first."),
+    runs: int | None = typer.Option(None, min=1, max=EPISODES_MAX,
+                                    help="Runs per option (default: gear run's, 30; 2 "
+                                    "with --quick)."),
+    max_decisions: int | None = typer.Option(None, min=1, max=STEPS_MAX,
+                                             help="Decisions (0.5 s each) an option may run "
+                                             "(default 30; 6 with --quick)."),
+    lead_decisions: int | None = typer.Option(None, min=0, max=STEPS_MAX,
+                                              help="Decisions the source option may run "
+                                              "first (default 12; 2 with --quick)."),
+    quick: bool = typer.Option(False, "--quick", help="The sizes of gear run --quick."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Run r of option o uses default_rng([seed, 17, o, r])."),
     collect: bool = typer.Option(True, "--collect/--fit-only", help="Run the options first "
@@ -240,9 +245,14 @@ def outcomes(
         fit_gear_initiation,
         transitions_beyond,
     )
+    from dynoplan.experiments.gear_run import run_settings
     from dynoplan.io import write_json
     from dynoplan.parallel import parse_workers, ray_session
 
+    sizes = run_settings(quick)
+    runs = sizes.outcome_runs if runs is None else runs
+    max_decisions = sizes.outcome_max_decisions if max_decisions is None else max_decisions
+    lead_decisions = sizes.outcome_lead_decisions if lead_decisions is None else lead_decisions
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     if collect:
