@@ -107,6 +107,30 @@ def test_without_an_admissible_option_the_robot_holds_still():
     assert ended.no_admissible == 1 and ended.env_steps == 0
 
 
+def test_where_no_option_is_admissible_the_fallback_sets_decide_not_a_hold_for_good():
+    # a learned judgement that rules out everything at the start (an over-confident
+    # classifier) narrows a region that does hold the start
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.options import admissible
+    from dynoplan.planning import OptionPlanner
+
+    nowhere = InitiationFromCallable(lambda s: np.zeros(len(s), bool))
+    region = InitiationFromCallable(lambda s: s[:, 0] < 20)
+    up = Option("up", FunctionPolicy(lambda o, r: np.array([1.0])), _Identity(),
+                ConstantTermination(0.0), initiation=AllOf(region, nowhere), continuation=region,
+                fallback=region)
+    down = _option("down", -1.0, initiation=nowhere)  # no fallback: stays inadmissible
+    options = [up, down]
+    assert admissible(options, np.array([0.0])).tolist() == [True, False]
+    assert admissible(options, np.array([30.0])).tolist() == [False, False]
+    with_other = [up, _option("any", 0.5)]  # another option may start: no fallback
+    assert admissible(with_other, np.array([0.0])).tolist() == [False, True]
+    trace = Controller(options, OptionPlanner(options, NoisyWalkGoal(0.0)), max_decisions=4,
+                       hold_action=np.array([0.0])).run(Line(), np.random.default_rng(0), seed=0)
+    assert trace.success and trace.no_admissible == 0
+    assert trace.out_of_region_starts == 0  # a fallback start is a start inside the sets
+
+
 def test_margin_keeps_a_running_option_unless_clearly_beaten():
     options = [_option("a", 0.5), _option("b", 0.5)]
 

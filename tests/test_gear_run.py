@@ -116,7 +116,8 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [r["controller"] for r in rows] == ["dynoplan", "oracle", "fixed_script", "random",
-                                             "flat_ppo"]
+                                             "flat_ppo", "dynoplan_learned",
+                                             "random_learned"]
     assert set(REQUIRED) <= set(rows[0]) and tuple(rows[0]) == RESULT_COLUMNS
     by_name = {r["controller"]: r for r in rows}
     # the learned planner and the oracle assemble the gear in every quick episode,
@@ -128,7 +129,11 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     summary = json.loads((out / "summary.json").read_text())
     assert summary["wall_s"] > 0 and summary["workers"]["count"] >= 1  # --workers auto
     assert set(summary["stages_s"]) == {"networks", "demos", "collect", "train", "figures",
-                                        "flat_ppo", "evaluate", "faults"}  # --no-video
+                                        "flat_ppo", "outcomes", "evaluate",
+                                        "faults"}  # --no-video
+    # the learned-only rows: the initiation learned from outcomes is fitted by the run
+    assert (out / "models" / "initiation.safetensors").is_file()
+    assert int(by_name["dynoplan_learned"]["out_of_region_starts"]) == 0
     assert {f["fault"] for f in summary["faults"]} == {"dynamics_noise", "observation_noise",
                                                       "grasp_slip"}
     assert summary["results"][0]["episodes"] == 3 and summary["results"][1]["episodes"] == 1

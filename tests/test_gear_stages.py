@@ -38,7 +38,7 @@ def test_the_documented_chain_is_every_stage_into_one_folder():
     chain = documented_chain()
     assert [c[1:3] for c in chain] == [["gear", "demos"], ["gear", "demos"],
                                        ["gear", "collect"], ["gear", "train"],
-                                       ["gear", "figures"]]
+                                       ["gear", "figures"], ["gear", "outcomes"]]
     assert "--heldout" in chain[1] and "--heldout" not in chain[0]
     for command in chain:
         assert all(a.startswith(FOLDER) for a in command if "/" in a), command
@@ -111,9 +111,13 @@ def test_stage_commands_chained_as_documented_give_gear_runs_models(quick_gear_r
             assert tensors.keys() == expected.keys() and meta == expected_meta, name
             for key, tensor in expected.items():
                 np.testing.assert_array_equal(tensors[key], tensor, err_msg=f"{name}: {key}")
-        elif name != "metrics.json":  # the goal, the regions, the dynamics, models.json
+        elif name not in ("metrics.json", "initiation.json"):  # the goal, the regions,
+            # the dynamics, the learned initiation, models.json
             assert _sha256(out / "models" / name) == _sha256(run / "models" / name), name
-    for name in ("models/metrics.json", "figures/figures.json"):
+    for file in sorted((run / "outcomes").rglob("*.hdf5")):  # the outcome runs
+        mine = out / "outcomes" / file.relative_to(run / "outcomes")
+        assert mine.read_bytes() == file.read_bytes(), mine
+    for name in ("models/metrics.json", "models/initiation.json", "figures/figures.json"):
         mine_json = json.loads((out / name).read_text())
         assert _paths_and_times_removed(mine_json) == _paths_and_times_removed(
             json.loads((run / name).read_text())), name

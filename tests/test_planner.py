@@ -85,6 +85,22 @@ def test_a_rollout_that_leaves_the_region_stops_there():
     np.testing.assert_allclose(plan.end_states[0, :, 0], 5.0)
 
 
+def test_with_end_inside_a_model_carried_past_its_region_cannot_win_there():
+    # "over" has data below 20 (its region) but its model carries on to 40, where the goal
+    # would rate it best; "steady" stays in its own region and truly gets to 25
+    over = _option("over", Drift(30.0), initiation=InitiationFromCallable(lambda s: s[:, 0] < 20))
+    steady = _option("steady", Drift(3.0))
+    rng = np.random.default_rng(0)
+    naive = OptionPlanner([over, steady], Linear(), horizon=5, samples=4).plan(
+        np.array([10.0]), rng)
+    assert naive.chosen_name == "over"  # scored at 40, a state it had no data for
+    inside = OptionPlanner([over, steady], Linear(), horizon=5, samples=4, end_inside=True)
+    plan = inside.plan(np.array([10.0]), rng)
+    assert plan.chosen_name == "steady"
+    np.testing.assert_allclose(plan.end_states[0, :, 0], 10.0)  # its last state inside
+    assert (plan.steps[0] == 0).all() and (plan.steps[1] == 5).all()
+
+
 def test_a_model_that_diverges_to_nan_is_not_chosen():
     options = [_option("explodes", Drift(10.0, nan_above=15.0)), _option("steady", Drift(1.0))]
     plan = OptionPlanner(options, Linear(), horizon=5, samples=4).plan(

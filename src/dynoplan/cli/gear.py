@@ -212,11 +212,16 @@ def outcomes(
                                 "the learned initiation is written into it."),
     out: Path = typer.Option(Path("results/gear-outcomes"), callback=folder,
                              help="Dataset folder of the outcome runs."),
-    runs: int = typer.Option(40, min=1, max=EPISODES_MAX, help="Runs per option."),
-    max_decisions: int = typer.Option(30, min=1, max=STEPS_MAX,
-                                      help="Decisions (0.5 s each) an option may run."),
-    lead_decisions: int = typer.Option(12, min=0, max=STEPS_MAX,
-                                       help="Decisions the source option may run first."),
+    runs: int | None = typer.Option(None, min=1, max=EPISODES_MAX,
+                                    help="Runs per option (default: gear run's, 30; 2 "
+                                    "with --quick)."),
+    max_decisions: int | None = typer.Option(None, min=1, max=STEPS_MAX,
+                                             help="Decisions (0.5 s each) an option may run "
+                                             "(default 30; 6 with --quick)."),
+    lead_decisions: int | None = typer.Option(None, min=0, max=STEPS_MAX,
+                                              help="Decisions the source option may run "
+                                              "first (default 12; 2 with --quick)."),
+    quick: bool = typer.Option(False, "--quick", help="The sizes of gear run --quick."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Run r of option o uses default_rng([seed, 17, o, r])."),
     collect: bool = typer.Option(True, "--collect/--fit-only", help="Run the options first "
@@ -240,9 +245,14 @@ def outcomes(
         fit_gear_initiation,
         transitions_beyond,
     )
+    from dynoplan.experiments.gear_run import run_settings
     from dynoplan.io import write_json
     from dynoplan.parallel import parse_workers, ray_session
 
+    sizes = run_settings(quick)
+    runs = sizes.outcome_runs if runs is None else runs
+    max_decisions = sizes.outcome_max_decisions if max_decisions is None else max_decisions
+    lead_decisions = sizes.outcome_lead_decisions if lead_decisions is None else lead_decisions
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     if collect:
@@ -402,6 +412,10 @@ def evaluate(
                                            help="Weight of the dynamics ensemble's "
                                            "disagreement in the planner's score (default "
                                            "0)."),
+    end_inside: bool = typer.Option(False, "--end-inside", help="The planner's rollouts "
+                                    "that leave an option's continuation set end at their "
+                                    "last state inside it (scored where the dynamics had "
+                                    "data)."),
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
@@ -434,6 +448,8 @@ def evaluate(
         planner = replace(planner, samples=samples)
     if epistemic is not None:
         planner = replace(planner, epistemic=epistemic)
+    if end_inside:
+        planner = replace(planner, end_inside=True)
     behaviours = _behaviours(human)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
@@ -460,11 +476,21 @@ def episode(
     out: Path = typer.Option(Path("results/gear-episode"), callback=folder, help="Output folder."),
     video: bool = typer.Option(False, "--video", help="Also render the episode offscreen "
                                "to OUT/episode.mp4."),
+    epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
+                                           help="Weight of the dynamics ensemble's "
+                                           "disagreement in the planner's score (as gear "
+                                           "evaluate's)."),
+    end_inside: bool = typer.Option(False, "--end-inside", help="The planner's rollouts "
+                                    "that leave an option's continuation set end at their "
+                                    "last state inside it (scored where the dynamics had "
+                                    "data)."),
 ) -> None:
     """Replay one evaluation episode; write its decisions (OUT/trace.csv) and metrics."""
+    from dataclasses import replace
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
+    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_eval import seconds
     from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
     from dynoplan.experiments.gear_run import save_video, video_clip
@@ -472,7 +498,11 @@ def episode(
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
-    metrics, rows, human = inspect_episode(models, controller, index, seed, frames=frames)
+    planner = replace(GEAR_CONTROL, end_inside=end_inside or GEAR_CONTROL.end_inside)
+    if epistemic is not None:
+        planner = replace(planner, epistemic=epistemic)
+    metrics, rows, human = inspect_episode(models, controller, index, seed, planner,
+                                           frames=frames)
     summary = episode_summary(metrics, controller, index, seed, human)
     with staged_folder(out) as folder:
         write_csv(folder / "trace.csv", rows)

@@ -28,7 +28,7 @@ import numpy as np
 
 from dynoplan.control.choosers import OptionChooser
 from dynoplan.errors import DynoplanError
-from dynoplan.options.option import Option
+from dynoplan.options.option import Option, admissible
 from dynoplan.planning.option_planner import Plan
 from dynoplan.types import FloatArray, Generator
 
@@ -182,7 +182,7 @@ class Controller:
                     break
                 continue
             option = self.options[chosen]
-            outside = not option.may_run(state, chosen == running)
+            outside = not bool(admissible(self.options, state, running)[chosen])
             if chosen != running:
                 option.start(obs, rng)
             start_step, start_state = trace.env_steps, state

@@ -30,7 +30,8 @@ TRACE_COLUMNS = (
     "contacts", "min_human_distance_m", "latency_ms", "gear_x", "gear_y", "gear_z",
     "hand_x", "hand_y", "hand_z",
 )
-"""Columns of ``trace.csv`` before the per-option ``score_<option>`` columns."""
+"""Columns of ``trace.csv`` before the per-option ``score_<option>`` and
+``disagreement_<option>`` columns."""
 
 
 def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
@@ -43,7 +44,8 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
     Returns:
         The episode's metrics (the same as the evaluation's for the same models, seed
         and planner settings, but for the measured latencies), one row per decision
-        (:data:`TRACE_COLUMNS` and ``score_<option>``: the planner's score, empty when
+        (:data:`TRACE_COLUMNS`, ``score_<option>``: the planner's score, and
+        ``disagreement_<option>``: its ensemble disagreement; empty when
         the option was not admissible or the chooser does not score), and the human
         schedule (``events``, keyframe ``times`` and hand ``positions``).
     """
@@ -97,6 +99,10 @@ def decision_rows(trace: EpisodeTrace, option_names: tuple[str, ...]) -> list[di
         }
         for name, score in zip(option_names, d.plan.scores, strict=True):
             row[f"score_{name}"] = "" if np.isnan(score) else round(float(score), 4)
+        split = d.plan.disagreements
+        for k, name in enumerate(option_names):
+            value = np.nan if split is None else float(split[k])
+            row[f"disagreement_{name}"] = "" if np.isnan(value) else round(value, 4)
         rows.append(row)
     return rows
 

@@ -12,10 +12,14 @@ Stages (each timed in ``summary.json``):
    (``models/metrics.json``);
 5. ``figures``: Fig. 3(a) and 3(b) (``figures/``);
 6. ``flat_ppo``: the flat end-to-end baseline (``flat_ppo/``);
-7. ``evaluate``: every controller on the same seeded episodes (human: none, crossing or
-   blocking), ``results.csv`` and ``results.md``;
-8. ``faults``: DynoPlan under corrupted dynamics, observation noise and a grasp slip;
-9. ``video``: one DynoPlan episode with the human interfering (``episode.mp4``).
+7. ``outcomes``: every option run from starts beyond its own region, and the initiation
+   learned from those outcomes (``outcomes/``, ``models/initiation.safetensors``; see
+   :mod:`dynoplan.experiments.gear_outcomes`), for the learned-only rows;
+8. ``evaluate``: every controller on the same seeded episodes (human: none, crossing or
+   blocking), and the learned-only variants (:data:`LEARNED_ROWS`), ``results.csv`` and
+   ``results.md``;
+9. ``faults``: DynoPlan under corrupted dynamics, observation noise and a grasp slip;
+10. ``video``: one DynoPlan episode with the human interfering (``episode.mp4``).
 
 Stages 1-5 are the functions of :mod:`dynoplan.experiments.gear_stages`, which the
 commands ``gear demos``, ``gear collect``, ``gear train`` and ``gear figures`` call too
@@ -61,6 +65,11 @@ from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 T = TypeVar("T")
 
+LEARNED_ROWS = ("dynoplan_learned", "random_learned")
+"""The learned-only rows of ``results.csv`` (after :data:`CONTROLLERS` and the flat
+policy): DynoPlan and random choice on the learned initiation sets alone
+(:data:`~dynoplan.experiments.gear_controllers.VARIANTS`)."""
+
 EVAL_SEED_OFFSET = 7
 """Evaluation episodes use seeds derived from ``seed + EVAL_SEED_OFFSET`` (disjoint from
 the demonstrations' and the held-out trials')."""
@@ -86,6 +95,10 @@ class GearRunSettings:
         observation_noise: std (m, rad) of the observation-noise fault.
         planner: how the controllers plan and run (horizon, samples, margin, ...).
         video: render one episode.
+        outcome_runs: runs per option of the outcome stage (0: no outcome stage, and no
+            learned-only rows).
+        outcome_max_decisions: decisions an outcome run may last.
+        outcome_lead_decisions: decisions another option may run before it, at most.
     """
 
     demos: int = 10
@@ -100,12 +113,16 @@ class GearRunSettings:
     observation_noise: float = 0.005
     planner: ControllerSettings = GEAR_CONTROL
     video: bool = True
+    outcome_runs: int = 30
+    outcome_max_decisions: int = 30
+    outcome_lead_decisions: int = 12
 
 
 QUICK_RUN = GearRunSettings(
     demos=10, collect_runs=4, collect_max_decisions=15, quick_models=True, ppo_steps=2048,
     episodes=6, oracle_episodes=2, fault_episodes=3,
-    planner=replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3))
+    planner=replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3),
+    outcome_runs=2, outcome_max_decisions=6, outcome_lead_decisions=2)
 """``--quick``: every stage on small settings (CI, a first look)."""
 
 
@@ -196,10 +213,14 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
         flat = start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
     summary["flat_ppo"] = save_flat_policy(flat(), out / "flat_ppo")
 
+    if settings.outcome_runs:  # after every stage whose results it could touch
+        summary["outcomes"] = stage("outcomes", lambda: learned_initiation(
+            models_dir, out / "outcomes", seed, settings, progress, workers))
     load_gear_models(models_dir)  # checked here once: workers load it again
     seeds = episode_seeds(seed + EVAL_SEED_OFFSET, settings.episodes)
     rows, episodes = stage("evaluate", lambda: evaluate_gear_controllers(
-        models_dir, seeds, settings, out / "flat_ppo", progress, workers))
+        models_dir, seeds, settings, out / "flat_ppo", progress, workers,
+        learned=LEARNED_ROWS if settings.outcome_runs else ()))
     summary["results"] = rows
     write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
     write_json(out / "episodes.json", {k: [asdict(e) for e in v] for k, v in episodes.items()})
@@ -214,6 +235,27 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
         summary["video"] = save_video(video(), episodes["dynoplan"][shown], shown,
                                       out / "episode.mp4")
     return summary
+
+
+def learned_initiation(models_dir: Path, out: Path, seed: int, settings: GearRunSettings,
+                       progress: bool, workers: Workers = SERIAL) -> dict[str, Any]:
+    """Stage ``outcomes``: the outcome runs (``out``) and the initiation learned from them,
+    written into ``models_dir`` (``gear outcomes`` with the run's sizes); returns the
+    runs' summary and the fit's report per option (``models/initiation.json`` too)."""
+    from dynoplan.experiments.gear_outcomes import (
+        OutcomeSettings,
+        collect_outcomes,
+        fit_gear_initiation,
+    )
+
+    runs = collect_outcomes(models_dir, seed, out, OutcomeSettings(
+        settings.outcome_runs, settings.outcome_max_decisions,
+        settings.outcome_lead_decisions), progress=progress, workers=workers)
+    write_json(out / "outcomes.json", runs)
+    report = fit_gear_initiation(models_dir, out, seed)
+    write_json(models_dir / "initiation.json", report)
+    return {"runs": runs["runs"], "starts": runs["starts"], "ended_well": runs["ended_well"],
+            "options": report["options"]}
 
 
 def _timed(fn: Callable[..., T], *args: Any) -> tuple[float, T]:
@@ -232,14 +274,15 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          settings: GearRunSettings, flat_folder: Path | None,
                          progress: bool, workers: Workers = SERIAL,
                          names: Sequence[str] = CONTROLLERS,
-                         task: GearTask = GearTask(),
+                         task: GearTask = GearTask(), learned: Sequence[str] = (),
                          ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
-    """The controllers ``names`` (of :data:`CONTROLLERS`), and the flat policy if
-    ``flat_folder``, on ``seeds``; the oracle on the first ``settings.oracle_episodes``
-    of them. All their episodes are one map on ``workers`` (the oracle's first), each
-    worker rebuilding the controllers from ``models_dir``; rows and episodes come back in
-    the order of ``names``, then the flat policy. ``task``: the gear as the episodes see it
-    (the human behaviours they draw from, the runtime monitor)."""
+    """The controllers ``names`` (of :data:`CONTROLLERS`), the flat policy if
+    ``flat_folder``, then the variants ``learned`` (of
+    :data:`~dynoplan.experiments.gear_controllers.VARIANTS`), on ``seeds``; the oracle on
+    the first ``settings.oracle_episodes`` of them. All their episodes are one map on
+    ``workers`` (the oracle's first), each worker rebuilding the controllers from
+    ``models_dir``; rows and episodes come back in that order. ``task``: the gear as the
+    episodes see it (the human behaviours they draw from, the runtime monitor)."""
     gear = replace(task, flat_folder=flat_folder)
     jobs = {name: (ControllerJob(gear, models_dir, name, settings.planner),
                    seeds[:settings.oracle_episodes] if name == "oracle" else seeds)
@@ -247,6 +290,8 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
     if flat_folder is not None:
         jobs[FLAT_POLICY] = (ControllerJob(gear, models_dir, FLAT_POLICY, settings.planner),
                              seeds)
+    for name in learned:
+        jobs[name] = (ControllerJob(gear, models_dir, name, settings.planner), seeds)
     order = sorted(jobs, key=lambda name: name not in ORACLE_FIRST)  # stable
     done = dict(zip(order, evaluate_many([jobs[name] for name in order], workers,
                                          f"evaluate ({len(order)} controllers)", progress),

@@ -75,6 +75,11 @@ class Option:
         initiation: ``I_w`` on planner states (default: everywhere).
         continuation: where a running option may go on (default: ``initiation``); the
             controller and the planner's rollouts stop the option when it leaves it.
+        fallback: where the option may start when *no* option may run at the state
+            under its own sets (``None``: nowhere). For an initiation set that narrows a
+            safety region by a learned judgement (an initiation learned from outcomes),
+            the region: where the judgement rules out every option, the regions decide
+            rather than the robot holding still for good (:func:`admissible`).
     """
 
     name: str
@@ -83,6 +88,7 @@ class Option:
     termination: Termination
     initiation: Initiation = field(default_factory=Everywhere)
     continuation: Initiation | None = None
+    fallback: Initiation | None = None
 
     @property
     def continuation_set(self) -> Initiation:
@@ -121,6 +127,15 @@ def admissible(options: Sequence[Option], state: np.ndarray,
                running: int | None = None) -> BoolArray:
     """``1_{I_w}(s)`` for every option, ``(options,)``: each option may start where its
     initiation set holds, and the running one (index ``running``: an option the
-    controller interrupted to plan again) may go on where its continuation set holds."""
-    return np.array([o.may_run(state, k == running) for k, o in enumerate(options)],
-                    dtype=bool)
+    controller interrupted to plan again) may go on where its continuation set holds.
+
+    Where that leaves no option, each option with a ``fallback`` set may start where the
+    fallback holds (the learned judgement is advice; the safety regions still bound every
+    start)."""
+    may_run = np.array([o.may_run(state, k == running) for k, o in enumerate(options)],
+                       dtype=bool)
+    if may_run.any() or all(o.fallback is None for o in options):
+        return may_run
+    s = np.asarray(state, dtype=np.float64)[None]
+    return np.array([o.fallback is not None and bool(o.fallback.contains(s)[0])
+                     for o in options], dtype=bool)

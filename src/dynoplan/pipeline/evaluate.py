@@ -57,6 +57,8 @@ class ControllerSettings:
         risk_level: ``epsilon`` of a chance-constrained Eq. 1: the largest share of an
             option's rollouts with an unsafe step (for planners given a safety
             constraint).
+        end_inside: the planner's rollouts that leave an option's continuation set end
+            at their last state inside it (:class:`~dynoplan.planning.OptionPlanner`).
     """
 
     horizon: int = 20
@@ -72,6 +74,7 @@ class ControllerSettings:
     dynamics_noise: float = 0.0
     epistemic: float = 0.0
     risk_level: float = 0.05
+    end_inside: bool = False
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -159,7 +162,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
         chooser = OptionPlanner(with_dynamics_noise(planner_options or options,
                                                     settings.dynamics_noise), goal,
                                 horizon=settings.horizon, samples=settings.samples,
-                                risk=settings.risk, epistemic=settings.epistemic)
+                                risk=settings.risk, epistemic=settings.epistemic,
+                                end_inside=settings.end_inside)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):

@@ -133,12 +133,17 @@ class OptionPlanner:
         risk_level: ``epsilon``: an option whose share of rollouts with an unsafe step
             exceeds it is not admissible now (score ``-inf``); with none left, no option
             is chosen and the controller holds.
+        end_inside: a rollout that leaves the continuation set ends at its last state
+            inside it, not at the first state beyond it: the goal heuristic then scores
+            only states where the option's dynamics had data (a model that carries an
+            insertion on past the seat, or a move on past its end, into states no
+            demonstration showed, cannot win or lose a decision there).
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
                  samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
                  epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
-                 risk_level: float = 0.05) -> None:
+                 risk_level: float = 0.05, end_inside: bool = False) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -157,6 +162,7 @@ class OptionPlanner:
             raise DynoplanError(f"risk_level must be in [0, 1], got {risk_level}")
         self.constraint = constraint
         self.risk_level = float(risk_level)
+        self.end_inside = bool(end_inside)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
 
     @property
@@ -242,11 +248,17 @@ class OptionPlanner:
             if unsafe is not None and self.constraint is not None:
                 unsafe |= moved & self.constraint.unsafe(x, np.where(moved[..., None], nxt, x),
                                                          t + 1)
+            before = x.copy() if self.end_inside and regions else None
             np.copyto(x, nxt, where=moved[..., None])
             steps += moved
             alive = moved & (stop_draws[t] >= termination.probability(x))
             for j, initiation in regions:
-                alive[j] &= initiation.contains(x[j])
+                inside = initiation.contains(x[j])
+                alive[j] &= inside
+                if before is not None:  # back to the last state inside the set
+                    left = moved[j] & ~inside
+                    x[j][left] = before[j][left]
+                    steps[j] -= left
         members = getattr(step, "members", None)
         return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
                         unsafe)
