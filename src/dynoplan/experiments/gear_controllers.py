@@ -313,9 +313,26 @@ class HoldStill:
         self.env = env
 
     def __call__(self, observation: FloatArray) -> FloatArray:
-        obs = np.asarray(observation, dtype=np.float64)
-        closed = float(obs[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
-        return np.concatenate([self.env.arm_targets, [1.0 if closed else 0.0]])
+        return np.concatenate([self.env.arm_targets, [gripper_as_it_is(observation)]])
+
+
+class StopWhereItIs:
+    """The gear's protective stop (the runtime monitor's stop action): both arms
+    commanded to the joint angles they have now, the gripper as it is (observation (50,)
+    -> action (13,))."""
+
+    def __init__(self, env: GearAssemblyEnv) -> None:
+        self.env = env
+
+    def __call__(self, observation: FloatArray) -> FloatArray:
+        return np.concatenate([self.env.arm_qpos, [gripper_as_it_is(observation)]])
+
+
+def gripper_as_it_is(observation: FloatArray) -> float:
+    """The gripper command that keeps the left gripper as it is in ``observation``
+    ((50,)): 1 (closed) when its fingers are closed past 80 % of their travel, else 0."""
+    fingers = np.asarray(observation, dtype=np.float64)[OBS_SLICES["fingers"]]
+    return 1.0 if float(fingers.mean()) < 0.8 * FINGER_TRAVEL else 0.0
 
 
 __all__ = [
@@ -335,8 +352,10 @@ __all__ = [
     "ControllerVariant",
     "FarFromGoal",
     "HoldStill",
+    "StopWhereItIs",
     "gear_options",
     "gear_oracle",
+    "gripper_as_it_is",
     "hand_clear_of_tool",
     "hand_near_tool",
     "holding_gear",

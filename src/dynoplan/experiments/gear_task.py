@@ -25,11 +25,10 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
-from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.human import BEHAVIOURS
-from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import VARIANTS
+from dynoplan.experiments.gear_controllers import VARIANTS, StopWhereItIs
 from dynoplan.experiments.gear_model_files import TASK_NAME
 from dynoplan.pipeline.evaluate import (
     ControllerRunner,
@@ -177,18 +176,6 @@ def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, An
     return gear_metrics(gear_env, trace.infos)
 
 
-class StopWhereItIs:
-    """The gear's protective stop: both arms commanded to the joint angles they have now,
-    the gripper as it is (observation (50,) -> action (13,))."""
-
-    def __init__(self, env: GearAssemblyEnv) -> None:
-        self.env = env
-
-    def __call__(self, observation: FloatArray) -> FloatArray:
-        closed = float(np.asarray(observation)[OBS_SLICES["fingers"]].mean()) < 0.8 * FINGER_TRAVEL
-        return np.concatenate([self.env.arm_qpos, [1.0 if closed else 0.0]])
-
-
 @dataclass
 class FlatPolicyRunner:
     """A flat policy ``act(observation) -> action`` on the gear: no options, no decisions
@@ -216,5 +203,5 @@ class FlatPolicyRunner:
                              tuple(ms), (), (), gear_metrics(self.env, infos, first_distance))
 
 
-__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "StopWhereItIs",
-           "episode_metrics", "gear_metrics"]
+__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "episode_metrics",
+           "gear_metrics"]
