@@ -19,11 +19,14 @@ same metrics.
 """
 
 from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from dynoplan.envs.gear.env import CONTROL_DT
+from dynoplan.io import write_csv, write_json
 from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
 from dynoplan.reports.tables import markdown_table
 
@@ -79,6 +82,14 @@ def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
     return row
 
 
+def write_results(out: Path, rows: Sequence[dict[str, Any]],
+                  episodes: dict[str, list[EpisodeRecord]]) -> None:
+    """``out/results.csv`` (the :data:`RESULT_COLUMNS` of every row) and
+    ``out/episodes.json`` (every controller's episode records), each written atomically."""
+    write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
+    write_json(out / "episodes.json", {k: [asdict(e) for e in v] for k, v in episodes.items()})
+
+
 def behaviour_table(rows: Sequence[dict[str, Any]]) -> str:
     """Markdown: per controller (row of :func:`summarise`), success and contacts by the
     human's behaviour."""
@@ -94,4 +105,5 @@ def _mode_cell(entry: dict[str, Any] | None) -> str:
     return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
 
 
-__all__ = ["RESULT_COLUMNS", "behaviour_table", "human_mode", "seconds", "summarise"]
+__all__ = ["RESULT_COLUMNS", "behaviour_table", "human_mode", "seconds", "summarise",
+           "write_results"]

@@ -13,14 +13,14 @@ from typing import Any
 
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS, behaviour_table
+from dynoplan.experiments.gear_eval import RESULT_COLUMNS, behaviour_table, write_results
 from dynoplan.experiments.gear_run import (
     EVAL_SEED_OFFSET,
     GearRunSettings,
     evaluate_gear_controllers,
 )
 from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
-from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.evaluate import ControllerSettings
 from dynoplan.reports.tables import markdown_table
@@ -72,9 +72,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
                "shield": task.shield,
                "planner": asdict(planner), "workers": asdict(workers),
                "wall_s": round(wall, 2), "results": rows}
-    write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
-    write_json(out / "episodes.json", {k: [asdict(e) for e in v]
-                                       for k, v in per_episode.items()})
+    write_results(out, rows, per_episode)
     write_text(out / "results.md", "\n".join([
         "# Gear assembly: evaluation", "",
         f"Models {models}; seed {seed}; {episodes} episodes per controller; planner "

@@ -48,10 +48,11 @@ from dynoplan.experiments.gear_eval import (
     human_mode,
     seconds,
     summarise,
+    write_results,
 )
 from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
-from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text, write_with
+from dynoplan.io import ensure_writable_dir, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
 from dynoplan.pipeline.evaluate import (
     ControllerJob,
@@ -222,8 +223,7 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
         models_dir, seeds, settings, out / "flat_ppo", progress, workers,
         learned=LEARNED_ROWS if settings.outcome_runs else ()))
     summary["results"] = rows
-    write_csv(out / "results.csv", [{c: r.get(c) for c in RESULT_COLUMNS} for r in rows])
-    write_json(out / "episodes.json", {k: [asdict(e) for e in v] for k, v in episodes.items()})
+    write_results(out, rows, episodes)
 
     video = None
     if settings.video:
