@@ -27,9 +27,13 @@ import numpy as np
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.human import BEHAVIOURS
+from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
+from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import VARIANTS, StopWhereItIs
 from dynoplan.experiments.gear_model_files import TASK_NAME
+from dynoplan.options.option import OptionPolicy
+from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
 from dynoplan.pipeline.evaluate import (
     ControllerRunner,
     ControllerSettings,
@@ -39,7 +43,7 @@ from dynoplan.pipeline.evaluate import (
 from dynoplan.safety import AT_REST_SPEED, protective_separation
 from dynoplan.safety.shield import SeparationShield
 from dynoplan.seeding import EpisodeSeed
-from dynoplan.types import FloatArray
+from dynoplan.types import BoolArray, FloatArray, Generator
 
 FLAT_POLICY = "flat_ppo"
 """The flat end-to-end baseline's controller name (it needs ``GearTask.flat_folder``)."""
@@ -135,6 +139,49 @@ class GearTask:
             env, make_gear_controller(controller, gear_env, fitted, policy_factories(models),
                                       settings),
             task_metrics=episode_metrics, regions=fitted.regions, before_episode=reseed_ompl)
+
+    # --- option runs (:class:`~dynoplan.pipeline.collect.OptionRunTask`) ---------------
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        """The registered options, in label order."""
+        from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
+
+        return GEAR_OPTIONS.names()
+
+    @property
+    def decision_steps(self) -> int:
+        return DECISION_STEPS
+
+    @property
+    def run_info_keys(self) -> tuple[str, ...]:
+        return RUN_INFO_KEYS
+
+    def make_policies(self, env: gym.Env[Any, Any], models: Path | None
+                      ) -> dict[str, PolicyMaker]:
+        """The registered options' policies, their networks read from ``models``
+        (:func:`~dynoplan.envs.gear.options.catalog.policy_factories`); PyTorch on one
+        thread, as in the evaluation."""
+        import torch
+
+        from dynoplan.envs.gear.options.catalog import policy_factories
+
+        torch.set_num_threads(1)
+        return dict(policy_factories(models))
+
+    def before_run(self, seed: int) -> None:
+        """OMPL reseeded from the run's seed."""
+        from dynoplan.envs.gear.options.motion import reseed_ompl
+
+        reseed_ompl(seed)
+
+    def run_start(self, runs: OptionRuns, option: str, rng: Generator) -> RunStart:
+        """:func:`~dynoplan.envs.gear.runs.beyond_start` for outcome runs, else
+        :func:`~dynoplan.envs.gear.runs.own_start`."""
+        return (beyond_start if runs.job.outcomes else own_start)(runs, option, rng)
+
+    def run_outcomes(self, policy: OptionPolicy, recording: Recording) -> BoolArray:
+        return ended_well(policy, recording)
 
 
 def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
