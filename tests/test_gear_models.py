@@ -25,13 +25,13 @@ from dynoplan.experiments.gear_model_data import (
     write_demonstration_transitions,
 )
 from dynoplan.experiments.gear_model_files import HELDOUT_DIR, METRICS_FILE, load_gear_models
-from dynoplan.experiments.gear_model_metrics import fit_regions_cross_validated
-from dynoplan.experiments.gear_model_settings import QUICK_SETTINGS
+from dynoplan.experiments.gear_model_settings import QUICK_METRICS, QUICK_SETTINGS
 from dynoplan.experiments.gear_models import train_gear_models
 from dynoplan.experiments.gear_stages import learned_models
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
+from dynoplan.pipeline.fit import fit_regions_cross_validated
 from dynoplan.reports.gear_figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
 
 pytestmark = pytest.mark.slow
@@ -200,7 +200,7 @@ def test_train_records_missing_held_out_trials_by_the_demonstrations_demonstrato
     out = tmp_path / "models"
     metrics = learned_models(data / "demos", None, out, 0, None, quick=True, progress=False)
     held = read_dataset(out / HELDOUT_DIR)
-    assert len(held) == QUICK_SETTINGS.heldout_episodes == metrics["data"]["heldout_episodes"]
+    assert len(held) == QUICK_METRICS.heldout_episodes == metrics["data"]["heldout_episodes"]
     assert held.metadata.seed == 1000 and held.metadata.extra["demonstrator"] == "expert"
     assert not any((out / f).exists() for f in network_files().values())
     recorded = (out / HELDOUT_DIR / "data" / "main_data.hdf5").stat().st_mtime_ns

@@ -28,7 +28,12 @@ from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
 from dynoplan.experiments.gear_model_files import HELDOUT_DIR
-from dynoplan.experiments.gear_model_settings import DEFAULT_SETTINGS, QUICK_SETTINGS
+from dynoplan.experiments.gear_model_settings import (
+    DEFAULT_METRICS,
+    DEFAULT_SETTINGS,
+    QUICK_METRICS,
+    QUICK_SETTINGS,
+)
 from dynoplan.io import staged_folder
 from dynoplan.parallel import SERIAL, Workers
 
@@ -127,7 +132,8 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
     if goal_ranking is not None:  # the goal network's ranking loss (its ablation)
         cfg = replace(cfg, goal_ranking=goal_ranking)
     if heldout is None:
-        heldout = heldout_trials(demos, cfg.heldout_episodes, seed, models / HELDOUT_DIR,
+        measure = QUICK_METRICS if quick else DEFAULT_METRICS
+        heldout = heldout_trials(demos, measure.heldout_episodes, seed, models / HELDOUT_DIR,
                                  models, progress, workers, log)
     # the previous models stay loadable until the new folder is complete
     with staged_folder(models, keep=True) as staged:
