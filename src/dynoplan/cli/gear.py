@@ -36,7 +36,7 @@ def expert(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Run the scripted expert; write OUT/summary.json (success, contacts, speed)."""
-    from dynoplan.experiments.gear_expert import run_expert
+    from dynoplan.envs.gear.demonstrations import run_expert
     from dynoplan.io import staged_folder
 
     with staged_folder(out) as folder:
@@ -112,7 +112,7 @@ def render(
     """Write OUT/scene.png and OUT/episode.mp4 of the expert's episode (offscreen)."""
     # Headless machines: MuJoCo picks its GL backend when first imported.
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from dynoplan.experiments.gear_expert import render_scene
+    from dynoplan.envs.gear.demonstrations import render_scene
     from dynoplan.io import staged_folder
 
     with staged_folder(out) as folder:

@@ -85,8 +85,8 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
     The operator's networks are read from ``models``, and trained there first (from
     ``seed``, :func:`option_networks`) when missing. Returns
     :func:`~dynoplan.experiments.gear_demos.record_demos`'s summary."""
+    from dynoplan.envs.gear.demonstrations import check_request
     from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.experiments.gear_expert import check_request
 
     check_request(n, human_mode, demonstrator, count_flag="--n")  # before any training
     if demonstrator == "options":
