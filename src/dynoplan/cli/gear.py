@@ -145,7 +145,7 @@ def option(
     import torch
 
     from dynoplan.envs.gear.options.catalog import gear_option
-    from dynoplan.experiments.gear_options import run_option_trials
+    from dynoplan.envs.gear.options.trials import run_option_trials
     from dynoplan.experiments.gear_stages import option_networks
 
     registered = gear_option(name)
