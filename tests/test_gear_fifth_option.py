@@ -121,9 +121,9 @@ def test_the_command_line_runs_an_option_named_in_the_environment(tmp_path: Path
 def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear_run: Path,
                                                     tmp_path: Path) -> None:
     from dynoplan.data import read_dataset
+    from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.experiments.gear_collect import collect_transitions
-    from dynoplan.experiments.gear_model_files import load_gear_models
-    from dynoplan.experiments.gear_models import train_gear_models
     from dynoplan.reports.gear_figures import make_gear_figures
 
     models = tmp_path / "models"

@@ -15,18 +15,18 @@ import pytest
 
 from dynoplan.data import Episode, labelled_transitions, read_dataset
 from dynoplan.envs.gear.features import RELATIVE, TASK
+from dynoplan.envs.gear.learning.data import (
+    demonstration_transitions,
+    write_demonstration_transitions,
+)
+from dynoplan.envs.gear.learning.files import HELDOUT_DIR, METRICS_FILE, load_gear_models
+from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
+from dynoplan.envs.gear.learning.training import train_gear_models
 from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_demos import record_demos
-from dynoplan.experiments.gear_model_data import (
-    demonstration_transitions,
-    write_demonstration_transitions,
-)
-from dynoplan.experiments.gear_model_files import HELDOUT_DIR, METRICS_FILE, load_gear_models
-from dynoplan.experiments.gear_model_settings import QUICK_METRICS, QUICK_SETTINGS
-from dynoplan.experiments.gear_models import train_gear_models
 from dynoplan.experiments.gear_stages import learned_models
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork

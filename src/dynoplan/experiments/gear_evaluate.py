@@ -42,7 +42,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
     """
     from dynoplan.baselines.flat_policy import read_flat_policy
-    from dynoplan.experiments.gear_model_files import load_gear_models
+    from dynoplan.envs.gear.learning.files import load_gear_models
 
     known = (*VARIANTS, FLAT_POLICY)
     unknown = [c for c in controllers if c not in known]

@@ -41,6 +41,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
+from dynoplan.envs.gear.learning.files import load_gear_models
 from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.experiments.gear_eval import (
     RESULT_COLUMNS,
@@ -50,7 +51,6 @@ from dynoplan.experiments.gear_eval import (
     summarise,
     write_results,
 )
-from dynoplan.experiments.gear_model_files import load_gear_models
 from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background

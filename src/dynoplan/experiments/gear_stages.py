@@ -3,7 +3,7 @@
 ``gear run`` (:mod:`dynoplan.experiments.gear_run`) and the commands ``gear demos``,
 ``gear collect``, ``gear train`` and ``gear figures`` call these functions, and take their
 sizes from the same settings (:func:`~dynoplan.experiments.gear_run.run_settings`,
-:data:`~dynoplan.experiments.gear_model_settings.QUICK_SETTINGS`), so the commands
+:data:`~dynoplan.envs.gear.learning.settings.QUICK_SETTINGS`), so the commands
 chained into one folder write what ``gear run --out DIR`` writes there for the same seed
 (add ``--quick`` to each for ``gear run --quick``)::
 
@@ -24,16 +24,16 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.data import read_dataset
-from dynoplan.envs.gear.options.catalog import network_files
-from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
-from dynoplan.experiments.gear_model_files import HELDOUT_DIR
-from dynoplan.experiments.gear_model_settings import (
+from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
+from dynoplan.envs.gear.learning.files import HELDOUT_DIR
+from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
     DEFAULT_SETTINGS,
     QUICK_METRICS,
     QUICK_SETTINGS,
 )
+from dynoplan.envs.gear.options.catalog import network_files
+from dynoplan.errors import DynoplanError
 from dynoplan.io import staged_folder
 from dynoplan.parallel import SERIAL, Workers
 
@@ -117,16 +117,16 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
                    log: Callable[[str], None] = _silent,
                    goal_ranking: float | None = None) -> dict[str, Any]:
     """Stage ``train``: the goal heuristic, the safety regions and the dynamics into
-    ``models`` (:func:`~dynoplan.experiments.gear_models.train_gear_models` on
-    :data:`~dynoplan.experiments.gear_model_settings.QUICK_SETTINGS` or
-    :data:`~dynoplan.experiments.gear_model_settings.DEFAULT_SETTINGS`); the content of
+    ``models`` (:func:`~dynoplan.envs.gear.learning.training.train_gear_models` on
+    :data:`~dynoplan.envs.gear.learning.settings.QUICK_SETTINGS` or
+    :data:`~dynoplan.envs.gear.learning.settings.DEFAULT_SETTINGS`); the content of
     ``metrics.json``.
 
     ``heldout`` ``None``: the settings' ``heldout_episodes`` held-out trials (10;
     ``quick`` 3) are recorded into ``models/heldout-demos`` by the demonstrator that
     recorded ``demos``, as :func:`demonstrations` records them (kept when they are
     there already)."""
-    from dynoplan.experiments.gear_models import train_gear_models
+    from dynoplan.envs.gear.learning.training import train_gear_models
 
     cfg = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
     if goal_ranking is not None:  # the goal network's ranking loss (its ablation)

@@ -27,11 +27,11 @@ import numpy as np
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.human import BEHAVIOURS
+from dynoplan.envs.gear.learning.files import TASK_NAME
 from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_controllers import VARIANTS, StopWhereItIs
-from dynoplan.experiments.gear_model_files import TASK_NAME
 from dynoplan.options.option import OptionPolicy
 from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
 from dynoplan.pipeline.evaluate import (
@@ -116,10 +116,10 @@ class GearTask:
         hence episodes, are bit-identical in every process."""
         import torch
 
+        from dynoplan.envs.gear.learning.files import load_gear_models
         from dynoplan.envs.gear.options.catalog import policy_factories
         from dynoplan.envs.gear.options.motion import reseed_ompl
         from dynoplan.experiments.gear_controllers import make_gear_controller
-        from dynoplan.experiments.gear_model_files import load_gear_models
 
         if controller not in (*VARIANTS, FLAT_POLICY):
             raise DynoplanError(f"unknown controller {controller!r}; expected one of "

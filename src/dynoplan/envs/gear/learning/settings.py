@@ -1,4 +1,4 @@
-"""How :func:`~dynoplan.experiments.gear_models.train_gear_models` learns (the pipeline's
+"""How :func:`~dynoplan.envs.gear.learning.training.train_gear_models` learns (the pipeline's
 :class:`~dynoplan.pipeline.fit.FitSettings`) and what it measures on held-out data
 (:class:`GearMetricsSettings`); both are recorded in ``metrics.json``, the first in
 ``models.json``. :data:`DEFAULT_SETTINGS` and :data:`DEFAULT_METRICS` are what

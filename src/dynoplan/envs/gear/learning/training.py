@@ -32,7 +32,7 @@ This module trains, with the pipeline's region fit
 (:func:`~dynoplan.pipeline.fit.fit_labelled_regions`) and dynamics epochs
 (:func:`~dynoplan.pipeline.fit.dynamics_epochs`); the rest lives in
 ``gear_model_settings`` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
-:class:`~dynoplan.experiments.gear_model_settings.GearMetricsSettings`),
+:class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`),
 ``gear_model_data`` (datasets to arrays, splits), ``gear_model_metrics`` (held-out
 measurements) and ``gear_model_files`` (the manifest and :func:`load_gear_models`).
 """
@@ -48,10 +48,7 @@ from scipy import stats
 
 from dynoplan.data import Episode, labelled_transitions
 from dynoplan.envs.gear.features import FeatureMap, feature_map
-from dynoplan.envs.gear.options.catalog import gear_option_names
-from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
-from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_model_data import (
+from dynoplan.envs.gear.learning.data import (
     CAUTIOUS,
     check_disjoint,
     demo_arrays,
@@ -61,15 +58,18 @@ from dynoplan.experiments.gear_model_data import (
     read_labelled,
     split_episodes,
 )
-from dynoplan.experiments.gear_model_files import METRICS_FILE, models_manifest
-from dynoplan.experiments.gear_model_metrics import far_states
-from dynoplan.experiments.gear_model_settings import (
+from dynoplan.envs.gear.learning.files import METRICS_FILE, models_manifest
+from dynoplan.envs.gear.learning.metrics import far_states
+from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
     DEFAULT_SETTINGS,
     QUICK_METRICS,
     QUICK_SETTINGS,
     GearMetricsSettings,
 )
+from dynoplan.envs.gear.options.catalog import gear_option_names
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
+from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.models.evaluation import calibration, n_step_report, one_step_error
 from dynoplan.models.features import RegionsOnFeatures

@@ -1,6 +1,6 @@
 """A gear models folder: the one models format of :mod:`dynoplan.models.folder`.
 
-:func:`~dynoplan.experiments.gear_models.train_gear_models` writes one safetensors file
+:func:`~dynoplan.envs.gear.learning.training.train_gear_models` writes one safetensors file
 per model, ``metrics.json`` and the manifest ``models.json`` (:func:`models_manifest`:
 the library's format, with the gear's feature maps named and the training seed and
 settings as extra fields). :func:`load_gear_models` reads the folder back as
@@ -50,7 +50,7 @@ def models_manifest(out: Path, seed: int, cfg: FitSettings) -> dict[str, Any]:
 
 def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
     """Read the models written by
-    :func:`~dynoplan.experiments.gear_models.train_gear_models` from ``folder``.
+    :func:`~dynoplan.envs.gear.learning.training.train_gear_models` from ``folder``.
 
     Raises:
         DynoplanError: (one line) see :meth:`FittedModels.load`, and a task, state
