@@ -20,6 +20,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
+from dynoplan.envs.gear.controllers import GEAR_CONTROL, preconditions
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options import (
     GearOption,
@@ -29,11 +30,10 @@ from dynoplan.envs.gear.options import (
     temporary_gear_options,
 )
 from dynoplan.envs.gear.options.catalog import INSERT_FILE, RECOGNIZER_FILE
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import GEAR_CONTROL, preconditions
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.seeding import episode_seeds
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,6 +11,7 @@ import pytest
 
 from dynoplan.control import Controller, RandomChoice
 from dynoplan.data import labelled_transitions, read_dataset
+from dynoplan.envs.gear.controllers import HoldStill
 from dynoplan.envs.gear.env import HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
 from dynoplan.envs.gear.options.base import GearOptionPolicy
@@ -20,7 +21,6 @@ from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState, pr
 from dynoplan.envs.gear.task import STAGE_INDEX
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_collect import collect_transitions
-from dynoplan.experiments.gear_controllers import HoldStill
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import stack_dynamics
 from dynoplan.options import ConstantTermination, Option

@@ -12,9 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
+from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.experiments.gear_collect import collect_transitions
-from dynoplan.experiments.gear_controllers import GEAR_CONTROL
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.pipeline.evaluate import ControllerJob, build_runner, evaluate_many
 from dynoplan.seeding import episode_seeds

@@ -434,9 +434,9 @@ def evaluate(
     """Evaluate controllers on trained models only; writes results and the wall time."""
     from dataclasses import replace
 
-    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
-    from dynoplan.experiments.gear_task import GearTask
     from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
@@ -490,7 +490,7 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_eval import seconds
     from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
     from dynoplan.experiments.gear_run import save_video, video_clip

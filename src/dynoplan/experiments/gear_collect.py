@@ -22,10 +22,10 @@ from dynoplan.envs import GEAR_ASSEMBLY_ID
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS, policy_factories
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.runs import PERTURBED_FRACTION
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import OptionRunsJob, collect_option_runs
 

@@ -25,9 +25,9 @@ from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
 from dynoplan.envs import GEAR_ASSEMBLY_ID
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import OptionRunsJob, collect_option_runs
 from dynoplan.pipeline.fit import fit_initiation_from_outcomes, outcome_starts

@@ -41,8 +41,9 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
+from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.learning.files import load_gear_models
-from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.experiments.gear_eval import (
     RESULT_COLUMNS,
     behaviour_table,
@@ -51,7 +52,6 @@ from dynoplan.experiments.gear_eval import (
     summarise,
     write_results,
 )
-from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
 from dynoplan.pipeline.evaluate import (
@@ -69,7 +69,7 @@ T = TypeVar("T")
 LEARNED_ROWS = ("dynoplan_learned", "random_learned")
 """The learned-only rows of ``results.csv`` (after :data:`CONTROLLERS` and the flat
 policy): DynoPlan and random choice on the learned initiation sets alone
-(:data:`~dynoplan.experiments.gear_controllers.VARIANTS`)."""
+(:data:`~dynoplan.envs.gear.controllers.VARIANTS`)."""
 
 EVAL_SEED_OFFSET = 7
 """Evaluation episodes use seeds derived from ``seed + EVAL_SEED_OFFSET`` (disjoint from
@@ -278,7 +278,7 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                          ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
     """The controllers ``names`` (of :data:`CONTROLLERS`), the flat policy if
     ``flat_folder``, then the variants ``learned`` (of
-    :data:`~dynoplan.experiments.gear_controllers.VARIANTS`), on ``seeds``; the oracle on
+    :data:`~dynoplan.envs.gear.controllers.VARIANTS`), on ``seeds``; the oracle on
     the first ``settings.oracle_episodes`` of them. All their episodes are one map on
     ``workers`` (the oracle's first), each worker rebuilding the controllers from
     ``models_dir``; rows and episodes come back in that order. ``task``: the gear as the

@@ -1,6 +1,6 @@
 """Where the gear's option runs start, and how an outcome run is judged: the gear's hooks
 of :class:`~dynoplan.pipeline.collect.OptionRunTask` (through
-:class:`~dynoplan.experiments.gear_task.GearTask`).
+:class:`~dynoplan.envs.gear.pipeline_task.GearTask`).
 
 - :func:`own_start` (option transitions): the human's behaviour drawn among
   :data:`~dynoplan.envs.gear.human.HUMAN_MODES`, the env driven to a start of the option

@@ -3,7 +3,7 @@
 A :class:`GearTask` is what a worker rebuilds a gear controller from: the environment
 (with a fault wrapped around it, or rendering for a video), and, from a models folder,
 the options bound to that environment under one of the controllers of
-:mod:`~dynoplan.experiments.gear_controllers` (or the flat PPO policy). Its episodes are
+:mod:`~dynoplan.envs.gear.controllers` (or the flat PPO policy). Its episodes are
 the pipeline's (:class:`~dynoplan.pipeline.evaluate.ControllerRunner`): OMPL is reseeded
 from the episode's seed first, the gear measures its own metrics (the human's behaviour,
 contacts, the smallest robot-human distance), and out-of-region starts are counted
@@ -25,13 +25,13 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
+from dynoplan.envs.gear.controllers import VARIANTS, StopWhereItIs
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.human import BEHAVIOURS
 from dynoplan.envs.gear.learning.files import TASK_NAME
 from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import VARIANTS, StopWhereItIs
 from dynoplan.options.option import OptionPolicy
 from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
 from dynoplan.pipeline.evaluate import (
@@ -109,17 +109,17 @@ class GearTask:
 
     def make_runner(self, controller: str, models: Path,
                     settings: ControllerSettings) -> EpisodeRunner:
-        """Controller ``controller`` (of :data:`~dynoplan.experiments.gear_controllers.VARIANTS` or
+        """Controller ``controller`` (of :data:`~dynoplan.envs.gear.controllers.VARIANTS` or
         :data:`FLAT_POLICY`) on a
         new environment, built from the models folder ``models`` (once per process).
         PyTorch runs on one thread, as in the serial command line, so predictions, and
         hence episodes, are bit-identical in every process."""
         import torch
 
+        from dynoplan.envs.gear.controllers import make_gear_controller
         from dynoplan.envs.gear.learning.files import load_gear_models
         from dynoplan.envs.gear.options.catalog import policy_factories
         from dynoplan.envs.gear.options.motion import reseed_ompl
-        from dynoplan.experiments.gear_controllers import make_gear_controller
 
         if controller not in (*VARIANTS, FLAT_POLICY):
             raise DynoplanError(f"unknown controller {controller!r}; expected one of "
