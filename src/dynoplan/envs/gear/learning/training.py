@@ -31,10 +31,10 @@ with ``relative``, the regions.
 This module trains, with the pipeline's region fit
 (:func:`~dynoplan.pipeline.fit.fit_labelled_regions`) and dynamics epochs
 (:func:`~dynoplan.pipeline.fit.dynamics_epochs`); the rest lives in
-``gear_model_settings`` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
-:class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`),
-``gear_model_data`` (datasets to arrays, splits), ``gear_model_metrics`` (held-out
-measurements) and ``gear_model_files`` (the manifest and :func:`load_gear_models`).
+:mod:`.settings` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
+:class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
+(datasets to arrays, splits), :mod:`.metrics` (far-away states) and :mod:`.files` (the
+manifest and :func:`~dynoplan.envs.gear.learning.files.load_gear_models`).
 """
 
 import time
