@@ -123,7 +123,7 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     from dynoplan.data import read_dataset
     from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.training import train_gear_models
-    from dynoplan.experiments.gear_collect import collect_transitions
+    from dynoplan.experiments.gear_collect import collect_gear_transitions
     from dynoplan.reports.gear_figures import make_gear_figures
 
     models = tmp_path / "models"
@@ -132,7 +132,7 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
         shutil.copy(quick_gear_run / "models" / file, models / file)
 
     # collection runs it from its start sampler, labelled 4
-    collected = collect_transitions(models, 4, 0, tmp_path / "transitions", max_decisions=15,
+    collected = collect_gear_transitions(models, 4, 0, tmp_path / "transitions", max_decisions=15,
                                     progress=False)
     assert collected["transitions"]["lift"] > 20
     dataset = read_dataset(tmp_path / "transitions")

@@ -32,15 +32,28 @@ from dynoplan.pipeline.collect import OptionRunsJob, collect_option_runs
 DATASET_ID = "dynoplan/gear-assembly/option-transitions-v0"
 
 
+def write_runs(out: Path, episodes: list[Episode], dataset_id: str, seed: int,
+               extra: dict[str, Any]) -> None:
+    """Write option runs of the registered gear options as the dataset folder ``out``."""
+    env = GearAssemblyEnv()
+    obs_space = env.observation_space
+    env.close()
+    assert isinstance(obs_space, gym.spaces.Box)
+    write_dataset(out, episodes, DatasetMetadata(
+        dataset_id=dataset_id, env_id=GEAR_ASSEMBLY_ID, option_names=list(GEAR_OPTIONS.names()),
+        seed=seed, extra=extra, observation_space=obs_space))
+
+
 def check_collection(runs_per_option: int, max_decisions: int) -> None:
     """One error line for a collection that cannot run (before any work is done)."""
     if runs_per_option < 1 or max_decisions < 1:
         raise DynoplanError("--runs and --max-decisions must be >= 1")
 
 
-def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_per_option: int,
-                        seed: int, out: Path, max_decisions: int = 30,
-                        progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
+def collect_gear_transitions(factories: Mapping[str, GearPolicyFactory] | Path,
+                             runs_per_option: int, seed: int, out: Path,
+                             max_decisions: int = 30, progress: bool = True,
+                             workers: Workers = SERIAL) -> dict[str, Any]:
     """Collect ``runs_per_option`` runs of every option in ``factories``; write the
     dataset folder ``out``; return a summary (runs, transitions per option).
 
@@ -73,18 +86,10 @@ def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_
                                                   "collect option runs", progress):
         episodes += run_episodes
         modes += [tags["human_mode"]] * len(run_episodes)
-    env = GearAssemblyEnv()
-    obs_space = env.observation_space
-    env.close()
-    assert isinstance(obs_space, gym.spaces.Box)
-    metadata = DatasetMetadata(
-        dataset_id=DATASET_ID, env_id=GEAR_ASSEMBLY_ID, option_names=list(registered),
-        seed=seed,
-        extra={"decision_steps": DECISION_STEPS, "human_modes": modes,
-               "actions": "the option's index (one run of one option per episode)",
-               "perturbed_fraction": PERTURBED_FRACTION},
-        observation_space=obs_space)
-    write_dataset(out, episodes, metadata)
+    write_runs(out, episodes, DATASET_ID, seed,
+               {"decision_steps": DECISION_STEPS, "human_modes": modes,
+                "actions": "the option's index (one run of one option per episode)",
+                "perturbed_fraction": PERTURBED_FRACTION})
     counts: Counter[str] = Counter()
     for e in episodes:
         counts[registered[int(e.actions[0])]] += len(e)
@@ -94,4 +99,4 @@ def collect_transitions(factories: Mapping[str, GearPolicyFactory] | Path, runs_
             "human_modes": dict(Counter(modes))}
 
 
-__all__ = ["DATASET_ID", "check_collection", "collect_transitions"]
+__all__ = ["DATASET_ID", "check_collection", "collect_gear_transitions", "write_runs"]

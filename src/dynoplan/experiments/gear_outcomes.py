@@ -18,16 +18,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
-from dynoplan.envs import GEAR_ASSEMBLY_ID
-from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
+from dynoplan.experiments.gear_collect import write_runs
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import OptionRunsJob, collect_option_runs
 from dynoplan.pipeline.fit import fit_initiation_from_outcomes, outcome_starts
@@ -76,20 +74,13 @@ def collect_outcomes(models: Path, seed: int, out: Path,
         sources += [tags["source"]] * len(run_episodes)
         modes += [tags["human_mode"]] * len(run_episodes)
         firsts += run_episodes[:1]
-    env = GearAssemblyEnv()
-    obs_space = env.observation_space
-    env.close()
-    assert isinstance(obs_space, gym.spaces.Box)
-    metadata = DatasetMetadata(
-        dataset_id=DATASET_ID, env_id=GEAR_ASSEMBLY_ID, option_names=list(names), seed=seed,
-        extra={"decision_steps": DECISION_STEPS, "human_modes": modes, "sources": sources,
-               "settings": {"runs": settings.runs, "max_decisions": settings.max_decisions,
-                            "lead_decisions": settings.lead_decisions},
-               "actions": "the option's index (one run of one option per episode)",
-               "outcome": "infos['outcome'][t]: the option, started at observation t, "
-                          "reached its own end and did not finish at once"},
-        observation_space=obs_space)
-    write_dataset(out, episodes, metadata)
+    write_runs(out, episodes, DATASET_ID, seed,
+               {"decision_steps": DECISION_STEPS, "human_modes": modes, "sources": sources,
+                "settings": {"runs": settings.runs, "max_decisions": settings.max_decisions,
+                             "lead_decisions": settings.lead_decisions},
+                "actions": "the option's index (one run of one option per episode)",
+                "outcome": "infos['outcome'][t]: the option, started at observation t, "
+                           "reached its own end and did not finish at once"})
     _, ok = outcome_starts(firsts, names, PlannerState())
     return {"dataset": str(out), "runs": len(names) * settings.runs,
             "episodes": len(episodes),

@@ -101,13 +101,13 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
                        log: Callable[[str], None] = _silent) -> dict[str, Any]:
     """Stage ``collect``: ``runs`` runs of every option, at most ``max_decisions``
     decisions each, into the dataset folder ``out``
-    (:func:`~dynoplan.experiments.gear_collect.collect_transitions`); the options'
+    (:func:`~dynoplan.experiments.gear_collect.collect_gear_transitions`); the options'
     networks read from ``models`` (trained there first when missing)."""
-    from dynoplan.experiments.gear_collect import check_collection, collect_transitions
+    from dynoplan.experiments.gear_collect import check_collection, collect_gear_transitions
 
     check_collection(runs, max_decisions)
     option_networks(models, seed, workers=workers, log=log)
-    return collect_transitions(models, runs, seed, out, max_decisions=max_decisions,
+    return collect_gear_transitions(models, runs, seed, out, max_decisions=max_decisions,
                                progress=progress, workers=workers)
 
 
