@@ -43,7 +43,12 @@ from dynoplan.models.folder import (
     read_manifest,
     write_manifest,
 )
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
+from dynoplan.models.goal_network import (
+    GoalNetwork,
+    GoalTrainingReport,
+    evaluate_goal,
+    goal_training_set,
+)
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.outcome_initiation import (
     OutcomeInitiation,
@@ -313,11 +318,19 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
     states, progress, groups = goal_training_set(
         demos, lambda obs: _batch_states(obs, state_fn))
     x = states if features is None else features(states)
-    network, _ = GoalNetwork.fit(x, progress, hidden=settings.goal_hidden,
-                                 members=settings.goal_members, epochs=settings.goal_epochs,
-                                 seed=seed, groups=groups, ranking=settings.goal_ranking)
+    network, _ = fit_goal_network(x, progress, groups, settings, seed)
     report = {"states": len(states), **evaluate_goal(network, x, progress)}
     return (network if features is None else GoalOnFeatures(network, features)), report
+
+
+def fit_goal_network(states: FloatArray, progress: FloatArray, groups: IntArray,
+                     settings: FitSettings, seed: int
+                     ) -> tuple[GoalNetwork, GoalTrainingReport]:
+    """The goal network as ``settings`` says, on states (or features) ``(N, d)``, their
+    progress ``(N,)`` and demonstration ids ``(N,)`` (the ranking loss's pairs)."""
+    return GoalNetwork.fit(states, progress, hidden=settings.goal_hidden,
+                           members=settings.goal_members, epochs=settings.goal_epochs,
+                           seed=seed, groups=groups, ranking=settings.goal_ranking)
 
 
 def _batch_states(observations: np.ndarray, state_fn: ObservationFn) -> FloatArray:

@@ -29,7 +29,8 @@ dynamics models (which predict all 22 columns), the terminations, the preconditi
 with ``relative``, the regions.
 
 This module trains, with the pipeline's region fit
-(:func:`~dynoplan.pipeline.fit.fit_labelled_regions`) and dynamics epochs
+(:func:`~dynoplan.pipeline.fit.fit_labelled_regions`), goal network
+(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics epochs
 (:func:`~dynoplan.pipeline.fit.dynamics_epochs`); the rest lives in
 :mod:`.settings` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
 :class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
@@ -74,12 +75,13 @@ from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.models.evaluation import calibration, n_step_report, one_step_error
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
+from dynoplan.models.goal_network import evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.pipeline.fit import (
     DYNAMICS_BATCH,
     FitSettings,
     dynamics_epochs,
+    fit_goal_network,
     fit_labelled_regions,
 )
 from dynoplan.progress import track
@@ -218,9 +220,7 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
     x = np.concatenate([f(s) for s, _, _ in train])
     y = np.concatenate([p for _, p, _ in train])
     groups = np.concatenate([np.full(len(p), i) for i, (_, p, _) in enumerate(train)])
-    network, report = GoalNetwork.fit(x, y, hidden=cfg.goal_hidden, members=cfg.goal_members,
-                                      epochs=cfg.goal_epochs, seed=seed, groups=groups,
-                                      ranking=cfg.goal_ranking)
+    network, report = fit_goal_network(x, y, groups, cfg, seed)
     network.save(out / GOAL_FILE)
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
