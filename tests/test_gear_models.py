@@ -282,6 +282,17 @@ def test_cross_validated_thresholds_admit_unseen_demonstrations():
     assert not wide.contains_all(rng.normal(30.0, 1.0, size=(50, 2))).any()
 
 
+@pytest.mark.parametrize("change", [{"region_undemonstrated": "runs"},
+                                    {"outcome_initiation": True}])
+def test_fit_settings_the_gear_does_not_train_are_rejected(tmp_path, change):
+    settings = replace(QUICK_SETTINGS, **change)
+    with pytest.raises(DynoplanError, match="undemonstrated options without a region"):
+        train_gear_models(tmp_path / "demos", None, tmp_path / "m", seed=0,
+                          heldout_demos=tmp_path / "held", quick=True, progress=False,
+                          settings=settings)
+    assert not (tmp_path / "m").exists()  # rejected before anything is written
+
+
 def test_figures_are_drawn_from_the_trained_models(trained, data, tmp_path):
     out, _ = trained
     summary = make_gear_figures(out, data / "demos", data / "heldout", tmp_path / "figs",

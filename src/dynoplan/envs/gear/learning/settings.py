@@ -18,7 +18,7 @@ DEFAULT_SETTINGS = FitSettings(
     dynamics_epochs=50, dynamics_max_updates=1500, goal_hidden=64, goal_members=3,
     goal_epochs=150, goal_features=TASK.name, region_features=RELATIVE.name,
     region_fit="cv", region_coverage=0.99, region_cv_coverage=0.97, region_reg_covar=3e-3,
-    region_max_components=8)
+    region_max_components=8, region_undemonstrated="everywhere")
 """The gear's models, one step per decision:
 
 - the goal heuristic reads the ``task`` features (no human: where the task stands does not
@@ -26,7 +26,9 @@ DEFAULT_SETTINGS = FitSettings(
 - the regions read the ``relative`` features, are fitted with ``"cv"`` (BIC components,
   thresholds widened by leaving demonstrations out), and ``region_reg_covar`` 3e-3 (rad^2
   or m^2, absolute) is a floor of about 5 cm / 0.05 rad on their width, so that
-  directions the 10 demonstrations hardly vary in do not make regions needle-thin."""
+  directions the 10 demonstrations hardly vary in do not make regions needle-thin;
+- an option the demonstrations do not show gets no region (``"everywhere"``: its own
+  conditions alone decide where it starts)."""
 
 QUICK_SETTINGS = replace(DEFAULT_SETTINGS, goal_hidden=32, goal_epochs=40,
                          region_max_components=4, dynamics_hidden=(64, 64), dynamics_epochs=15)

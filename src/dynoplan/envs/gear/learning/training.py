@@ -123,6 +123,10 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     """
     cfg = settings or (QUICK_SETTINGS if quick else DEFAULT_SETTINGS)
     cfg.validate()
+    if cfg.region_undemonstrated != "everywhere" or cfg.outcome_initiation:
+        raise DynoplanError("the gear's models leave undemonstrated options without a region "
+                            "(region_undemonstrated='everywhere') and learn initiation from "
+                            "outcome runs ('gear outcomes'), not in training")
     measure = measures or (QUICK_METRICS if quick else DEFAULT_METRICS)
     started = time.perf_counter()
     out = ensure_writable_dir(out)
