@@ -504,10 +504,9 @@ class OptionRunTask(Protocol):
         """A new instance of the task's environment."""
         ...
 
-    def make_policies(self, env: gym.Env[Any, Any],
-                      models: Path | None) -> dict[str, PolicyMaker]:
-        """Per option name, what builds its policy (bound to ``env``), the networks read
-        from the models folder ``models``."""
+    def policy_makers(self, models: Path | None) -> Mapping[str, PolicyMaker]:
+        """Per option name, what builds its policy bound to an environment, any networks
+        read from the models folder ``models``."""
         ...
 
     def before_run(self, seed: int) -> None:
@@ -574,8 +573,7 @@ class OptionRuns:
 def build_option_runs(job: OptionRunsJob) -> OptionRuns:
     """The environment and the options' policies (once per process)."""
     env = job.task.make_env()
-    makers = (job.factories if job.factories is not None
-              else job.task.make_policies(env, job.models))
+    makers = job.factories if job.factories is not None else job.task.policy_makers(job.models)
     return OptionRuns(job, env, {name: OptionSpec(name, makers[name](env),
                                                   ConstantTermination(0.0))
                                  for name in job.options})

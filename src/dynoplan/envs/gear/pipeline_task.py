@@ -16,7 +16,7 @@ on one worker or many (only the measured decision latencies differ).
 """
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -157,8 +157,7 @@ class GearTask:
     def run_info_keys(self) -> tuple[str, ...]:
         return RUN_INFO_KEYS
 
-    def make_policies(self, env: gym.Env[Any, Any], models: Path | None
-                      ) -> dict[str, PolicyMaker]:
+    def policy_makers(self, models: Path | None) -> Mapping[str, PolicyMaker]:
         """The registered options' policies, their networks read from ``models``
         (:func:`~dynoplan.envs.gear.options.catalog.policy_factories`); PyTorch on one
         thread, as in the evaluation."""
@@ -167,7 +166,7 @@ class GearTask:
         from dynoplan.envs.gear.options.catalog import policy_factories
 
         torch.set_num_threads(1)
-        return dict(policy_factories(models))
+        return policy_factories(models)
 
     def before_run(self, seed: int) -> None:
         """OMPL reseeded from the run's seed."""
