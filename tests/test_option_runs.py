@@ -27,17 +27,12 @@ from dynoplan.pipeline.collect import (
 
 
 class Line(gym.Env):
-    """x on a line; the action is added; ``info["cost"]`` is 1 on a step that ends below 0."""
+    """x on a line, where the task's starts put it; the action is added; ``info["cost"]``
+    is 1 on a step that ends below 0."""
 
-    def __init__(self) -> None:
-        self.observation_space = spaces.Box(-100, 100, (1,), np.float64)
-        self.action_space = spaces.Box(-1, 1, (1,), np.float64)
-        self.x = 0.0
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.x = 0.0
-        return np.array([self.x]), {}
+    observation_space = spaces.Box(-100, 100, (1,), np.float64)
+    action_space = spaces.Box(-1, 1, (1,), np.float64)
+    x = 0.0
 
     def step(self, action):
         self.x += float(action[0])
@@ -64,7 +59,7 @@ class Walk(OptionPolicy):
 @dataclass(frozen=True)
 class LineRuns:
     """The line as an :class:`~dynoplan.pipeline.collect.OptionRunTask`: runs start at a
-    random x in 0..9 (the env's seed is the start), outcome runs end well when no step
+    random x in 0..9 (recorded as the run's seed), outcome runs end well when no step
     went below 0."""
 
     @property
@@ -89,11 +84,9 @@ class LineRuns:
         pass
 
     def run_start(self, runs: OptionRuns, option: str, rng: np.random.Generator) -> RunStart:
-        env = runs.env.unwrapped
         start = int(rng.integers(10))
-        env.reset(seed=start)
-        env.x = float(start)
-        return RunStart(np.array([env.x]), {}, start, {"start": start})
+        runs.env.unwrapped.x = float(start)
+        return RunStart(np.array([float(start)]), {}, start, {"start": start})
 
     def run_outcomes(self, policy: OptionPolicy, recording: Recording) -> np.ndarray:
         return run_outcomes(recording.episode.infos["cost"], True, False, self.decision_steps)
