@@ -43,7 +43,7 @@ RUN_INFO_KEYS = ("human_contacts",)
 """What an option run records of every step: robot-human contacts."""
 
 
-def gear_env(runs: OptionRuns) -> GearAssemblyEnv:
+def _gear_env(runs: OptionRuns) -> GearAssemblyEnv:
     env = runs.env.unwrapped
     assert isinstance(env, GearAssemblyEnv)
     return env
@@ -52,7 +52,7 @@ def gear_env(runs: OptionRuns) -> GearAssemblyEnv:
 def own_start(runs: OptionRuns, option: str, rng: Generator) -> RunStart:
     """A start of ``option`` itself, the human in a random mode, perturbed in
     :data:`PERTURBED_FRACTION` of the runs (module docstring)."""
-    env = gear_env(runs)
+    env = _gear_env(runs)
     mode = HUMAN_MODES[int(rng.integers(len(HUMAN_MODES)))]
     perturb = bool(rng.random() < PERTURBED_FRACTION)
     start = reach_start(env, option, rng, human_mode=mode)
@@ -66,7 +66,7 @@ def beyond_start(runs: OptionRuns, option: str, rng: Generator) -> RunStart:
     """A start of ``option`` or beyond it: another option's start, after that option ran
     for up to ``runs.job.lead_decisions`` decisions (module docstring). ``over`` when the task
     ended there (the gear seated or dropped)."""
-    env = gear_env(runs)
+    env = _gear_env(runs)
     names = list(runs.job.task.option_names)
     own = bool(rng.random() < OWN_FRACTION)
     others = [n for n in names if n != option] or [option]
