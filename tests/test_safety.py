@@ -236,3 +236,25 @@ def test_arm_points_are_the_arms_joints_as_mujoco_places_them():
             assert np.allclose(arm_joints(q[None, cols], side)[0], truth, atol=1e-9)
     states = np.zeros((4, STATE_DIM))
     assert arm_points(states).shape == (4, 21, 3)
+
+
+def test_a_robot_held_or_stopped_while_the_hand_pushes_it_is_at_rest():
+    from types import SimpleNamespace
+
+    from dynoplan.experiments.gear_task import episode_metrics
+
+    env = GearAssemblyEnv()
+    env.reset(seed=0, options={"human_mode": "reach"})
+    # three steps in contact, the arm pushed to 0.2 m/s in each; S_p(0.2, 0) = 0.14 m
+    infos = [{"human_contacts": 5, "robot_speed": 0.2, "human_speed": 0.0,
+              "min_human_distance": 0.0, "protective_stop": stop}
+             for stop in (False, False, True)]
+    # the controller held in the second step (a hold is recorded after its step)
+    trace = SimpleNamespace(infos=infos, decisions=[
+        SimpleNamespace(option="pick", env_step=0, steps=1),
+        SimpleNamespace(option=None, env_step=2, steps=1),
+        SimpleNamespace(option="pick", env_step=2, steps=1)])
+    metrics = episode_metrics(env, trace)  # type: ignore[arg-type]
+    assert metrics["human_mode"] == "reach"
+    assert (metrics["contacts_moving"], metrics["contacts_at_rest"]) == (5, 10)
+    assert metrics["sp_violations_moving"] == 1 and metrics["protective_stops"] == 1

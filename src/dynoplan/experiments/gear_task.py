@@ -156,10 +156,9 @@ def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
     """
     contacts = np.array([int(i["human_contacts"]) for i in infos], dtype=np.int64)
     stopped = np.array([bool(i.get("protective_stop", False)) for i in infos], dtype=bool)
-    if held is not None:
-        stopped |= np.asarray(held, dtype=bool)
+    at_rest = stopped if held is None else stopped | np.asarray(held, dtype=bool)
     moving = np.array([float(i["robot_speed"]) >= AT_REST_SPEED for i in infos],
-                      dtype=bool) & ~stopped
+                      dtype=bool) & ~at_rest
     distance = np.array([float(i["min_human_distance"]) for i in infos])
     s_p = protective_separation(np.array([float(i["robot_speed"]) for i in infos]),
                                 np.array([float(i["human_speed"]) for i in infos]))
