@@ -24,6 +24,7 @@ from dynoplan.envs.gear.human import UNSEEN_BEHAVIOURS
 from dynoplan.experiments.gear_controllers import GEAR_CONTROL
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.experiments.gear_task import GearTask
+from dynoplan.pipeline.evaluate import ControllerRunner
 from dynoplan.reports.tables import markdown_table
 from dynoplan.safety import AT_REST_SPEED, protective_separation
 from dynoplan.seeding import episode_seeds
@@ -35,6 +36,8 @@ COLUMNS = ("driven_by", "steps", "steps_moving", "sp_violations_moving", "contac
 def tally(controller: str, models: Path, episodes: int) -> list[dict[str, object]]:
     """One row per label (an option or ``hold``), over the first ``episodes`` episodes."""
     runner = GearTask(human=UNSEEN_BEHAVIOURS).make_runner(controller, models, GEAR_CONTROL)
+    if not isinstance(runner, ControllerRunner):
+        raise SystemExit(f"{controller} is not an option-level controller")
     rows: dict[str, dict[str, int]] = defaultdict(lambda: dict.fromkeys(COLUMNS[1:], 0))
     for seed in episode_seeds(EVAL_SEED_OFFSET, episodes):
         trace = runner.run(seed)
