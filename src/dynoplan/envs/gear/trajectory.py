@@ -46,12 +46,15 @@ class JointPath:
 
     def advance(self, dt: float, scale: float, measured: FloatArray | None = None) -> FloatArray:
         """Move along the path for ``dt`` at ``scale`` of full speed; the new target.
-        ``measured`` (12,): the joint angles now; the path waits (at rest) while they lag
-        the current target by more than :data:`MAX_LAG`."""
-        if measured is not None and self.length > 1e-9 and float(
-                np.max(np.abs(self.at(self.s) - measured))) > MAX_LAG:
-            self.sdot = 0.0
-            return self.at(self.s)
+        ``measured`` (12,): the joint angles now; while they lag the current target by
+        more than :data:`MAX_LAG` the path waits (at rest) and the target returned is
+        the path's kept within :data:`MAX_LAG` of them (:func:`within_lag`), so that the
+        arm, once let go, does not leap to it."""
+        if measured is not None and self.length > 1e-9:
+            here = self.at(self.s)
+            if float(np.max(np.abs(here - measured))) > MAX_LAG:
+                self.sdot = 0.0
+                return within_lag(here, measured)
         if self.length > 1e-9:
             brake = np.sqrt(2.0 * self.accel * max(1.0 - self.s, 0.0))
             target = min(self.sdot_max * scale, brake)
