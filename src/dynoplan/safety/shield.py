@@ -22,12 +22,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
 from dynoplan.safety.separation import (
     AT_REST_SPEED,
     SeparationParameters,
     protective_separation,
+    require_non_negative,
 )
 
 MEASURED = ("min_human_distance", "robot_speed", "human_speed")
@@ -43,8 +43,8 @@ class Anticipation:
         robot_acceleration: ``a_r`` (m/s^2) bound on the change of the robot's speed
             (its fastest point) while an action drives it.
         restart_speed: ``v_0`` (m/s) bound on the robot's speed one period after a
-            protective stop: the action after a stop may command the robot anywhere, so
-            it is the robot's speed bound rather than an acceleration.
+            protective stop: the first action after a stop may command a jump (the task
+            bounds it: the gear's options resume within 0.1 rad of the stopped arm).
         human_acceleration: ``a_h`` (m/s^2) bound on the change of the person's speed.
     """
 
@@ -54,9 +54,7 @@ class Anticipation:
     human_acceleration: float = 11.0
 
     def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        require_non_negative(self)
 
     def next_speeds(self, robot_speed: float, human_speed: float,
                     after_stop: bool) -> tuple[float, float]:
