@@ -88,6 +88,10 @@ def pipeline(
         10, "--replan-every", min=0, max=STEPS_MAX,
         help="Plan again after this many steps (0: only when the "
                                    "option stops)."),
+    hold: bool = typer.Option(True, "--hold/--no-hold",
+                              help="Where no option is admissible, hold the zero action "
+                              "of a Box action space until one is (--no-hold: end the "
+                              "episode there)."),
     regions: bool = typer.Option(True, "--regions/--no-regions",
                                  help="Fit the safety regions (Eq. 5) and enforce them."),
     region_fit: str = typer.Option(
@@ -157,7 +161,7 @@ def pipeline(
                         region_undemonstrated=region_undemonstrated,
                         outcome_initiation=outcome_initiation),
         control=ControllerSettings(horizon=horizon, samples=samples,
-                                   replan_every=replan_every or None))
+                                   replan_every=replan_every or None, hold=hold))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     settings.validate()
     with staged_folder(out) as folder, warnings_as_lines():

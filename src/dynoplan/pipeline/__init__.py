@@ -25,6 +25,7 @@ from dynoplan.pipeline.evaluate import (
     evaluate_controllers,
     evaluate_many,
     make_controller,
+    neutral_action,
     results_table,
     summarize,
 )
@@ -87,6 +88,7 @@ __all__ = [
     "load_object",
     "make_controller",
     "make_env",
+    "neutral_action",
     "option_runs",
     "option_transitions",
     "probe_options",
