@@ -19,10 +19,11 @@ from dynoplan.envs.gear.human import (
     BEHAVIOURS,
     HUMAN_MODES,
     UNSEEN_BEHAVIOURS,
+    rounded_corners,
     sample_schedule,
 )
 from dynoplan.safety import SeparationParameters, protective_separation
-from dynoplan.safety.shield import SeparationShield
+from dynoplan.safety.shield import Anticipation, SeparationShield
 
 
 def test_protective_separation_matches_the_formula_by_hand():
@@ -65,21 +66,70 @@ class _Measured(gym.Env):
         return np.zeros(1, dtype=np.float32), 0.0, False, False, self._info()
 
 
-def test_the_shield_stops_a_moving_robot_below_s_p_and_only_then():
-    # S_p(0.5 m/s, hand still) = 0.5 * 0.1 + 0.05 + 0.08 = 0.18 m
-    env = _Measured([(1.0, 0.5, 0.0), (0.1, 0.5, 0.0), (0.1, 0.0, 0.0), (0.17, 0.5, 0.0),
-                     (0.19, 0.5, 0.0), (0.19, 0.5, 0.0)])
-    shield = SeparationShield(env, stop_action=lambda obs: np.array([-1.0]))
+def test_the_shield_stops_the_step_that_would_end_below_s_p():
+    # no speed change allowed: the anticipated separation is d - (v_r + v_h) * 0.05 and
+    # S_p(0.5 m/s, hand still) = 0.5 * 0.1 + 0.05 + 0.08 = 0.18 m, so the robot moving at
+    # 0.5 m/s is stopped below 0.18 + 0.025 = 0.205 m
+    exact = Anticipation(robot_acceleration=0.0, restart_speed=0.0, human_acceleration=0.0)
+    env = _Measured([(1.0, 0.5, 0.0), (0.1, 0.5, 0.0), (0.1, 0.0, 0.0), (0.20, 0.5, 0.0),
+                     (0.21, 0.5, 0.0), (0.21, 0.5, 0.0)])
+    shield = SeparationShield(env, stop_action=lambda obs: np.array([-1.0]),
+                              anticipation=exact)
     _, info = shield.reset(seed=0)
     assert info["protective_stops"] == 0
     stopped = [shield.step(np.array([0.5]))[4]["protective_stop"] for _ in range(5)]
     # step 1 starts 1 m away: runs; step 2 starts 0.1 m away moving: stopped; step 3 starts
-    # at rest: runs; step 4 at 0.17 m < 0.18 m moving: stopped; step 5 at 0.19 m: runs
+    # at rest: runs; step 4 at 0.20 m: within S_p one period ahead (0.175 < 0.18):
+    # stopped (a monitor of the measurement alone lets it through); step 5 at 0.21 m: runs
     assert stopped == [False, True, False, True, False]
     assert env.actions == [0.5, -1.0, 0.5, -1.0, 0.5]
     assert shield.stops == 2
     with pytest.raises(KeyError):
         SeparationShield(gym.make("Pendulum-v1"), lambda obs: obs).must_stop({})
+
+
+def test_the_shield_anticipates_speed_changes_and_the_restart_after_a_stop():
+    shield = SeparationShield(_Measured([(1.0, 0.0, 0.0)]), lambda obs: obs)
+    a = shield.anticipation  # 0.05 s; +0.5 m/s robot, +0.55 m/s hand; restart 0.5 m/s
+    assert a.next_speeds(0.2, 0.0, after_stop=False) == pytest.approx((0.7, 0.55))
+    assert a.next_speeds(0.0, 0.3, after_stop=True) == pytest.approx((0.5, 0.85))
+    # a robot at rest beside a resting hand may start (0.5 m/s) while the hand may start
+    # (0.55 m/s): S_p(0.5, 0.55) = 0.165 + 0.05 + 0.05 + 0.08 = 0.345 m, one period ahead
+    # 0.0525 m closer: it is held below 0.3975 m and let go above
+    near = {"min_human_distance": 0.39, "robot_speed": 0.0, "human_speed": 0.0}
+    far = {**near, "min_human_distance": 0.40}
+    assert shield.must_stop(near) and not shield.must_stop(far)
+    # after a stop the robot may restart at 0.5 m/s even if it was slower
+    # S_p(0.5, 0) = 0.18 m, 0.025 m closer one period ahead
+    slow = {"min_human_distance": 0.2, "robot_speed": 0.0, "human_speed": 0.0}
+    calm = Anticipation(robot_acceleration=0.0, human_acceleration=0.0)
+    assert SeparationShield(_Measured([(1.0, 0.0, 0.0)]), lambda obs: obs,
+                            anticipation=calm).must_stop(slow, after_stop=True)
+    assert not SeparationShield(_Measured([(1.0, 0.0, 0.0)]), lambda obs: obs,
+                                anticipation=calm).must_stop(slow, after_stop=False)
+    with pytest.raises(ValueError):
+        Anticipation(control_period=-0.05)
+
+
+def test_the_hand_accelerates_at_most_at_its_bound():
+    gear_xy, peg = np.array([0.6, 0.35]), np.array([0.62, -0.09, 0.91])
+    worst = 0.0
+    for behaviour in BEHAVIOURS:
+        for e in range(20):
+            schedule = sample_schedule(np.random.default_rng([e, 3]), gear_xy, peg,
+                                       mode=behaviour)
+            times = np.arange(0.0, schedule.times[-1] + 0.2, 0.002)
+            v = np.array([schedule.velocity(t) for t in times])
+            worst = max(worst, float(np.linalg.norm(v[25:] - v[:-25], axis=1).max()))
+    # the monitor's bound on the hand: 11 m/s^2 over a 0.05 s period
+    assert 0.3 < worst <= Anticipation().human_acceleration * 0.05
+    # a corner keeps its keyframe times outside the blend and ends where it was
+    t, p = rounded_corners(np.array([0.0, 1.0, 2.0]),
+                           np.array([[0.0, 0, 0], [0.0, 0, 0], [1.0, 0, 0]]), acceleration=10.0)
+    assert t[0] == 0.0 and t[-1] == pytest.approx(2.05) and p[-1] == pytest.approx([1, 0, 0])
+    # two blends of 1 m/s / 10 m/s^2 = 0.1 s, centred on 1 s and 2 s, sampled every 5 ms
+    assert t[1] == pytest.approx(0.95) and np.all(np.diff(t) > 0)
+    assert np.sum(np.diff(t) <= 0.005 + 1e-12) == 40
 
 
 def test_the_unseen_behaviours_are_not_in_the_training_mix_and_are_deterministic():
@@ -100,7 +150,8 @@ def test_the_unseen_behaviours_are_not_in_the_training_mix_and_are_deterministic
     assert np.min(np.linalg.norm(reach.positions[:, :2] - gear_xy, axis=1)) < 1e-9
     linger = sample_schedule(rng, gear_xy, peg, mode="linger")
     over = np.linalg.norm(linger.positions[:, :2] - peg[:2], axis=1) < 1e-9
-    assert over.any() and np.max(np.diff(linger.times)[over[1:] & over[:-1]]) >= 3.0
+    # it stays 3-6 s, less the corners' blends (0.1 s at most)
+    assert over.any() and np.max(np.diff(linger.times)[over[1:] & over[:-1]]) >= 2.9
     fast = sample_schedule(rng, gear_xy, peg, mode="fast_cross")
     speeds = np.linalg.norm(np.diff(fast.positions, axis=0), axis=1) / np.diff(fast.times)
     assert speeds.max() >= 1.0
@@ -185,3 +236,25 @@ def test_arm_points_are_the_arms_joints_as_mujoco_places_them():
             assert np.allclose(arm_joints(q[None, cols], side)[0], truth, atol=1e-9)
     states = np.zeros((4, STATE_DIM))
     assert arm_points(states).shape == (4, 21, 3)
+
+
+def test_a_robot_held_or_stopped_while_the_hand_pushes_it_is_at_rest():
+    from types import SimpleNamespace
+
+    from dynoplan.experiments.gear_task import episode_metrics
+
+    env = GearAssemblyEnv()
+    env.reset(seed=0, options={"human_mode": "reach"})
+    # three steps in contact, the arm pushed to 0.2 m/s in each; S_p(0.2, 0) = 0.14 m
+    infos = [{"human_contacts": 5, "robot_speed": 0.2, "human_speed": 0.0,
+              "min_human_distance": 0.0, "protective_stop": stop}
+             for stop in (False, False, True)]
+    # the controller held in the second step (a hold is recorded after its step)
+    trace = SimpleNamespace(infos=infos, decisions=[
+        SimpleNamespace(option="pick", env_step=0, steps=1),
+        SimpleNamespace(option=None, env_step=2, steps=1),
+        SimpleNamespace(option="pick", env_step=2, steps=1)])
+    metrics = episode_metrics(env, trace)  # type: ignore[arg-type]
+    assert metrics["human_mode"] == "reach"
+    assert (metrics["contacts_moving"], metrics["contacts_at_rest"]) == (5, 10)
+    assert metrics["sp_violations_moving"] == 1 and metrics["protective_stops"] == 1

@@ -22,6 +22,14 @@ AT_REST_SPEED = 0.01
 """m/s: below this speed of its fastest point the robot counts as at rest."""
 
 
+def require_non_negative(constants: object) -> None:
+    """Raise ``ValueError`` naming the first attribute of ``constants`` (a dataclass of
+    SI constants) that is not finite and >= 0."""
+    for name, value in vars(constants).items():
+        if not (np.isfinite(value) and value >= 0.0):
+            raise ValueError(f"{name} must be finite and >= 0, got {value}")
+
+
 @dataclass(frozen=True)
 class SeparationParameters:
     """The constants of :func:`protective_separation` (SI units).
@@ -45,9 +53,7 @@ class SeparationParameters:
     robot_uncertainty: float = 0.01
 
     def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        require_non_negative(self)
 
     def stopping_distance(self, robot_speed: FloatArray | float) -> FloatArray:
         """``B`` (m): braking from ``robot_speed`` at constant deceleration in

@@ -315,15 +315,23 @@ class HoldStill:
 
 
 class StopWhereItIs:
-    """The gear's protective stop (the runtime monitor's stop action): both arms
-    commanded to the joint angles they have now, the gripper as it is (observation (50,)
-    -> action (13,))."""
+    """The gear's protective stop (the runtime monitor's stop action; observation (50,)
+    -> action (13,)): the left arm commanded to the joint angles it has now while it
+    moves, and held at its last targets once it is still (commanding the measured angles
+    step after step lets it sag under gravity); the right arm, which holds the peg and
+    never moves in the task, held at its targets; the gripper as it is."""
+
+    STILL = 0.05
+    """rad/s: the left arm is still when no joint turns faster."""
 
     def __init__(self, env: GearAssemblyEnv) -> None:
         self.env = env
 
     def __call__(self, observation: FloatArray) -> FloatArray:
-        return np.concatenate([self.env.arm_qpos, [gripper_as_it_is(observation)]])
+        targets = self.env.arm_targets
+        still = float(np.max(np.abs(observation[OBS_SLICES["arm_qvel"]][:6]))) < self.STILL
+        left = targets[:6] if still else self.env.arm_qpos[:6]
+        return np.concatenate([left, targets[6:], [gripper_as_it_is(observation)]])
 
 
 def gripper_as_it_is(observation: FloatArray) -> float:

@@ -10,7 +10,11 @@ The operator stands across the table (shoulder near ``x = 1.6``). Its hand rests
 
 Between events the hand rests. Speeds are drawn per event. The schedule is a list of
 keyframes; the pose at any time is known in advance, so a privileged expert (or a
-planner using the simulator as its model) can predict where the hand will be.
+planner using the simulator as its model) can predict where the hand will be. A real
+hand cannot change its velocity at once: every corner of the path is rounded with a
+constant acceleration of :data:`HAND_ACCELERATION` (a parabolic blend, sampled every
+:data:`BLEND_SAMPLE` s), so the hand's speed changes by at most about
+``HAND_ACCELERATION * dt`` in ``dt`` seconds, and a runtime monitor may bound it.
 The forearm points from the hand towards the operator's shoulder.
 
 These three (:data:`HUMAN_MODES`) are the behaviours of every demonstration, collection
@@ -62,6 +66,11 @@ LINGER_DWELL_RANGE = (3.0, 6.0)  # s
 FAST_CROSS_SPEED_RANGE = (1.0, 1.6)  # m/s
 FAST_CROSS_Z_RANGE = (0.92, 1.0)  # the arm's height, below ``cross``
 PASS_GAP_RANGE = (0.3, 1.0)  # s between the two passes
+HAND_ACCELERATION = 10.0
+"""m/s^2: the hand's acceleration at every corner of its path. A minimum-jerk reach of
+0.5 m in 0.5 s peaks at 5.8 * 0.5 / 0.5^2 = 11.5 m/s^2 (Flash and Hogan 1985)."""
+BLEND_SAMPLE = 0.005
+"""s: the longest keyframe interval of a rounded corner."""
 
 
 @dataclass(frozen=True)
@@ -182,8 +191,43 @@ def sample_schedule(rng: Generator, gear_xy: FloatArray, peg_position: FloatArra
                 _hold(times, points, rng.uniform(*BLOCK_DWELL_RANGE))
             _move(times, points, rest, speed)
             events.append(kind)
-    return HumanSchedule(times=np.array(times), positions=np.array(points),
-                         shoulder=shoulder, events=tuple(events))
+    t, p = rounded_corners(np.array(times), np.array(points))
+    return HumanSchedule(times=t, positions=p, shoulder=shoulder, events=tuple(events))
+
+
+def rounded_corners(times: FloatArray, positions: FloatArray,
+                    acceleration: float = HAND_ACCELERATION,
+                    sample: float = BLEND_SAMPLE) -> tuple[FloatArray, FloatArray]:
+    """Keyframes ``(K,)``, ``(K, 3)`` of a piecewise-linear path -> the same path with
+    every change of velocity (the hand rests before the first keyframe and after the
+    last) spread over ``|dv| / acceleration`` seconds centred on its keyframe: a
+    parabolic blend, sampled every ``sample`` seconds at most. The blend takes at most
+    half of each segment beside it (a shorter segment accelerates faster). Times of the
+    keyframes outside the blends, and the path's duration, do not change."""
+    t = np.asarray(times, dtype=np.float64)
+    p = np.asarray(positions, dtype=np.float64)
+    durations = np.diff(t)
+    velocities = np.concatenate([np.zeros((1, 3)), np.diff(p, axis=0) / durations[:, None],
+                                 np.zeros((1, 3))])
+    room = np.concatenate([[np.inf], durations, [np.inf]])
+    out_t: list[float] = []
+    out_p: list[FloatArray] = []
+    for k in range(len(t)):
+        v_in, v_out = velocities[k], velocities[k + 1]
+        change = float(np.linalg.norm(v_out - v_in))
+        tau = min(change / acceleration, room[k], room[k + 1])
+        if tau <= 0.0:
+            out_t.append(float(t[k]))
+            out_p.append(p[k])
+            continue
+        n = int(np.ceil(tau / sample))
+        s = np.linspace(0.0, tau, n + 1)  # time since the blend started
+        blend = (p[k] + v_in * (s - tau / 2)[:, None]
+                 + (v_out - v_in) / (2 * tau) * (s ** 2)[:, None])
+        out_t.extend((t[k] - tau / 2 + s).tolist())
+        out_p.extend(blend)
+    keep = np.concatenate([[True], np.diff(out_t) > 0])  # two blends that meet
+    return np.array(out_t)[keep], np.array(out_p)[keep]
 
 
 def _cross(rng: Generator, times: list[float], points: list[FloatArray], speed: float,
@@ -212,9 +256,12 @@ def _unseen_event(kind: str, rng: Generator, times: list[float], points: list[Fl
     elif kind == "fast_cross":
         _cross(rng, times, points, rng.uniform(*FAST_CROSS_SPEED_RANGE), FAST_CROSS_Z_RANGE,
                backwards=bool(rng.random() < 0.5))
-    else:  # two_passes: there and back
+    else:  # two_passes: there and back at the same height, from where the first ended
         speed = rng.uniform(*SPEED_RANGE)
         backwards = bool(rng.random() < 0.5)
         _cross(rng, times, points, speed, CROSS_Z_RANGE, backwards)
         _hold(times, points, rng.uniform(*PASS_GAP_RANGE))
-        _cross(rng, times, points, speed, CROSS_Z_RANGE, not backwards)
+        end = points[-1]
+        back = CROSS_Y_ENDS[1] if backwards else CROSS_Y_ENDS[0]
+        _move(times, points, np.array([end[0] + rng.uniform(-0.08, 0.08), back, end[2]]),
+              speed)

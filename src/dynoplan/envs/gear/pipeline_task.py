@@ -184,14 +184,15 @@ class GearTask:
 
 
 def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
-                 min_distance: float = np.inf) -> dict[str, Any]:
+                 min_distance: float = np.inf, held: FloatArray | None = None) -> dict[str, Any]:
     """The gear's own measurements of an episode from its steps' ``infos``:
 
     - ``human_mode``: the human's behaviour;
     - ``contacts``: env steps' physics steps with a robot-human contact, split into
       ``contacts_moving`` (the robot's fastest point at :data:`AT_REST_SPEED` or more after
-      the step, and the step not a protective stop: a stopped arm that the hand pushes
-      moves, but is not driven) and ``contacts_at_rest``;
+      the step, and the step neither a protective stop nor, ``held`` (bool per step), a
+      step in which the controller held the arm because no option was admissible: a
+      stopped arm that the hand pushes moves, but is not driven) and ``contacts_at_rest``;
     - ``sp_violations_moving``: steps after which the robot moves closer to the hand than
       the protective separation distance ``S_p`` of ISO/TS 15066 for the robot's and the
       hand's measured speeds (:func:`~dynoplan.safety.protective_separation`);
@@ -201,8 +202,9 @@ def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
     """
     contacts = np.array([int(i["human_contacts"]) for i in infos], dtype=np.int64)
     stopped = np.array([bool(i.get("protective_stop", False)) for i in infos], dtype=bool)
+    at_rest = stopped if held is None else stopped | np.asarray(held, dtype=bool)
     moving = np.array([float(i["robot_speed"]) >= AT_REST_SPEED for i in infos],
-                      dtype=bool) & ~stopped
+                      dtype=bool) & ~at_rest
     distance = np.array([float(i["min_human_distance"]) for i in infos])
     s_p = protective_separation(np.array([float(i["robot_speed"]) for i in infos]),
                                 np.array([float(i["human_speed"]) for i in infos]))
@@ -219,7 +221,11 @@ def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, An
     """:func:`gear_metrics` of a controller's episode (recorded with ``record_infos``)."""
     gear_env = env.unwrapped
     assert isinstance(gear_env, GearAssemblyEnv)
-    return gear_metrics(gear_env, trace.infos)
+    held = np.zeros(len(trace.infos), dtype=bool)
+    for decision in trace.decisions:
+        if decision.option is None:  # the controller's hold, recorded after its step
+            held[decision.env_step - decision.steps:decision.env_step] = True
+    return gear_metrics(gear_env, trace.infos, held=held)
 
 
 @dataclass

@@ -5,6 +5,19 @@ import numpy as np
 
 from dynoplan.types import FloatArray
 
+MAX_LAG = 0.1
+"""rad: a path waits while the arm lags its target by more than this on some joint
+(something else held the arm: a protective stop), so that it resumes where the arm is
+instead of jumping to where the path would have run meanwhile."""
+
+
+def within_lag(target: FloatArray, measured: FloatArray) -> FloatArray:
+    """``target`` (12,) moved to within :data:`MAX_LAG` of ``measured`` (12,) on every
+    joint: where a motion that runs from its own last target should start again when
+    something held the arm meanwhile."""
+    out: FloatArray = np.clip(target, measured - MAX_LAG, measured + MAX_LAG)
+    return out
+
 
 class JointPath:
     """A joint-space polyline through ``waypoints`` (K, 12) followed at a joint speed,
@@ -31,8 +44,17 @@ class JointPath:
         out: FloatArray = self.points[k] + w * (self.points[k + 1] - self.points[k])
         return out
 
-    def advance(self, dt: float, scale: float) -> FloatArray:
-        """Move along the path for ``dt`` at ``scale`` of full speed; the new target."""
+    def advance(self, dt: float, scale: float, measured: FloatArray | None = None) -> FloatArray:
+        """Move along the path for ``dt`` at ``scale`` of full speed; the new target.
+        ``measured`` (12,): the joint angles now; while they lag the current target by
+        more than :data:`MAX_LAG` the path waits (at rest) and the target returned is
+        the path's kept within :data:`MAX_LAG` of them (:func:`within_lag`), so that the
+        arm, once let go, does not leap to it."""
+        if measured is not None and self.length > 1e-9:
+            here = self.at(self.s)
+            if float(np.max(np.abs(here - measured))) > MAX_LAG:
+                self.sdot = 0.0
+                return within_lag(here, measured)
         if self.length > 1e-9:
             brake = np.sqrt(2.0 * self.accel * max(1.0 - self.s, 0.0))
             target = min(self.sdot_max * scale, brake)
@@ -52,4 +74,4 @@ class JointPath:
         return self.s >= 1.0
 
 
-__all__ = ["JointPath"]
+__all__ = ["MAX_LAG", "JointPath", "within_lag"]

@@ -36,7 +36,7 @@ from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
 from dynoplan.envs.gear.options.motion import LeftArmPlanner
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
-from dynoplan.envs.gear.trajectory import JointPath
+from dynoplan.envs.gear.trajectory import JointPath, within_lag
 from dynoplan.errors import DynoplanError
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
@@ -287,7 +287,7 @@ class FastMovePolicy(_CarryMove):
         obs = np.asarray(observation, dtype=np.float64)
         self.time += self.dt
         if self.status == "running" and self.path is not None:
-            self.q_cmd = self.path.advance(self.dt, 1.0)
+            self.q_cmd = self.path.advance(self.dt, 1.0, obs[OBS_SLICES["arm_qpos"]])
             if self.path.finished and self._settled(obs):
                 self.status = "done"
         return self._action()
@@ -497,7 +497,7 @@ class CautiousMovePolicy(_CarryMove):
                 d = self._clearance(np.array([path.preview(t, scale) for t in self._taus]))
                 ramp = (d - cfg.stop_distance) / (cfg.clear_distance - cfg.stop_distance)
                 if d >= cfg.stop_distance and (scale <= ramp or scale == cfg.scales[-1]):
-                    self.q_cmd = path.advance(self.dt, scale)
+                    self.q_cmd = path.advance(self.dt, scale, obs[OBS_SLICES["arm_qpos"]])
                     self.mode = "move" if scale == cfg.scales[0] else "slow"
                     return
         hold = self._clearance(np.repeat(q_hold[None, :], len(self._taus), axis=0))
@@ -511,17 +511,19 @@ class CautiousMovePolicy(_CarryMove):
             else:
                 self.mode = "stop" if path is not None else "wait"
             return
-        self._retreat()
+        self._retreat(obs)
 
-    def _retreat(self) -> None:
+    def _retreat(self, obs: FloatArray) -> None:
         """Back away along the candidate motion with the largest predicted clearance:
         towards home, the tool up or down, back towards the torso (level, up or down),
         away from the hand (up or down), or back to where the path started. The
         candidates' end poses are solved when a retreat begins and again every
         ``retreat_refresh`` s (from where the arm is then). The path is dropped (the arm
-        replans from where it ends up)."""
+        replans from where it ends up). A retreat runs from its own last target, kept
+        within :data:`~dynoplan.envs.gear.trajectory.MAX_LAG` of the measured joints
+        (``obs``), so that a protective stop does not let it run away from the arm."""
         cfg = self.cfg
-        q0 = self.q_cmd.copy()
+        q0 = within_lag(self.q_cmd, obs[OBS_SLICES["arm_qpos"]])
         if self.mode != "retreat" or self.time - self._retreat_since >= cfg.retreat_refresh:
             self._retreat_goals = self._retreat_candidates(q0)
             self._retreat_since = self.time

@@ -156,7 +156,7 @@ class PickPolicy(GearOptionPolicy):
         if not self.finished():
             self._transition(obs)
         if not self.finished() and self._path is not None:
-            self._q_cmd = self._path.advance(CONTROL_DT, 1.0)
+            self._q_cmd = self._path.advance(CONTROL_DT, 1.0, obs[OBS_SLICES["arm_qpos"]])
         self._timer += CONTROL_DT
         return np.concatenate([self._q_cmd, [self._grip]])
 
