@@ -24,6 +24,7 @@ from dynoplan.pipeline.evaluate import (
     controller_names,
     evaluate_controllers,
     evaluate_many,
+    learned_regions,
     make_controller,
     results_table,
     summarize,
@@ -51,7 +52,18 @@ from dynoplan.pipeline.run import (
     run_pipeline,
     start_states,
 )
-from dynoplan.pipeline.task import GymTask, Task, call_factory, load_object
+from dynoplan.pipeline.task import (
+    EndOnSuccess,
+    GymTask,
+    StateFn,
+    StateObservation,
+    SuccessFn,
+    Task,
+    call_factory,
+    load_function,
+    load_object,
+    task_env,
+)
 
 __all__ = [
     "CallableDemonstrator",
@@ -59,6 +71,7 @@ __all__ = [
     "ControllerSettings",
     "Demonstrator",
     "DynamicsFitter",
+    "EndOnSuccess",
     "EpisodeRecord",
     "FitSettings",
     "FittedModels",
@@ -66,7 +79,10 @@ __all__ = [
     "PipelineResult",
     "PipelineSettings",
     "RandomOptions",
+    "StateFn",
+    "StateObservation",
     "StridedTermination",
+    "SuccessFn",
     "Task",
     "admissibility",
     "box_state_dim",
@@ -84,6 +100,8 @@ __all__ = [
     "fit_outcome_initiation",
     "fit_regions",
     "flat_state",
+    "learned_regions",
+    "load_function",
     "load_object",
     "make_controller",
     "make_env",
@@ -96,4 +114,5 @@ __all__ = [
     "run_pipeline",
     "start_states",
     "summarize",
+    "task_env",
 ]

@@ -7,7 +7,7 @@ so the rows of a results table differ only by the controller.
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -25,6 +25,9 @@ from dynoplan.planning.option_planner import OptionPlanner
 from dynoplan.progress import track
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
+
+if TYPE_CHECKING:
+    from dynoplan.pipeline.fit import FittedModels
 
 DYNOPLAN = "dynoplan"
 RANDOM = "random"
@@ -45,7 +48,7 @@ class ControllerSettings:
         max_decisions: planning steps before an episode is given up.
         max_option_steps: environment steps one option may run between decisions.
         hold_action: action when no option is admissible (``None``: the task's own, if
-            it has one, else end the episode).
+            it has one, else end the episode); a tuple is the action as an array.
         oracle_horizon: decisions a simulator oracle simulates per rollout (tasks whose
             environment can be simulated from a state; it pays real simulation time, so
             it may be shorter than ``horizon``).
@@ -172,10 +175,13 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
         raise DynoplanError(
             f"unknown controller '{kind}' (known: {', '.join(controller_names(options))})")
     alone = kind != DYNOPLAN
+    hold = settings.hold_action  # a tuple keeps the settings hashable (worker jobs)
+    if isinstance(hold, tuple):
+        hold = np.asarray(hold)
     return Controller(options, chooser, max_decisions=settings.max_decisions,
                       max_option_steps=settings.max_option_steps,
                       replan_every=None if alone else settings.replan_every,
-                      margin=settings.margin, hold_action=settings.hold_action)
+                      margin=settings.margin, hold_action=hold)
 
 
 @dataclass(frozen=True)
@@ -359,6 +365,30 @@ class ControllerRunner:
         return self.record(self.run(seed), seed)
 
 
+class NoRegions:
+    """A region model without regions: no option ever starts outside one (what
+    out-of-region starts are counted against when no regions were fitted)."""
+
+    @property
+    def option_names(self) -> list[str]:
+        return []
+
+    def option_index(self, option: str | int) -> int:
+        raise DynoplanError(f"no regions were fitted, none for option {option!r}")
+
+    def contains(self, states: Any, option: str | int) -> Any:
+        raise DynoplanError(f"no regions were fitted, none for option {option!r}")
+
+
+def learned_regions(models: "FittedModels") -> RegionModel:
+    """What a pipeline's out-of-region starts are counted against: the fitted regions
+    of ``models`` when the options use them, else none (:class:`NoRegions`), so that a
+    start outside the user's own initiation set is never counted as out of region."""
+    if models.use_regions and models.regions is not None:
+        return models.regions
+    return NoRegions()
+
+
 def starts_outside(trace: EpisodeTrace, regions: RegionModel) -> int:
     """Options of ``trace`` started outside their learned region in ``regions`` (an
     option without a region, one the demonstrations do not show, never is)."""
@@ -402,13 +432,16 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                          controllers: Sequence[str] | None = None,
                          progress: bool = False, workers: Workers = SERIAL,
                          task: Task | None = None,
-                         models: Path | None = None) -> dict[str, dict[str, Any]]:
+                         models: Path | None = None,
+                         regions: RegionModel | None = None) -> dict[str, dict[str, Any]]:
     """Run each controller on the same ``episodes`` seeded episodes; one summary each.
 
     ``controllers`` defaults to :func:`controller_names` (DynoPlan, every option alone,
     random choice). On one worker the controllers run here on ``env`` and ``options``; on
     several, every worker rebuilds them from ``task`` and the models folder ``models``
     (:class:`ControllerJob`), which must hold the same models, and the table is the same.
+    Out-of-region starts are counted against ``regions`` (:class:`ControllerRunner`; a
+    task's workers count as :meth:`~dynoplan.pipeline.task.Task.make_runner` says).
     """
     if episodes < 1:
         raise DynoplanError(f"episodes must be >= 1, got {episodes}")
@@ -421,8 +454,8 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
         jobs: list[EpisodeJob] = [ControllerJob(task, models, kind, settings)
                                   for kind in kinds]
     else:
-        jobs = [_LocalJob(env, make_controller(kind, options, goal, settings, planner_options))
-                for kind in kinds]
+        jobs = [_LocalJob(env, make_controller(kind, options, goal, settings, planner_options),
+                          regions) for kind in kinds]
     done = evaluate_many([(job, seeds) for job in jobs], workers,
                          f"evaluate ({len(kinds)} controllers)", progress)
     return {kind: summarize(records) for kind, records in zip(kinds, done, strict=True)}
@@ -434,9 +467,10 @@ class _LocalJob:
 
     env: gym.Env[Any, Any]
     controller: Controller
+    regions: RegionModel | None = None
 
     def build(self) -> ControllerRunner:
-        return ControllerRunner(self.env, self.controller)
+        return ControllerRunner(self.env, self.controller, regions=self.regions)
 
 
 _COLUMNS = ["controller", "success_rate", "steps_to_success_mean", "return_mean",
