@@ -70,6 +70,14 @@ if ENV_ID not in gym.registry:
     gym.register(ENV_ID, entry_point=make_env, max_episode_steps=300)
 
 
+def upright(observation: Any, info: dict[str, Any]) -> bool:
+    """Success of plain ``Pendulum-v1`` on the command line (``--success
+    examples.pendulum.options:upright``): the rod is upright and nearly still,
+    ``|angle| < UPRIGHT_ANGLE`` and ``|angular velocity| < UPRIGHT_SPEED``. The pipeline
+    ends the episode there, so no wrapper or registered id is needed."""
+    return abs(_angle(observation)) < UPRIGHT_ANGLE and abs(float(observation[2])) < UPRIGHT_SPEED
+
+
 def _angle(observation: Any) -> float:
     return float(np.arctan2(observation[1], observation[0]))
 
