@@ -1,8 +1,6 @@
 """The pipeline as a user meets it: success functions, every setting from the command line
 and a TOML file, Dict observations, out-of-region starts under --no-regions."""
 
-import signal
-import sys
 import textwrap
 from dataclasses import replace
 from pathlib import Path
@@ -22,25 +20,17 @@ from dynoplan.pipeline import (
     task_env,
 )
 from dynoplan.pipeline.config import flag, pipeline_settings, read_config, setting_keys
+from test_bad_input import assert_one_line_error
+from test_bad_input import invoke as invoke_main
+from test_pipeline import Line
 
 
-class Drift(gym.Env):
-    """x on a line that never terminates and reports no success: the action (clipped to
-    [-1, 1]) is added to x, which starts in [-1, 1]."""
-
-    def __init__(self):
-        self.observation_space = spaces.Box(-100, 100, (1,), np.float64)
-        self.action_space = spaces.Box(-1, 1, (1,), np.float32)
-        self.x = 0.0
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.x = float(self.np_random.uniform(-1, 1))
-        return np.array([self.x]), {}
+class Drift(Line):
+    """:class:`Line` that never terminates and reports no success."""
 
     def step(self, action):
-        self.x += float(np.clip(np.asarray(action).reshape(-1)[0], -1, 1))
-        return np.array([self.x]), -abs(5.0 - self.x), False, False, {}
+        obs, *_ = super().step(action)
+        return obs, -abs(5.0 - self.x), False, False, {}
 
 
 class DictDrift(Drift):
@@ -204,29 +194,11 @@ SMALL_FLAGS = ["--demos", "2", "--explore", "4", "--episodes", "3", "--horizon",
 def invoke(monkeypatch, capsys, tmp_path, *args):
     """``dynoplan pipeline ARGS`` in this process, in ``tmp_path`` with the options
     module: exit status, stdout, stderr."""
-    from dynoplan.cli.main import main
-
     (tmp_path / "drift_options.py").write_text(OPTIONS_MODULE)
     monkeypatch.chdir(tmp_path)
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.syspath_prepend(str(Path(__file__).parent))
-    monkeypatch.setattr(sys, "argv", ["dynoplan", "pipeline", *args])
-    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        with pytest.raises(SystemExit) as exit_info:
-            main()
-    finally:
-        for s, handler in handlers.items():
-            signal.signal(s, handler)
-    out, err = capsys.readouterr()
-    return exit_info.value.code, out, err
-
-
-def one_line_error(code, err, *needles):
-    assert code == 2, err
-    assert err.count("\n") == 1 and err.startswith("dynoplan: error: "), err
-    for needle in needles:
-        assert needle in err, err
+    return invoke_main(monkeypatch, capsys, "pipeline", *args)
 
 
 def test_settings_toml_repeats_the_run_and_flags_override_it(tmp_path, monkeypatch, capsys):
@@ -263,7 +235,7 @@ def test_an_unknown_setting_in_the_config_is_one_line(tmp_path, monkeypatch, cap
     (tmp_path / "bad.toml").write_text('env = "TestDrift-v0"\n[fit]\nregion_slak = 1.0\n')
     code, _, err = invoke(monkeypatch, capsys, tmp_path, "--config", "bad.toml",
                           "--options", "drift_options:make_options", "--out", "out")
-    one_line_error(code, err, "unknown setting 'fit.region_slak'", "fit.region_slack")
+    assert_one_line_error(code, err, "unknown setting 'fit.region_slak'", "fit.region_slack")
     assert not (tmp_path / "out").exists()
 
 
@@ -277,7 +249,7 @@ def test_a_bad_value_in_the_config_is_one_line(tmp_path, monkeypatch, capsys, te
     (tmp_path / "bad.toml").write_text(text)
     code, _, err = invoke(monkeypatch, capsys, tmp_path, "--config", "bad.toml", "--env",
                           "TestDrift-v0", "--options", "drift_options:make_options")
-    one_line_error(code, err, needle)
+    assert_one_line_error(code, err, needle)
 
 
 def test_a_success_function_that_raises_is_one_line_on_the_command_line(tmp_path, monkeypatch,
@@ -285,7 +257,7 @@ def test_a_success_function_that_raises_is_one_line_on_the_command_line(tmp_path
     code, _, err = invoke(monkeypatch, capsys, tmp_path, "--env", "TestDrift-v0",
                           "--options", "drift_options:make_options",
                           "--success", "drift_options:broken", *SMALL_FLAGS, "--out", "out")
-    one_line_error(code, err, "success function 'drift_options:broken' failed at step 1",
+    assert_one_line_error(code, err, "success function 'drift_options:broken' failed at step 1",
                    "ValueError: no goal here")
     assert not (tmp_path / "out").exists()
 
@@ -293,7 +265,7 @@ def test_a_success_function_that_raises_is_one_line_on_the_command_line(tmp_path
 def test_a_dict_space_without_a_map_is_one_line(tmp_path, monkeypatch, capsys):
     code, _, err = invoke(monkeypatch, capsys, tmp_path, "--env", "TestPaths-v0",
                           "--options", "drift_options:make_options", "--out", "out")
-    one_line_error(code, err, "give a state_fn", "--state-fn")
+    assert_one_line_error(code, err, "give a state_fn", "--state-fn")
 
 
 def test_every_setting_has_a_flag():
