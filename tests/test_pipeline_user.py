@@ -292,3 +292,11 @@ def test_settings_read_back_as_written(tmp_path):
     values = read_config(path)
     assert values["env"] == "E-v0"
     assert pipeline_settings(values, str(path)) == settings
+
+
+def test_an_unknown_controller_is_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    code, _, err = invoke(monkeypatch, capsys, tmp_path, "--env", "TestDrift-v0",
+                          "--options", "drift_options:make_options", "--controllers",
+                          "dynoplan,option:nosuch", "--out", "out")
+    assert_one_line_error(code, err, "unknown controller(s) option:nosuch", "option:right")
+    assert not (tmp_path / "out").exists()

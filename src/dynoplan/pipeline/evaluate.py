@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from dynoplan.adapters.spec import OptionSpec
 from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
 from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.errors import DynoplanError
@@ -134,7 +135,7 @@ def planning_steps_summary(traces: Sequence[EpisodeTrace]) -> dict[str, Any]:
     }
 
 
-def controller_names(options: Sequence[Option]) -> list[str]:
+def controller_names(options: Sequence[Option] | Sequence[OptionSpec]) -> list[str]:
     """``dynoplan``, then ``option:<name>`` for every option, then ``random``."""
     return [DYNOPLAN, *(OPTION_PREFIX + o.name for o in options), RANDOM]
 

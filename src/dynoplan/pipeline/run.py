@@ -45,6 +45,7 @@ from dynoplan.pipeline.collect import (
 )
 from dynoplan.pipeline.evaluate import (
     ControllerSettings,
+    controller_names,
     evaluate_controllers,
     learned_regions,
     results_table,
@@ -329,6 +330,10 @@ def run_pipeline(
     state_dim = probe_options(environment, options, flat_state, seeds["demos"])
     folder = ensure_writable_dir(out) if out is not None else None
     names = [s.name for s in specs]
+    unknown = [c for c in settings.controllers or () if c not in controller_names(specs)]
+    if unknown:  # before any work
+        raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
+                            f"{', '.join(controller_names(specs))})")
 
     if demos is not None:
         demo_episodes = demos_from_dataset(demos, names)
