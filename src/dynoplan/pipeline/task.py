@@ -171,7 +171,10 @@ class Task(Protocol):
         ...
 
     def make_env(self) -> gym.Env[Any, Any]:
-        """A new instance of the task's environment."""
+        """A new instance of the task's environment, which defines success: an episode
+        succeeded when its last step's ``info["is_success"]`` says so, else when it
+        terminated (a task with a success function wraps its environment in
+        :class:`EndOnSuccess`, as :func:`task_env` does)."""
         ...
 
     def make_runner(self, controller: str, models: Path,
