@@ -211,6 +211,7 @@ def pipeline(
         settings_toml,
     )
 
+    # every parameter by name: a setting's flag is named as its field (config.setting_keys)
     flags = dict(locals())
     flags["demo_dataset"] = None if demo_dataset is None else str(demo_dataset)
     given = {key: flags[key.rpartition(".")[2]] for key in [*TASK_KEYS, *setting_keys()]
