@@ -27,7 +27,7 @@ def test_outcome_initiation_and_the_variant_rows_reach_results_csv(quick_gear_ru
     report = json.loads((models / "initiation.json").read_text())
     assert set(report["options"]) | set(report["without_runs"]) == set(
         manifest["option_names"])
-    rows = ["dynoplan_learned", "random_learned", "dynoplan_regions", "random_everywhere"]
+    rows = ["dynoplan", "random+rules", "dynoplan_regions", "random_everywhere"]
     out = tmp_path / "eval"
     result = runner.invoke(app, ["gear", "evaluate", "--models", str(models), "--out",
                                  str(out), "--controllers", ",".join(rows), "--episodes", "1",

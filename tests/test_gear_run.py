@@ -115,14 +115,14 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     out = quick_gear_run  # gear run --quick --episodes 3 --oracle-episodes 1 (conftest)
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
-    assert [r["controller"] for r in rows] == ["dynoplan", "oracle", "fixed_script", "random",
-                                             "flat_ppo", "dynoplan_learned",
-                                             "random_learned"]
+    assert [r["controller"] for r in rows] == ["dynoplan", "random", "oracle", "fixed_script",
+                                             "flat_ppo", "dynoplan+rules",
+                                             "dynoplan_regions", "dynoplan epistemic=0.3"]
     assert set(REQUIRED) <= set(rows[0]) and tuple(rows[0]) == RESULT_COLUMNS
     by_name = {r["controller"]: r for r in rows}
-    # the learned planner and the oracle assemble the gear in every quick episode,
-    # without touching the human
-    for name in ("dynoplan", "oracle"):
+    # the learned planner, the oracle on the same learned sets and the planner on the
+    # rules assemble the gear in every quick episode, without touching the human
+    for name in ("dynoplan", "oracle", "dynoplan+rules"):
         assert float(by_name[name]["success_rate"]) == 1.0, name
         assert int(by_name[name]["contacts"]) == 0, name
     assert float(by_name["dynoplan"]["time_to_success_s"]) < 40.0  # the episodes' limit
@@ -131,12 +131,16 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     assert set(summary["stages_s"]) == {"networks", "demos", "collect", "train", "figures",
                                         "flat_ppo", "outcomes", "evaluate",
                                         "faults"}  # --no-video
-    # the learned-only rows: the initiation learned from outcomes is fitted by the run
+    # the initiation learned from outcomes is fitted by the run, part of the learned sets
     assert (out / "models" / "initiation.safetensors").is_file()
-    assert int(by_name["dynoplan_learned"]["out_of_region_starts"]) == 0
+    # the ablation rows run on the first --ablation-episodes (quick: 2) episodes, and
+    # results.md compares them with DynoPlan on the same ones
+    assert [int(by_name[r]["episodes"]) for r in ("dynoplan_regions",
+                                                   "dynoplan epistemic=0.3")] == [2, 2]
+    assert [r["episodes"] for r in summary["ablation"]] == [2] * 5
     assert {f["fault"] for f in summary["faults"]} == {"dynamics_noise", "observation_noise",
                                                       "grasp_slip"}
-    assert summary["results"][0]["episodes"] == 3 and summary["results"][1]["episodes"] == 1
+    assert summary["results"][0]["episodes"] == 3 and summary["results"][2]["episodes"] == 1
     # the learned planner chooses only admissible options, so it never starts one outside
     # its region; the oracle is measured against the same regions
     assert summary["results"][0]["out_of_region_starts"] == 0
@@ -144,6 +148,7 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
                  "demos", "heldout", "transitions"):
         assert (out / name).exists(), name
     assert "| dynoplan |" in (out / "results.md").read_text()
+    assert "## Ablation" in (out / "results.md").read_text()
 
 
 def test_the_video_shows_the_shortest_successful_switch_to_the_cautious_move():

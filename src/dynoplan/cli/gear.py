@@ -362,6 +362,9 @@ def run(
     oracle_episodes: int | None = typer.Option(None, min=0, max=EPISODES_MAX,
                                                help="Episodes of the simulator "
                                                "oracle (the first of the same list)."),
+    ablation_episodes: int | None = typer.Option(None, min=0, max=EPISODES_MAX,
+                                                 help="Episodes of each ablation row (the "
+                                                 "first of the same list; default 30)."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
@@ -383,10 +386,13 @@ def run(
         settings = replace(settings, episodes=episodes)
     if oracle_episodes is not None:
         settings = replace(settings, oracle_episodes=oracle_episodes)
+    if ablation_episodes is not None:
+        settings = replace(settings, ablation_episodes=ablation_episodes)
     if settings.episodes < 1 or settings.oracle_episodes < 0:
         raise DynoplanError("--episodes must be >= 1 and --oracle-episodes >= 0")
     settings = replace(settings, oracle_episodes=min(settings.oracle_episodes,
                                                      settings.episodes),
+                       ablation_episodes=min(settings.ablation_episodes, settings.episodes),
                        fault_episodes=min(settings.fault_episodes, settings.episodes),
                        video=not no_video)
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
@@ -401,11 +407,13 @@ def evaluate(
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
     out: Path = typer.Option(Path("results/gear-eval"), callback=folder, help="Output folder."),
-    controllers: str = typer.Option("dynoplan", help="Comma-separated controllers: dynoplan, "
-                                    "oracle, fixed_script, random, flat_ppo, or a variant on "
-                                    "other initiation sets: dynoplan_learned, random_learned, "
-                                    "dynoplan_regions, random_regions, dynoplan_everywhere, "
-                                    "random_everywhere."),
+    controllers: str = typer.Option("dynoplan", help="Comma-separated controllers (learned "
+                                    "parts only): dynoplan, random, oracle, fixed_script, "
+                                    "flat_ppo; or a variant: dynoplan+rules, random+rules, "
+                                    "oracle+rules (hand-written conditions added), "
+                                    "dynoplan_regions, random_regions (Eq. 5 regions alone), "
+                                    "dynoplan_everywhere, random_everywhere, dynoplan_safe, "
+                                    "dynoplan+rules_safe (chance-constrained Eq. 1)."),
     episodes: int = typer.Option(100, min=1, max=EPISODES_MAX, help="Episodes per controller."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Episodes are gear run's for the same seed."),

@@ -178,9 +178,13 @@ def pipeline(
     max_option_steps: int | None = typer.Option(
         None, "--max-option-steps", **_bounds("control.max_option_steps"),
         help="Environment steps one option may run between decisions [1000]."),
+    hold: bool | None = typer.Option(
+        None, "--hold/--no-hold",
+        help="Where no option is admissible, hold (--hold-action, else the zero action of a "
+             "Box action space) until one is; --no-hold: end the episode there [hold]."),
     hold_action: str | None = typer.Option(
-        None, "--hold-action", help="Action when no option is admissible, comma-separated "
-        "numbers [none: the episode ends]."),
+        None, "--hold-action", help="The action to hold with, comma-separated numbers "
+        "[the zero action of a Box action space]."),
     dynamics_noise: float | None = typer.Option(
         None, "--dynamics-noise", **_bounds("control.dynamics_noise"),
         help="Std of Gaussian noise on every learned prediction of the planner (a fault) "

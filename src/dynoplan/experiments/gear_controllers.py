@@ -4,29 +4,27 @@ controllers compared in the evaluation table.
 Every controller drives the same four option policies (bound to one environment); they
 differ only in how an option is chosen and what may stop it:
 
-============  ====================================  ===========  ====================
-controller    chooser                               initiation   termination
-============  ====================================  ===========  ====================
-dynoplan      :class:`OptionPlanner` (Eq. 1),       regions      ``beta_w``
-              learned dynamics and goal
-oracle        :class:`SimulatorOracle` (MuJoCo      regions      ``beta_w``
-              simulates each option)
-random        uniform among admissible options      regions      ``beta_w``
-fixed_script  pick, fast move, insert               everywhere   policy finished
-============  ====================================  ===========  ====================
+==============  ====================================  ============  ==================
+controller      chooser                               initiation    termination
+==============  ====================================  ============  ==================
+dynoplan        :class:`OptionPlanner` (Eq. 1),       learned       ``beta_w``
+                learned dynamics and goal
+oracle          :class:`SimulatorOracle` (MuJoCo      learned       ``beta_w``
+                simulates each option)
+random          uniform among admissible options      learned       ``beta_w``
+fixed_script    pick, fast move, insert               everywhere    policy finished
+dynoplan+rules  :class:`OptionPlanner`                rules         ``beta_w``
+==============  ====================================  ============  ==================
 
-Every option's own initiation and continuation conditions (its registry record,
-:mod:`~dynoplan.envs.gear.options.catalog`; the paper's four are described in
-:mod:`~dynoplan.envs.gear.options.preconditions`) are intersected with its learned region,
-because 10 demonstrations cannot teach a mixture where the task's phases begin and end.
-An option the demonstrations do not show has no region: its own conditions alone decide
-(as :meth:`~dynoplan.pipeline.fit.FittedModels.initiation` does).
-
-:data:`VARIANTS` names the same choosers on other initiation sets
-(:data:`INITIATION_SETS`): ``dynoplan_learned`` and ``random_learned`` on the learned sets
-alone (no hand-written condition), ``*_regions`` on the Eq. 5 regions alone (the paper),
-``*_everywhere`` with no initiation set. Each option keeps its own policy and
-termination ``beta_w`` in every variant.
+The controllers without a suffix use learned parts only (:data:`INITIATION_SETS`,
+``learned``): each option's Eq. 5 region intersected with where it was seen to do well
+(its initiation learned from outcomes), and no hand-written condition. :data:`VARIANTS`
+names the same choosers on other sets: ``+rules`` adds each option's hand-written
+conditions (its registry record, :mod:`~dynoplan.envs.gear.options.catalog`; the paper's
+four are described in :mod:`~dynoplan.envs.gear.options.preconditions`) to its region,
+``_regions`` keeps the Eq. 5 regions alone (the paper's method), ``_everywhere`` has no
+initiation set. Each option keeps its own policy and termination ``beta_w`` in every
+variant.
 
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
@@ -71,9 +69,9 @@ from dynoplan.planning import OptionPlanner, SimulatorOracle
 from dynoplan.safety.constraint import ConstantVelocityHuman, SeparationConstraint
 from dynoplan.types import FloatArray
 
-CONTROLLERS = ("dynoplan", "oracle", "fixed_script", "random")
-"""Option-level controllers of ``gear run``'s table, in table order (the flat PPO policy
-is run separately)."""
+CONTROLLERS = ("dynoplan", "random", "oracle", "fixed_script")
+"""Option-level controllers of ``gear run``'s table, in table order, each with learned
+parts only (the flat PPO policy and the variant rows are run beside them)."""
 
 INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
 """Where the options may start and go on (:func:`option_sets`):
@@ -107,24 +105,24 @@ class ControllerVariant:
 
 
 VARIANTS: dict[str, ControllerVariant] = {
-    "dynoplan": ControllerVariant("planner", "rules"),
-    "oracle": ControllerVariant("oracle", "rules"),
+    "dynoplan": ControllerVariant("planner", "learned", end_inside=True),
+    "random": ControllerVariant("random", "learned"),
+    "oracle": ControllerVariant("oracle", "learned"),
     "fixed_script": ControllerVariant("script", "everywhere"),
-    "random": ControllerVariant("random", "rules"),
-    "dynoplan_learned": ControllerVariant("planner", "learned", end_inside=True),
-    "random_learned": ControllerVariant("random", "learned"),
+    "dynoplan+rules": ControllerVariant("planner", "rules"),
+    "random+rules": ControllerVariant("random", "rules"),
+    "oracle+rules": ControllerVariant("oracle", "rules"),
     "dynoplan_regions": ControllerVariant("planner", "regions"),
     "random_regions": ControllerVariant("random", "regions"),
     "dynoplan_everywhere": ControllerVariant("planner", "everywhere"),
     "random_everywhere": ControllerVariant("random", "everywhere"),
-    "dynoplan_safe": ControllerVariant("planner", "rules", safe=True),
-    "dynoplan_learned_safe": ControllerVariant("planner", "learned", end_inside=True,
-                                               safe=True),
+    "dynoplan_safe": ControllerVariant("planner", "learned", end_inside=True, safe=True),
+    "dynoplan+rules_safe": ControllerVariant("planner", "rules", safe=True),
 }
 """Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
 accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe ones.
 
-``dynoplan_learned`` scores its rollouts at their last state inside the continuation set
+``dynoplan`` scores its rollouts at their last state inside the continuation set
 (``end_inside``): on the learned sets nothing else stops a rollout where the option's
 dynamics run out of data (measured in ``docs/gear-options.md``, ablation: with the
 fallback of :func:`option_fallback`, 93 % against 80 % on the same 30 episodes)."""
@@ -152,7 +150,7 @@ GEAR_CONTROL = ControllerSettings(
 - ``oracle_horizon``, ``oracle_samples``: the simulator oracle's (it pays real simulation
   time);
 - ``epistemic`` 0, measured (``docs/gear-options.md``, ablation): on the same 30 episodes
-  ``dynoplan_learned`` fell from 83 % to 73 % and 57 % at weights 0.3 and 1 (and from 93 %
+  ``dynoplan`` (learned sets) fell from 83 % to 73 % and 57 % at weights 0.3 and 1 (and from 93 %
   to 87 % at 0.3 with the fallback and ``end_inside``). The dynamics ensemble disagrees
   most on the insertion, the option that must win near the goal (0.25-0.4 on its own
   trajectories, against 0.02-0.1 for the pick), so the penalty hands those decisions to a

@@ -14,10 +14,11 @@ Stages (each timed in ``summary.json``):
 6. ``flat_ppo``: the flat end-to-end baseline (``flat_ppo/``);
 7. ``outcomes``: every option run from starts beyond its own region, and the initiation
    learned from those outcomes (``outcomes/``, ``models/initiation.safetensors``; see
-   :mod:`dynoplan.experiments.gear_outcomes`), for the learned-only rows;
+   :mod:`dynoplan.experiments.gear_outcomes`), part of every controller's learned
+   initiation sets;
 8. ``evaluate``: every controller on the same seeded episodes (human: none, crossing or
-   blocking), and the learned-only variants (:data:`LEARNED_ROWS`), ``results.csv`` and
-   ``results.md``;
+   blocking), the named variants (:data:`VARIANT_ROWS`) and, on the first of those
+   episodes, the ablation (:data:`ABLATION_ROWS`); ``results.csv`` and ``results.md``;
 9. ``faults``: DynoPlan under corrupted dynamics, observation noise and a grasp slip;
 10. ``video``: one DynoPlan episode with the human interfering (``episode.mp4``).
 
@@ -36,7 +37,7 @@ is the same on one worker or many.
 
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
@@ -68,10 +69,22 @@ from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 T = TypeVar("T")
 
-LEARNED_ROWS = ("dynoplan_learned", "random_learned")
-"""The learned-only rows of ``results.csv`` (after :data:`CONTROLLERS` and the flat
-policy): DynoPlan and random choice on the learned initiation sets alone
-(:data:`~dynoplan.experiments.gear_controllers.VARIANTS`)."""
+VARIANT_ROWS = ("dynoplan+rules",)
+"""Rows of ``results.csv`` after :data:`CONTROLLERS` and the flat policy, on every
+episode: DynoPlan with each option's hand-written conditions added to its learned region
+(:data:`~dynoplan.experiments.gear_controllers.VARIANTS`), the rules the learned parts
+replace."""
+
+ABLATION_ROWS: dict[str, tuple[str, dict[str, Any]]] = {
+    "dynoplan_regions": ("dynoplan_regions", {}),
+    "dynoplan epistemic=0.3": ("dynoplan", {"epistemic": 0.3}),
+}
+"""The last rows of ``results.csv``, each on the first ``ablation_episodes`` episodes:
+row name -> (controller of :data:`~dynoplan.experiments.gear_controllers.VARIANTS`, the
+planner settings it changes). Beside DynoPlan on the same episodes they show what each
+learned part does: ``dynoplan_regions`` plans on the paper's Eq. 5 regions alone (no
+initiation learned from outcomes, rollouts not stopped at the continuation set),
+``epistemic=0.3`` penalises the dynamics ensemble's disagreement."""
 
 EVAL_SEED_OFFSET = 7
 """Evaluation episodes use seeds derived from ``seed + EVAL_SEED_OFFSET`` (disjoint from
@@ -92,14 +105,16 @@ class GearRunSettings:
         episodes: evaluation episodes of every controller.
         oracle_episodes: episodes of the oracle (the first ones of the same list: it
             simulates every option at every decision, which costs real time).
+        ablation_episodes: episodes of each :data:`ABLATION_ROWS` row (the first ones of
+            the same list).
         fault_episodes: episodes per fault.
         dynamics_noise: std of the noise added to the learned predictions in the
             dynamics fault.
         observation_noise: std (m, rad) of the observation-noise fault.
         planner: how the controllers plan and run (horizon, samples, margin, ...).
         video: render one episode.
-        outcome_runs: runs per option of the outcome stage (0: no outcome stage, and no
-            learned-only rows).
+        outcome_runs: runs per option of the outcome stage (0: no outcome stage; the
+            learned initiation sets are then the Eq. 5 regions alone).
         outcome_max_decisions: decisions an outcome run may last.
         outcome_lead_decisions: decisions another option may run before it, at most.
     """
@@ -111,6 +126,7 @@ class GearRunSettings:
     ppo_steps: int = 30_000
     episodes: int = 100
     oracle_episodes: int = 10
+    ablation_episodes: int = 30
     fault_episodes: int = 30
     dynamics_noise: float = 0.02
     observation_noise: float = 0.005
@@ -123,7 +139,7 @@ class GearRunSettings:
 
 QUICK_RUN = GearRunSettings(
     demos=10, collect_runs=4, collect_max_decisions=15, quick_models=True, ppo_steps=2048,
-    episodes=6, oracle_episodes=2, fault_episodes=3,
+    episodes=6, oracle_episodes=2, ablation_episodes=2, fault_episodes=3,
     planner=replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3),
     outcome_runs=2, outcome_max_decisions=6, outcome_lead_decisions=2)
 """``--quick``: every stage on small settings (CI, a first look)."""
@@ -223,8 +239,10 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     seeds = episode_seeds(seed + EVAL_SEED_OFFSET, settings.episodes)
     rows, episodes = stage("evaluate", lambda: evaluate_gear_controllers(
         models_dir, seeds, settings, out / "flat_ppo", progress, workers,
-        learned=LEARNED_ROWS if settings.outcome_runs else ()))
+        extra=VARIANT_ROWS, ablation=ABLATION_ROWS))
     summary["results"] = rows
+    summary["ablation"] = [summarise(name, episodes[name][:settings.ablation_episodes])
+                           for name in (*CONTROLLERS[:2], *VARIANT_ROWS, *ABLATION_ROWS)]
     write_results(out, rows, episodes)
 
     video = None
@@ -273,17 +291,20 @@ others'), so that no long episode is left running alone at the end of the stage.
 
 
 def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
-                         settings: GearRunSettings, flat_folder: Path | None,
-                         progress: bool, workers: Workers = SERIAL,
-                         names: Sequence[str] = CONTROLLERS,
-                         task: GearTask = GearTask(), learned: Sequence[str] = (),
-                         ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
+                              settings: GearRunSettings, flat_folder: Path | None,
+                              progress: bool, workers: Workers = SERIAL,
+                              names: Sequence[str] = CONTROLLERS,
+                              task: GearTask = GearTask(), extra: Sequence[str] = (),
+                              ablation: Mapping[str, tuple[str, Mapping[str, Any]]] = {},
+                              ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
     """The controllers ``names`` (of :data:`CONTROLLERS`), the flat policy if
-    ``flat_folder``, then the variants ``learned`` (of
+    ``flat_folder``, the variants ``extra`` (of
     :data:`~dynoplan.experiments.gear_controllers.VARIANTS`), on ``seeds``; the oracle on
-    the first ``settings.oracle_episodes`` of them. All their episodes are one map on
-    ``workers`` (the oracle's first), each worker rebuilding the controllers from
-    ``models_dir``; rows and episodes come back in that order. ``task``: the gear as the
+    the first ``settings.oracle_episodes`` of them and the ``ablation`` rows (row name ->
+    controller and planner-setting changes, as :data:`ABLATION_ROWS`) on the first
+    ``settings.ablation_episodes``. All their episodes are one map on ``workers`` (the
+    oracle's first), each worker rebuilding the controllers from ``models_dir``; rows
+    (named as given) and episodes come back in that order. ``task``: the gear as the
     episodes see it (the human behaviours they draw from, the runtime monitor)."""
     gear = replace(task, flat_folder=flat_folder)
     jobs = {name: (ControllerJob(gear, models_dir, name, settings.planner),
@@ -292,8 +313,11 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
     if flat_folder is not None:
         jobs[FLAT_POLICY] = (ControllerJob(gear, models_dir, FLAT_POLICY, settings.planner),
                              seeds)
-    for name in learned:
+    for name in extra:
         jobs[name] = (ControllerJob(gear, models_dir, name, settings.planner), seeds)
+    for label, (name, changes) in ablation.items():
+        jobs[label] = (ControllerJob(gear, models_dir, name, replace(settings.planner, **changes)),
+                     seeds[:settings.ablation_episodes])
     order = sorted(jobs, key=lambda name: name not in ORACLE_FIRST)  # stable
     done = dict(zip(order, evaluate_many([jobs[name] for name in order], workers,
                                          f"evaluate ({len(order)} controllers)", progress),
@@ -399,6 +423,15 @@ def results_markdown(summary: dict[str, Any]) -> str:
                  f"{s['ppo_steps']} env steps.")
     lines += ["", markdown_table(summary["results"], RESULT_COLUMNS), "",
               "Success by human mode:", "", behaviour_table(summary["results"])]
+    if summary.get("ablation"):
+        lines += ["", "## Ablation: what each learned part does", "",
+                  f"The same first {s['ablation_episodes']} episodes for every row. "
+                  "`dynoplan` and `random` choose on the learned sets (Eq. 5 regions and the "
+                  "initiation learned from outcomes); `dynoplan+rules` adds the hand-written "
+                  "conditions; `dynoplan_regions` plans on the Eq. 5 regions alone (the "
+                  "paper's method); `epistemic=0.3` penalises the dynamics ensemble's "
+                  "disagreement.", "",
+                  markdown_table(summary["ablation"], RESULT_COLUMNS)]
     lines += ["", "## Faults (DynoPlan)", "",
               markdown_table(summary["faults"], ("fault", "episodes", "success_rate",
                                                  "contacts", "switches", "holds")),
@@ -417,9 +450,11 @@ def results_markdown(summary: dict[str, Any]) -> str:
 
 
 __all__ = [
+    "ABLATION_ROWS",
     "EVAL_SEED_OFFSET",
     "ORACLE_FIRST",
     "QUICK_RUN",
+    "VARIANT_ROWS",
     "GearRunSettings",
     "evaluate_faults",
     "evaluate_gear_controllers",

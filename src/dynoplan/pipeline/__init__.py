@@ -26,6 +26,7 @@ from dynoplan.pipeline.evaluate import (
     evaluate_many,
     learned_regions,
     make_controller,
+    neutral_action,
     results_table,
     summarize,
 )
@@ -105,6 +106,7 @@ __all__ = [
     "load_object",
     "make_controller",
     "make_env",
+    "neutral_action",
     "option_runs",
     "option_transitions",
     "probe_options",

@@ -26,6 +26,7 @@ from dynoplan.planning.option_planner import OptionPlanner
 from dynoplan.progress import track
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
+from dynoplan.types import FloatArray
 
 if TYPE_CHECKING:
     from dynoplan.pipeline.fit import FittedModels
@@ -48,8 +49,12 @@ class ControllerSettings:
         margin: score advantage needed to replace a running option at a replan.
         max_decisions: planning steps before an episode is given up.
         max_option_steps: environment steps one option may run between decisions.
-        hold_action: action when no option is admissible (``None``: the task's own, if
-            it has one, else end the episode); a tuple is the action as an array.
+        hold_action: action when no option is admissible (``None``: the task's own;
+            a Gymnasium task's is :func:`neutral_action`, the zero action of a ``Box``
+            action space); a tuple is the action as an array (a tuple keeps the settings
+            hashable, as worker jobs need).
+        hold: hold when no option is admissible; ``False``: end the episode there (and
+            so with no hold action at all, e.g. a discrete action space).
         oracle_horizon: decisions a simulator oracle simulates per rollout (tasks whose
             environment can be simulated from a state; it pays real simulation time, so
             it may be shorter than ``horizon``).
@@ -73,6 +78,7 @@ class ControllerSettings:
     max_decisions: int = 1000
     max_option_steps: int = 1000
     hold_action: Any = None
+    hold: bool = True
     oracle_horizon: int = 10
     oracle_samples: int = 1
     dynamics_noise: float = 0.0
@@ -148,9 +154,20 @@ def with_dynamics_noise(options: Sequence[Option], noise: float) -> list[Option]
     return [replace(o, dynamics=NoisyDynamics(o.dynamics, noise)) for o in options]
 
 
+def neutral_action(space: gym.Space[Any]) -> FloatArray | None:
+    """What a generic task does when no option is admissible: the zero action of a
+    ``Box`` space, clipped into its bounds (for a velocity-controlled robot: stand
+    still; for a force- or torque-controlled one: coast), held one step at a time until
+    an option is admissible again; ``None`` (no neutral action known) for other spaces."""
+    if not isinstance(space, gym.spaces.Box):
+        return None
+    return np.clip(np.zeros(space.shape), space.low, space.high).astype(space.dtype)
+
+
 def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                     settings: ControllerSettings,
-                    planner_options: Sequence[Option] | None = None) -> Controller:
+                    planner_options: Sequence[Option] | None = None,
+                    action_space: gym.Space[Any] | None = None) -> Controller:
     """A controller by name: ``dynoplan``, ``random`` or ``option:<name>``.
 
     Args:
@@ -159,6 +176,9 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
         planner_options: the options as the planner sees them (same names; they may
             carry multi-step dynamics and per-model-step terminations); default
             ``options``.
+        action_space: the environment's; where no option is admissible the controller
+            holds with ``settings.hold_action``, else :func:`neutral_action` of it (unless
+            ``settings.hold`` is off).
     """
     settings.validate()
     chooser: OptionChooser
@@ -176,13 +196,21 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
         raise DynoplanError(
             f"unknown controller '{kind}' (known: {', '.join(controller_names(options))})")
     alone = kind != DYNOPLAN
-    hold = settings.hold_action  # a tuple keeps the settings hashable (worker jobs)
-    if isinstance(hold, tuple):
-        hold = np.asarray(hold)
     return Controller(options, chooser, max_decisions=settings.max_decisions,
                       max_option_steps=settings.max_option_steps,
                       replan_every=None if alone else settings.replan_every,
-                      margin=settings.margin, hold_action=hold)
+                      margin=settings.margin, hold_action=hold_action(settings, action_space))
+
+
+def hold_action(settings: ControllerSettings, action_space: gym.Space[Any] | None) -> Any:
+    """The action a generic controller holds with (``None``: it ends the episode)."""
+    if not settings.hold:
+        return None
+    if isinstance(settings.hold_action, tuple):
+        return np.asarray(settings.hold_action)
+    if settings.hold_action is not None:
+        return settings.hold_action
+    return None if action_space is None else neutral_action(action_space)
 
 
 @dataclass(frozen=True)
@@ -455,8 +483,9 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
         jobs: list[EpisodeJob] = [ControllerJob(task, models, kind, settings)
                                   for kind in kinds]
     else:
-        jobs = [_LocalJob(env, make_controller(kind, options, goal, settings, planner_options),
-                          regions) for kind in kinds]
+        jobs = [_LocalJob(env, make_controller(kind, options, goal, settings, planner_options,
+                                               env.action_space), regions)
+                for kind in kinds]
     done = evaluate_many([(job, seeds) for job in jobs], workers,
                          f"evaluate ({len(kinds)} controllers)", progress)
     return {kind: summarize(records) for kind, records in zip(kinds, done, strict=True)}

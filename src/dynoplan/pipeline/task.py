@@ -240,8 +240,9 @@ class GymTask:
 
         fitted = FittedModels.load(models)
         run_options, planner_options = fitted.build(self.make_options())
-        return ControllerRunner(self.make_env(), make_controller(
-            controller, run_options, fitted.goal, settings, planner_options),
+        env = self.make_env()
+        return ControllerRunner(env, make_controller(
+            controller, run_options, fitted.goal, settings, planner_options, env.action_space),
             regions=learned_regions(fitted))
 
 
