@@ -3,7 +3,7 @@ controller and a collection run, timed serially in this process.
 
 For each controller (the default planner settings, and ``dynoplan`` with horizon 20 and
 128 samples), ``--episodes`` seeded episodes (the oracle: ``--oracle-episodes``) run
-with one runner built by :meth:`dynoplan.experiments.gear_task.GearTask.make_runner`; then
+with one runner built by :meth:`dynoplan.envs.gear.pipeline_task.GearTask.make_runner`; then
 ``--runs`` collection runs of every option. Reported per kind: the mean CPU and wall
 seconds of a task, the longest wall time, the mean simulated seconds, and for collection
 the bytes a run returns (pickled). These are the inputs of the 1000-core estimate in
@@ -24,11 +24,12 @@ from typing import Any
 
 import numpy as np
 
+from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.options.catalog import gear_option_names
-from dynoplan.experiments.gear_collect import CollectJob, build_collection, collect_option_run
-from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
+from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.experiments.gear_eval import seconds
-from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
+from dynoplan.pipeline.collect import OptionRunsJob, build_option_runs, option_run
 from dynoplan.pipeline.evaluate import ControllerJob
 from dynoplan.seeding import episode_seeds
 
@@ -70,8 +71,9 @@ def main() -> None:
                         "wall_s_mean": round(float(np.mean([r[1] for r in rows])), 2),
                         "wall_s_max": round(float(np.max([r[1] for r in rows])), 2),
                         "simulated_s_mean": round(float(np.mean([seconds(r[0]) for r in rows])), 1)}
-    state = build_collection(CollectJob(args.models, gear_option_names(), 0, 30))
-    rows = [timed(collect_option_run, state, (name, r)) for name in gear_option_names()
+    state = build_option_runs(OptionRunsJob(GearTask(), args.models, gear_option_names(), 0,
+                                            30 * DECISION_STEPS))
+    rows = [timed(option_run, state, (name, r)) for name in gear_option_names()
             for r in range(args.runs)]
     result["collect_run"] = {"tasks": len(rows),
                              "cpu_s_mean": round(float(np.mean([r[2] for r in rows])), 2),

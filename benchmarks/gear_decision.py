@@ -30,14 +30,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.options.catalog import policy_factories
-from dynoplan.experiments.gear_controllers import (
+from dynoplan.envs.gear.controllers import (
     GEAR_CONTROL,
     gear_oracle,
     make_gear_controller,
 )
-from dynoplan.experiments.gear_model_files import load_gear_models
+from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.learning.files import load_gear_models
+from dynoplan.envs.gear.options.catalog import policy_factories
 from dynoplan.planning import OptionPlanner
 from dynoplan.seeding import episode_seeds
 

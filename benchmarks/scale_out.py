@@ -37,10 +37,10 @@ from typing import Any
 
 import numpy as np
 
-from dynoplan.experiments.gear_controllers import GEAR_CONTROL
+from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.experiments.gear_eval import seconds
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.io import write_json
 from dynoplan.parallel import SERIAL, Workers, imap_unordered, ray_session
 from dynoplan.pipeline.evaluate import ControllerJob, build_runner

@@ -188,10 +188,10 @@ def test_sweep_config_out_of_bounds_is_one_line(tmp_path, monkeypatch, capsys, b
 def gear_models(tmp_path_factory) -> Path:
     """A tiny but valid gear models folder (untrained widths of 4; loads, never runs)."""
     from dynoplan.envs.gear.features import TASK, feature_map
+    from dynoplan.envs.gear.learning.files import load_gear_models, models_manifest
+    from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
     from dynoplan.envs.gear.options.catalog import gear_option_names
     from dynoplan.envs.gear.state import STATE_DIM
-    from dynoplan.experiments.gear_model_files import load_gear_models, models_manifest
-    from dynoplan.experiments.gear_model_settings import QUICK_SETTINGS
     from dynoplan.models.folder import GOAL_FILE, REGIONS_FILE, dynamics_file
     from dynoplan.models.goal_network import GoalNetwork
     from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
@@ -417,8 +417,8 @@ def test_dataset_with_zero_episodes_is_one_line(tmp_path, monkeypatch, capsys, n
 @pytest.mark.parametrize("failure", [DynoplanError("bad data"), KeyboardInterrupt()])
 def test_failed_training_keeps_the_previous_models(tmp_path, monkeypatch, gear_models,
                                                    failure):
-    import dynoplan.experiments.gear_models as gear_models_module
-    from dynoplan.experiments.gear_model_files import load_gear_models
+    import dynoplan.envs.gear.learning.training as gear_models_module
+    from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.experiments.gear_stages import learned_models
 
     folder = tmp_path / "models"

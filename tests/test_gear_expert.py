@@ -8,15 +8,15 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.gear import gear_app
 from dynoplan.envs.gear import PAPER_OPTIONS
-from dynoplan.envs.gear.env import ACT_DIM, OBS_DIM, GearAssemblyEnv
-from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, GearExpert
-from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_expert import (
+from dynoplan.envs.gear.demonstrations import (
     record_expert_episodes,
     render_scene,
     run_expert,
     run_expert_episode,
 )
+from dynoplan.envs.gear.env import ACT_DIM, OBS_DIM, GearAssemblyEnv
+from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, GearExpert
+from dynoplan.errors import DynoplanError
 
 
 @pytest.fixture(scope="module")

@@ -20,6 +20,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
+from dynoplan.envs.gear.controllers import GEAR_CONTROL, preconditions
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options import (
     GearOption,
@@ -29,11 +30,10 @@ from dynoplan.envs.gear.options import (
     temporary_gear_options,
 )
 from dynoplan.envs.gear.options.catalog import INSERT_FILE, RECOGNIZER_FILE
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import GEAR_CONTROL, preconditions
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.seeding import episode_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -121,9 +121,9 @@ def test_the_command_line_runs_an_option_named_in_the_environment(tmp_path: Path
 def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear_run: Path,
                                                     tmp_path: Path) -> None:
     from dynoplan.data import read_dataset
-    from dynoplan.experiments.gear_collect import collect_transitions
-    from dynoplan.experiments.gear_model_files import load_gear_models
-    from dynoplan.experiments.gear_models import train_gear_models
+    from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.learning.training import train_gear_models
+    from dynoplan.experiments.gear_collect import collect_gear_transitions
     from dynoplan.reports.gear_figures import make_gear_figures
 
     models = tmp_path / "models"
@@ -132,7 +132,7 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
         shutil.copy(quick_gear_run / "models" / file, models / file)
 
     # collection runs it from its start sampler, labelled 4
-    collected = collect_transitions(models, 4, 0, tmp_path / "transitions", max_decisions=15,
+    collected = collect_gear_transitions(models, 4, 0, tmp_path / "transitions", max_decisions=15,
                                     progress=False)
     assert collected["transitions"]["lift"] > 20
     dataset = read_dataset(tmp_path / "transitions")

@@ -11,16 +11,16 @@ import pytest
 
 from dynoplan.control import Controller, RandomChoice
 from dynoplan.data import labelled_transitions, read_dataset
+from dynoplan.envs.gear.controllers import HoldStill
 from dynoplan.envs.gear.env import HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
 from dynoplan.envs.gear.options.base import GearOptionPolicy
 from dynoplan.envs.gear.options.starts import reach_start, shifted_schedule
+from dynoplan.envs.gear.options.trials import run_option_trials
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState, proximity_beta
 from dynoplan.envs.gear.task import STAGE_INDEX
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_collect import collect_transitions
-from dynoplan.experiments.gear_controllers import HoldStill
-from dynoplan.experiments.gear_options import run_option_trials
+from dynoplan.experiments.gear_collect import collect_gear_transitions
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import stack_dynamics
 from dynoplan.options import ConstantTermination, Option
@@ -112,7 +112,7 @@ def test_option_trials_write_a_summary(tmp_path: Path) -> None:
 
 def test_collected_transitions_are_at_the_decision_rate(tmp_path: Path) -> None:
     out = tmp_path / "transitions"
-    summary = collect_transitions({"fast_move": lambda e: HoldFor(e, 3 * DECISION_STEPS)},
+    summary = collect_gear_transitions({"fast_move": lambda e: HoldFor(e, 3 * DECISION_STEPS)},
                                   runs_per_option=2, seed=0, out=out, progress=False)
     assert summary["runs"] == 2
     ds = read_dataset(out)

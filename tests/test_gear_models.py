@@ -15,23 +15,23 @@ import pytest
 
 from dynoplan.data import Episode, labelled_transitions, read_dataset
 from dynoplan.envs.gear.features import RELATIVE, TASK
+from dynoplan.envs.gear.learning.data import (
+    demonstration_transitions,
+    write_demonstration_transitions,
+)
+from dynoplan.envs.gear.learning.files import HELDOUT_DIR, METRICS_FILE, load_gear_models
+from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
+from dynoplan.envs.gear.learning.training import train_gear_models
 from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_demos import record_demos
-from dynoplan.experiments.gear_model_data import (
-    demonstration_transitions,
-    write_demonstration_transitions,
-)
-from dynoplan.experiments.gear_model_files import HELDOUT_DIR, METRICS_FILE, load_gear_models
-from dynoplan.experiments.gear_model_metrics import fit_regions_cross_validated
-from dynoplan.experiments.gear_model_settings import QUICK_SETTINGS
-from dynoplan.experiments.gear_models import train_gear_models
 from dynoplan.experiments.gear_stages import learned_models
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
+from dynoplan.pipeline.fit import fit_regions_cross_validated
 from dynoplan.reports.gear_figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
 
 pytestmark = pytest.mark.slow
@@ -200,7 +200,7 @@ def test_train_records_missing_held_out_trials_by_the_demonstrations_demonstrato
     out = tmp_path / "models"
     metrics = learned_models(data / "demos", None, out, 0, None, quick=True, progress=False)
     held = read_dataset(out / HELDOUT_DIR)
-    assert len(held) == QUICK_SETTINGS.heldout_episodes == metrics["data"]["heldout_episodes"]
+    assert len(held) == QUICK_METRICS.heldout_episodes == metrics["data"]["heldout_episodes"]
     assert held.metadata.seed == 1000 and held.metadata.extra["demonstrator"] == "expert"
     assert not any((out / f).exists() for f in network_files().values())
     recorded = (out / HELDOUT_DIR / "data" / "main_data.hdf5").stat().st_mtime_ns
@@ -280,6 +280,17 @@ def test_cross_validated_thresholds_admit_unseen_demonstrations():
     inside = lambda r: r.contains_all(xh)[np.arange(len(xh)), yh].mean()  # noqa: E731
     assert inside(wide) >= 0.93 and inside(wide) > inside(plain)
     assert not wide.contains_all(rng.normal(30.0, 1.0, size=(50, 2))).any()
+
+
+@pytest.mark.parametrize("change", [{"region_undemonstrated": "runs"},
+                                    {"outcome_initiation": True}])
+def test_fit_settings_the_gear_does_not_train_are_rejected(tmp_path, change):
+    settings = replace(QUICK_SETTINGS, **change)
+    with pytest.raises(DynoplanError, match="undemonstrated options without a region"):
+        train_gear_models(tmp_path / "demos", None, tmp_path / "m", seed=0,
+                          heldout_demos=tmp_path / "held", quick=True, progress=False,
+                          settings=settings)
+    assert not (tmp_path / "m").exists()  # rejected before anything is written
 
 
 def test_figures_are_drawn_from_the_trained_models(trained, data, tmp_path):

@@ -13,19 +13,19 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
 from dynoplan.control import Controller, FixedChoice
-from dynoplan.envs.gear.env import CONTROL_DT, HOME_Q, RIGHT_HOLD
-from dynoplan.envs.gear.features import HUMAN_DISTANCE_CAP, RELATIVE, feature_map
-from dynoplan.envs.gear.options.moves import PreInsertionBeta
-from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
-from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
-from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import (
+from dynoplan.envs.gear.controllers import (
     CARRIED_GEAR_HEIGHT,
     VARIANTS,
     holding_gear,
     not_carried,
     preconditions,
 )
+from dynoplan.envs.gear.env import CONTROL_DT, HOME_Q, RIGHT_HOLD
+from dynoplan.envs.gear.features import HUMAN_DISTANCE_CAP, RELATIVE, feature_map
+from dynoplan.envs.gear.options.moves import PreInsertionBeta
+from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
+from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
+from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS
 from dynoplan.experiments.gear_run import video_episode
 from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option

@@ -15,8 +15,8 @@ from safetensors import safe_open
 from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
+from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
 from dynoplan.envs.gear.options.catalog import gear_option_names, network_files
-from dynoplan.experiments.gear_model_settings import QUICK_SETTINGS
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "gear-options.md"

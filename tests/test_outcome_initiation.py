@@ -33,7 +33,10 @@ def test_outcome_initiation_learns_where_an_option_ends_well(tmp_path):
 
 def test_an_option_that_would_finish_at_once_is_not_admissible_there():
     from dynoplan.envs.gear.state import DECISION_STEPS
-    from dynoplan.experiments.gear_outcomes import run_outcomes
+    from dynoplan.pipeline.collect import run_outcomes as outcomes
+
+    def run_outcomes(costs: np.ndarray, reached_end: bool, task_success: bool) -> np.ndarray:
+        return outcomes(costs, reached_end, task_success, DECISION_STEPS)
 
     quick = np.zeros(DECISION_STEPS // 2, dtype=np.int64)  # ends within one decision
     assert not run_outcomes(quick, reached_end=True, task_success=False).any()

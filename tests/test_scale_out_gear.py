@@ -12,9 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
-from dynoplan.experiments.gear_collect import collect_transitions
-from dynoplan.experiments.gear_controllers import GEAR_CONTROL
-from dynoplan.experiments.gear_task import GearTask
+from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.experiments.gear_collect import collect_gear_transitions
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.pipeline.evaluate import ControllerJob, build_runner, evaluate_many
 from dynoplan.seeding import episode_seeds
@@ -96,8 +96,8 @@ def test_a_worker_dying_mid_episode_is_retried_without_losing_or_repeating_one(
 def test_collection_writes_the_same_dataset_on_two_workers(ray_runtime, quick_gear_run,
                                                            tmp_path: Path):
     models = quick_gear_run / "models"
-    one = collect_transitions(models, 1, 3, tmp_path / "one", max_decisions=3, progress=False)
-    two = collect_transitions(models, 1, 3, tmp_path / "two", max_decisions=3, progress=False,
+    one = collect_gear_transitions(models, 1, 3, tmp_path / "one", max_decisions=3, progress=False)
+    two = collect_gear_transitions(models, 1, 3, tmp_path / "two", max_decisions=3, progress=False,
                               workers=Workers(2))
     _assert_same_dataset(one, two, tmp_path / "one", tmp_path / "two")
 

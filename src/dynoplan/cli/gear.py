@@ -42,7 +42,7 @@ def expert(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Run the scripted expert; write OUT/summary.json (success, contacts, speed)."""
-    from dynoplan.experiments.gear_expert import run_expert
+    from dynoplan.envs.gear.demonstrations import run_expert
     from dynoplan.io import staged_folder
 
     with staged_folder(out) as folder:
@@ -118,7 +118,7 @@ def render(
     """Write OUT/scene.png and OUT/episode.mp4 of the expert's episode (offscreen)."""
     # Headless machines: MuJoCo picks its GL backend when first imported.
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from dynoplan.experiments.gear_expert import render_scene
+    from dynoplan.envs.gear.demonstrations import render_scene
     from dynoplan.io import staged_folder
 
     with staged_folder(out) as folder:
@@ -151,7 +151,7 @@ def option(
     import torch
 
     from dynoplan.envs.gear.options.catalog import gear_option
-    from dynoplan.experiments.gear_options import run_option_trials
+    from dynoplan.envs.gear.options.trials import run_option_trials
     from dynoplan.experiments.gear_stages import option_networks
 
     registered = gear_option(name)
@@ -448,9 +448,9 @@ def evaluate(
     """Evaluate controllers on trained models only; writes results and the wall time."""
     from dataclasses import replace
 
-    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
-    from dynoplan.experiments.gear_task import GearTask
     from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
@@ -504,7 +504,7 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from dynoplan.experiments.gear_controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.controllers import GEAR_CONTROL
     from dynoplan.experiments.gear_eval import seconds
     from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
     from dynoplan.experiments.gear_run import save_video, video_clip

@@ -116,6 +116,10 @@ def pipeline(
     dynamics_epochs: int | None = typer.Option(
         None, "--dynamics-epochs", **_bounds("fit.dynamics_epochs"),
         help="Epochs per ensemble [30]."),
+    dynamics_max_updates: int | None = typer.Option(
+        None, "--dynamics-max-updates", **_bounds("fit.dynamics_max_updates"),
+        help="Fewer epochs when an option has so many transitions that --dynamics-epochs "
+             "would take more gradient steps than this [no bound]."),
     goal_hidden: int | None = typer.Option(None, "--goal-hidden", **_bounds("fit.goal_hidden"),
                                            help="Hidden width of the goal network [64]."),
     goal_members: int | None = typer.Option(
@@ -123,13 +127,21 @@ def pipeline(
         help="Members of the goal ensemble [1]."),
     goal_epochs: int | None = typer.Option(None, "--goal-epochs", **_bounds("fit.goal_epochs"),
                                            help="Epochs of the goal network [150]."),
+    goal_ranking: float | None = typer.Option(
+        None, "--goal-ranking", **_bounds("fit.goal_ranking"),
+        help="Weight of the goal network's ranking loss along demonstrations [0]."),
     regions: bool | None = typer.Option(None, "--regions/--no-regions",
                                         help="Fit the safety regions (Eq. 5) and enforce "
                                         "them [on]."),
     region_fit: str | None = typer.Option(
         None, "--region-fit",
         help="heldout: components and thresholds chosen on held-out demonstrations; "
-             "bic: BIC and in-sample thresholds (the paper's reading) [heldout]."),
+             "bic: BIC and in-sample thresholds (the paper's reading); cv: BIC components, "
+             "thresholds widened by leaving demonstrations out [heldout]."),
+    region_cv_coverage: float | None = typer.Option(
+        None, "--region-cv-coverage", **_bounds("fit.region_cv_coverage"),
+        help="cv: share of left-out demonstrations' states a threshold is widened to admit "
+             "[0.97]."),
     region_coverage: float | None = typer.Option(
         None, "--region-coverage", **_bounds("fit.region_coverage"),
         help="Share of (held-out) demonstration states of an option inside its region "

@@ -1,6 +1,6 @@
 """Demonstrations of the gear assembly, saved in the project's dataset format.
 
-``record_demos`` runs a demonstrator (:mod:`dynoplan.experiments.gear_expert`: the
+``record_demos`` runs a demonstrator (:mod:`dynoplan.envs.gear.demonstrations`: the
 scripted expert, or the operator chaining the option policies, which ``gear run`` and
 ``gear demos`` use, :func:`dynoplan.experiments.gear_stages.demonstrations`) on seeded
 episodes, with the human schedule drawn per episode (away, crossing or blocking), and
@@ -17,8 +17,8 @@ import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, write_dataset
 from dynoplan.envs import GEAR_ASSEMBLY_ID
+from dynoplan.envs.gear.demonstrations import record_expert_episodes
 from dynoplan.envs.gear.options.catalog import gear_option_names
-from dynoplan.experiments.gear_expert import record_expert_episodes
 from dynoplan.io import ensure_writable_dir
 from dynoplan.parallel import SERIAL, Workers
 

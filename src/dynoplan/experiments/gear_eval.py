@@ -14,7 +14,7 @@ Controllers (rows of ``results.csv``):
 Every controller runs on the same episodes: episode ``i`` resets the env with the same
 seed (gear pose and human schedule: none, crossing or blocking). An episode depends on
 its :class:`~dynoplan.seeding.EpisodeSeed` alone, not on the episodes run
-before it, so a run split over workers (:mod:`dynoplan.experiments.gear_task`) gives the
+before it, so a run split over workers (:mod:`dynoplan.envs.gear.pipeline_task`) gives the
 same metrics.
 """
 

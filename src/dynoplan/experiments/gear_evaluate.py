@@ -11,15 +11,15 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from dynoplan.envs.gear.controllers import GEAR_CONTROL, VARIANTS
+from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, behaviour_table, write_results
 from dynoplan.experiments.gear_run import (
     EVAL_SEED_OFFSET,
     GearRunSettings,
     evaluate_gear_controllers,
 )
-from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.evaluate import ControllerSettings
@@ -42,7 +42,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
     """
     from dynoplan.baselines.flat_policy import read_flat_policy
-    from dynoplan.experiments.gear_model_files import load_gear_models
+    from dynoplan.envs.gear.learning.files import load_gear_models
 
     known = (*VARIANTS, FLAT_POLICY)
     unknown = [c for c in controllers if c not in known]

@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
+from dynoplan.envs.gear.controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET, caption_gear_frames
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRecord
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 

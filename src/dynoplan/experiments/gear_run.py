@@ -43,8 +43,10 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from dynoplan.control.controller import EpisodeTrace
+from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.env import CONTROL_DT
-from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.envs.gear.learning.files import load_gear_models
+from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.experiments.gear_eval import (
     RESULT_COLUMNS,
     behaviour_table,
@@ -53,8 +55,6 @@ from dynoplan.experiments.gear_eval import (
     summarise,
     write_results,
 )
-from dynoplan.experiments.gear_model_files import load_gear_models
-from dynoplan.experiments.gear_task import FLAT_POLICY, GearTask
 from dynoplan.io import ensure_writable_dir, write_json, write_text, write_with
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
 from dynoplan.pipeline.evaluate import (
@@ -72,7 +72,7 @@ T = TypeVar("T")
 VARIANT_ROWS = ("dynoplan+rules",)
 """Rows of ``results.csv`` after :data:`CONTROLLERS` and the flat policy, on every
 episode: DynoPlan with each option's hand-written conditions added to its learned region
-(:data:`~dynoplan.experiments.gear_controllers.VARIANTS`), the rules the learned parts
+(:data:`~dynoplan.envs.gear.controllers.VARIANTS`), the rules the learned parts
 replace."""
 
 ABLATION_ROWS: dict[str, tuple[str, dict[str, Any]]] = {
@@ -80,7 +80,7 @@ ABLATION_ROWS: dict[str, tuple[str, dict[str, Any]]] = {
     "dynoplan epistemic=0.3": ("dynoplan", {"epistemic": 0.3}),
 }
 """The last rows of ``results.csv``, each on the first ``ablation_episodes`` episodes:
-row name -> (controller of :data:`~dynoplan.experiments.gear_controllers.VARIANTS`, the
+row name -> (controller of :data:`~dynoplan.envs.gear.controllers.VARIANTS`, the
 planner settings it changes). Beside DynoPlan on the same episodes they show what each
 learned part does: ``dynoplan_regions`` plans on the paper's Eq. 5 regions alone (no
 initiation learned from outcomes, rollouts not stopped at the continuation set),
@@ -299,7 +299,7 @@ def evaluate_gear_controllers(models_dir: Path, seeds: Sequence[EpisodeSeed],
                               ) -> tuple[list[dict[str, Any]], dict[str, list[EpisodeRecord]]]:
     """The controllers ``names`` (of :data:`CONTROLLERS`), the flat policy if
     ``flat_folder``, the variants ``extra`` (of
-    :data:`~dynoplan.experiments.gear_controllers.VARIANTS`), on ``seeds``; the oracle on
+    :data:`~dynoplan.envs.gear.controllers.VARIANTS`), on ``seeds``; the oracle on
     the first ``settings.oracle_episodes`` of them and the ``ablation`` rows (row name ->
     controller and planner-setting changes, as :data:`ABLATION_ROWS`) on the first
     ``settings.ablation_episodes``. All their episodes are one map on ``workers`` (the

@@ -3,7 +3,7 @@
 ``gear run`` (:mod:`dynoplan.experiments.gear_run`) and the commands ``gear demos``,
 ``gear collect``, ``gear train`` and ``gear figures`` call these functions, and take their
 sizes from the same settings (:func:`~dynoplan.experiments.gear_run.run_settings`,
-:data:`~dynoplan.experiments.gear_model_settings.QUICK_SETTINGS`), so the commands
+:data:`~dynoplan.envs.gear.learning.settings.QUICK_SETTINGS`), so the commands
 chained into one folder write what ``gear run --out DIR`` writes there for the same seed
 (add ``--quick`` to each for ``gear run --quick``)::
 
@@ -24,11 +24,16 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.data import read_dataset
+from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
+from dynoplan.envs.gear.learning.files import HELDOUT_DIR
+from dynoplan.envs.gear.learning.settings import (
+    DEFAULT_METRICS,
+    DEFAULT_SETTINGS,
+    QUICK_METRICS,
+    QUICK_SETTINGS,
+)
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_model_data import HELDOUT_SEED_OFFSET
-from dynoplan.experiments.gear_model_files import HELDOUT_DIR
-from dynoplan.experiments.gear_model_settings import DEFAULT_SETTINGS, QUICK_SETTINGS
 from dynoplan.io import staged_folder
 from dynoplan.parallel import SERIAL, Workers
 
@@ -80,8 +85,8 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
     The operator's networks are read from ``models``, and trained there first (from
     ``seed``, :func:`option_networks`) when missing. Returns
     :func:`~dynoplan.experiments.gear_demos.record_demos`'s summary."""
+    from dynoplan.envs.gear.demonstrations import check_request
     from dynoplan.experiments.gear_demos import record_demos
-    from dynoplan.experiments.gear_expert import check_request
 
     check_request(n, human_mode, demonstrator, count_flag="--n")  # before any training
     if demonstrator == "options":
@@ -96,13 +101,13 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
                        log: Callable[[str], None] = _silent) -> dict[str, Any]:
     """Stage ``collect``: ``runs`` runs of every option, at most ``max_decisions``
     decisions each, into the dataset folder ``out``
-    (:func:`~dynoplan.experiments.gear_collect.collect_transitions`); the options'
+    (:func:`~dynoplan.experiments.gear_collect.collect_gear_transitions`); the options'
     networks read from ``models`` (trained there first when missing)."""
-    from dynoplan.experiments.gear_collect import check_collection, collect_transitions
+    from dynoplan.experiments.gear_collect import check_collection, collect_gear_transitions
 
     check_collection(runs, max_decisions)
     option_networks(models, seed, workers=workers, log=log)
-    return collect_transitions(models, runs, seed, out, max_decisions=max_decisions,
+    return collect_gear_transitions(models, runs, seed, out, max_decisions=max_decisions,
                                progress=progress, workers=workers)
 
 
@@ -112,22 +117,23 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
                    log: Callable[[str], None] = _silent,
                    goal_ranking: float | None = None) -> dict[str, Any]:
     """Stage ``train``: the goal heuristic, the safety regions and the dynamics into
-    ``models`` (:func:`~dynoplan.experiments.gear_models.train_gear_models` on
-    :data:`~dynoplan.experiments.gear_model_settings.QUICK_SETTINGS` or
-    :data:`~dynoplan.experiments.gear_model_settings.DEFAULT_SETTINGS`); the content of
+    ``models`` (:func:`~dynoplan.envs.gear.learning.training.train_gear_models` on
+    :data:`~dynoplan.envs.gear.learning.settings.QUICK_SETTINGS` or
+    :data:`~dynoplan.envs.gear.learning.settings.DEFAULT_SETTINGS`); the content of
     ``metrics.json``.
 
     ``heldout`` ``None``: the settings' ``heldout_episodes`` held-out trials (10;
     ``quick`` 3) are recorded into ``models/heldout-demos`` by the demonstrator that
     recorded ``demos``, as :func:`demonstrations` records them (kept when they are
     there already)."""
-    from dynoplan.experiments.gear_models import train_gear_models
+    from dynoplan.envs.gear.learning.training import train_gear_models
 
     cfg = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
     if goal_ranking is not None:  # the goal network's ranking loss (its ablation)
         cfg = replace(cfg, goal_ranking=goal_ranking)
     if heldout is None:
-        heldout = heldout_trials(demos, cfg.heldout_episodes, seed, models / HELDOUT_DIR,
+        measure = QUICK_METRICS if quick else DEFAULT_METRICS
+        heldout = heldout_trials(demos, measure.heldout_episodes, seed, models / HELDOUT_DIR,
                                  models, progress, workers, log)
     # the previous models stay loadable until the new folder is complete
     with staged_folder(models, keep=True) as staged:

@@ -24,10 +24,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_eval import RESULT_COLUMNS, summarise
 from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
-from dynoplan.experiments.gear_task import GearTask
 from dynoplan.experiments.sweep_config import Cell, SweepConfig, load_sweep_config
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE

@@ -28,9 +28,9 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.envs.gear.pipeline_task import FLAT_POLICY
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import CONTROLLERS, GEAR_CONTROL
-from dynoplan.experiments.gear_task import FLAT_POLICY
 from dynoplan.limits import CELLS_MAX, EPISODES_MAX, HORIZON_MAX, SAMPLES_MAX, SEED_MAX
 from dynoplan.pipeline.evaluate import ControllerSettings
 

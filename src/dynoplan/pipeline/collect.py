@@ -9,11 +9,18 @@ option that chose every action in ``infos["option"]``:
 - **demonstrations** (:func:`record_demonstrations`): a scripted
   :class:`Demonstrator` picks the option at every step; only successful episodes are
   kept, and ``infos["progress"]`` is the fraction of the episode done after each step
-  (the goal heuristic's training target).
+  (the goal heuristic's training target);
+- **option runs** (:class:`OptionRun`, :func:`collect_option_runs`): one option at a
+  time from a start the task chooses (:class:`OptionRunTask`), run until its policy says
+  it is finished, and cut into episodes at the decision rate (:func:`decision_episodes`):
+  the transitions of a task whose options start from states a reset does not reach, and
+  the outcome runs that initiation sets are learned from.
 """
 
-from collections.abc import Callable, Sequence
-from typing import Any, cast
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
@@ -22,7 +29,9 @@ from dynoplan.adapters.spec import OptionSpec, as_spec, check_unique_names
 from dynoplan.control.controller import default_success
 from dynoplan.data.episodes import OPTION_KEY, PROGRESS_KEY, Episode
 from dynoplan.errors import DynoplanError
-from dynoplan.options.option import Option
+from dynoplan.options.option import Option, OptionPolicy
+from dynoplan.options.termination import ConstantTermination
+from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.progress import track
 from dynoplan.seeding import episode_seeds
 from dynoplan.types import FloatArray, Generator
@@ -153,13 +162,14 @@ class Demonstrator:
 
     ``reset(observation, rng)`` starts an episode (draw any randomness of the script
     from ``rng``); ``choose(observation) -> option name`` is called before every step.
-    When the name differs from the previous step's, that option is started.
+    When the name differs from the previous step's, that option is started; ``None``
+    ends the recording there.
     """
 
     def reset(self, observation: Any, rng: Generator) -> None:
         """Called once per episode, after ``env.reset``."""
 
-    def choose(self, observation: Any) -> str:
+    def choose(self, observation: Any) -> str | None:
         raise NotImplementedError
 
 
@@ -227,20 +237,81 @@ class RandomOptions(Demonstrator):
         return self.specs[self._current].name
 
 
+class OptionRun(Demonstrator):
+    """One option, from the episode's start until its policy says it is finished
+    (``policy.finished()``; the recording ends there): an *option run*."""
+
+    def __init__(self, spec: OptionSpec) -> None:
+        self.spec = spec
+        self._started = False
+
+    def reset(self, observation: Any, rng: Generator) -> None:
+        self._started = False
+
+    def choose(self, observation: Any) -> str | None:
+        if self._started and self.spec.policy.finished():
+            return None
+        self._started = True
+        return self.spec.name
+
+
 # --- recording ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunStart:
+    """Where a recording starts when it does not start at ``env.reset``: the env has been
+    driven there already.
+
+    Attributes:
+        observation, info: what the env returned last.
+        env_seed: the seed of the reset it started from (recorded in the episode).
+        tags: what the task drew to get there (for example the human's behaviour), kept
+            with the run's episodes.
+        over: the env's episode ended before the run could start (nothing to record).
+    """
+
+    observation: Any
+    info: dict[str, Any]
+    env_seed: int | None
+    tags: dict[str, Any] = field(default_factory=dict)
+    over: bool = False
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One recorded episode, whether it succeeded (``info["is_success"]`` if the
+    environment reports it, else ``terminated``) and the last step's ``info``."""
+
+    episode: Episode
+    success: bool
+    info: dict[str, Any]
 
 
 def record_episode(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
                    demonstrator: Any, env_seed: int | None, rng: Generator,
-                   max_steps: int | None = None) -> tuple[Episode, bool]:
+                   max_steps: int | None = None, start: RunStart | None = None,
+                   info_keys: Sequence[str] = (),
+                   option_names: Sequence[str] | None = None) -> Recording:
     """Run one episode with the option the demonstrator picks at each step.
 
+    Args:
+        start: where the episode starts (the env is there already) instead of
+            ``env.reset(seed=env_seed)``.
+        info_keys: step ``info`` entries recorded as ``infos[key]`` ``(T,)``.
+        option_names: what the labels index (default: the names of ``specs``, which
+            may then be a subset of them).
+
     Returns:
-        The episode (``infos["option"]`` labels, reset seed) and whether it succeeded
-        (``info["is_success"]`` if the environment reports it, else ``terminated``).
+        The recording: the episode (``infos["option"]`` labels, reset seed), its success
+        and the last ``info``.
     """
-    names = [s.name for s in specs]
-    obs, info = env.reset(seed=env_seed)
+    by_name = {s.name: s for s in specs}
+    names = [s.name for s in specs] if option_names is None else list(option_names)
+    if start is None:
+        obs, info = env.reset(seed=env_seed)
+    else:
+        obs, info, env_seed = start.observation, start.info, start.env_seed
     demonstrator.reset(obs, rng)
     observations: list[Any] = [obs]
     actions: list[np.ndarray] = []
@@ -248,36 +319,41 @@ def record_episode(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
     terms: list[bool] = []
     truncs: list[bool] = []
     labels: list[int] = []
-    current: int | None = None
+    recorded: dict[str, list[Any]] = {key: [] for key in info_keys}
+    current: str | None = None
     terminated = truncated = False
     while not (terminated or truncated) and (max_steps is None or len(actions) < max_steps):
         name = demonstrator.choose(obs)
-        try:
-            k = names.index(name)
-        except ValueError:
+        if name is None:
+            break
+        if name not in by_name or name not in names:
             raise DynoplanError(
                 f"the demonstrator chose '{name}', which is not an option "
-                f"(options: {', '.join(names)})") from None
-        if k != current:
-            specs[k].policy.reset(obs, rng)
-            current = k
-        action = specs[k].policy.act(obs)
+                f"(options: {', '.join(n for n in names if n in by_name)})")
+        spec = by_name[name]
+        if name != current:
+            spec.policy.reset(obs, rng)
+            current = name
+        action = spec.policy.act(obs)
         obs, reward, terminated, truncated, info = env.step(action)
         observations.append(obs)
         actions.append(np.asarray(action))
         rewards.append(float(reward))
         terms.append(bool(terminated))
         truncs.append(bool(truncated))
-        labels.append(k)
+        labels.append(names.index(name))
+        for key, values in recorded.items():
+            values.append(info[key])
     if not actions:
         raise DynoplanError("max_steps must allow at least one step")
     episode = Episode(
         observations=np.asarray(observations, dtype=_float_dtype(observations)),
         actions=np.asarray(actions), rewards=np.asarray(rewards),
         terminations=np.asarray(terms), truncations=np.asarray(truncs),
-        infos={OPTION_KEY: np.asarray(labels, dtype=np.int64)},
+        infos={OPTION_KEY: np.asarray(labels, dtype=np.int64),
+               **{key: np.asarray(values) for key, values in recorded.items()}},
         seed=env_seed)
-    return episode, default_success(terminated, info)
+    return Recording(episode, default_success(terminated, info), info)
 
 
 def _float_dtype(observations: list[Any]) -> Any:
@@ -309,8 +385,9 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
         if len(kept) == episodes:
             break
         tried += 1
-        episode, success = record_episode(env, specs, demo, s.env_seed, s.rng(), max_steps)
-        if success:
+        recording = record_episode(env, specs, demo, s.env_seed, s.rng(), max_steps)
+        if recording.success:
+            episode = recording.episode
             t = len(episode)
             episode.infos[PROGRESS_KEY] = np.arange(1, t + 1, dtype=np.float64) / t
             kept.append(episode)
@@ -331,6 +408,213 @@ def collect_transitions(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], epi
     if episodes < 1:
         raise DynoplanError(f"the number of exploration episodes must be >= 1, got {episodes}")
     explorer = RandomOptions(specs, state_fn, max_option_steps)
-    return [record_episode(env, specs, explorer, s.env_seed, s.rng(), max_steps)[0]
+    return [record_episode(env, specs, explorer, s.env_seed, s.rng(), max_steps).episode
             for s in track(episode_seeds(seed, episodes), "option transitions",
                            total=episodes, enabled=progress)]
+
+
+# --- option runs -------------------------------------------------------------------------
+
+OUTCOME_KEY = "outcome"
+"""``infos["outcome"]`` ``(T,)`` of an outcome run: whether the option, started at that
+observation, ended well (:func:`run_outcomes`)."""
+
+
+def decision_episodes(episode: Episode, steps: int, to_end: bool = False,
+                      summed: Sequence[str] = (), at_start: Sequence[str] = ()
+                      ) -> list[Episode]:
+    """An episode recorded every env step as episodes at the decision rate (``steps``
+    env steps per decision), one per phase offset ``o`` of the decision period: the
+    observations at env steps ``o, o + steps, o + 2 steps, ...``, and with ``to_end`` the
+    episode's last observation too when the offset misses it (a shorter last decision).
+    Offsets that give no decision are left out.
+
+    Each step of a new episode is one decision: ``actions`` and ``infos["option"]`` are
+    the label of the option acting at its start, rewards 0, no termination or truncation
+    (an option's decisions, not a task's episode); ``infos[key]`` is, for ``key`` in
+    ``summed``, the sum of the decision's env steps' values and, for ``key`` in
+    ``at_start``, the value at its first env step. ``seed`` is kept.
+    """
+    labels = episode.infos[OPTION_KEY]
+    last = len(episode.observations) - 1
+    sums = {key: np.r_[0, np.cumsum(episode.infos[key])] for key in summed}
+    out = []
+    for offset in range(min(steps, last)):
+        rows = np.arange(offset, last + 1, steps)
+        if to_end and rows[-1] != last:
+            rows = np.r_[rows, last]
+        n = len(rows) - 1
+        if n < 1:
+            continue
+        label = labels[rows[:-1]]
+        infos = {OPTION_KEY: label,
+                 **{key: np.diff(c[rows]).astype(episode.infos[key].dtype)
+                    for key, c in sums.items()},
+                 **{key: np.asarray(episode.infos[key])[rows[:-1]] for key in at_start}}
+        out.append(Episode(observations=episode.observations[rows], actions=label.copy(),
+                           rewards=np.zeros(n), terminations=np.zeros(n, dtype=bool),
+                           truncations=np.zeros(n, dtype=bool), infos=infos,
+                           seed=episode.seed))
+    return out
+
+
+def run_outcomes(costs: np.ndarray, reached_end: bool, task_success: bool,
+                 decision_steps: int) -> np.ndarray:
+    """Outcomes of starting an option at each env step of one of its runs: ``(T,)``
+    booleans for a run of ``T`` env steps with ``costs`` ``(T,)`` (for example contacts)
+    per step.
+
+    From step ``t`` the option ended well when the run reached the option's own end
+    (``reached_end``), no cost was paid from ``t`` on, and from there it took more than
+    one decision (``decision_steps`` env steps), unless its last step was the task's
+    success: an option that would finish at once where it starts is not admissible
+    there."""
+    c = np.asarray(costs, dtype=np.int64)
+    steps = len(c)
+    later = np.cumsum(c[::-1])[::-1]  # costs from step t on
+    remaining = steps - np.arange(steps)
+    out: np.ndarray = reached_end & (later == 0) & ((remaining > decision_steps)
+                                                    | task_success)
+    return out
+
+
+PolicyMaker = Callable[[Any], OptionPolicy]
+"""Builds one option's policy bound to an environment."""
+
+
+class OptionRunTask(Protocol):
+    """What a task provides to run its options one at a time from starts it chooses
+    (:func:`collect_option_runs`). Like a :class:`~dynoplan.pipeline.task.Task`, it is
+    small, frozen, hashable and picklable: workers rebuild from it."""
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        """Every option of the task, in label order (what the labels index)."""
+        ...
+
+    @property
+    def decision_steps(self) -> int:
+        """Env steps per decision (the rate of the episodes written)."""
+        ...
+
+    @property
+    def run_info_keys(self) -> tuple[str, ...]:
+        """Step ``info`` entries an option run records (summed per decision)."""
+        ...
+
+    def make_env(self) -> gym.Env[Any, Any]:
+        """A new instance of the task's environment."""
+        ...
+
+    def policy_makers(self, models: Path | None) -> Mapping[str, PolicyMaker]:
+        """Per option name, what builds its policy bound to an environment, any networks
+        read from the models folder ``models``."""
+        ...
+
+    def before_run(self, seed: int) -> None:
+        """Called with a seed of the run before it starts (to seed global generators, so
+        that a run does not depend on the runs before it in the process)."""
+        ...
+
+    def run_start(self, runs: "OptionRuns", option: str, rng: Generator) -> RunStart:
+        """Drive ``runs.env`` to a start of ``option``, drawing from ``rng``: one of its
+        own (for its transitions) or, for outcome runs (``runs.job.outcomes``), one
+        beyond where it is meant to start, possibly after another option ran for up to
+        ``runs.job.lead_decisions`` decisions (the options' policies are in
+        ``runs.specs``)."""
+        ...
+
+    def run_outcomes(self, policy: OptionPolicy, recording: Recording) -> np.ndarray:
+        """``(T,)``: whether the option, started at each of the recorded run's
+        observations, ended well (see :func:`run_outcomes`)."""
+        ...
+
+
+@dataclass(frozen=True)
+class OptionRunsJob:
+    """Option runs as a worker rebuilds them.
+
+    Attributes:
+        task: the task (:class:`OptionRunTask`).
+        models: the models folder the policies' networks are read from.
+        options: the options run.
+        seed: run ``r`` of option ``o`` draws everything from ``[seed, *stream, label of
+            o, r]``, so a run gives the same episodes on any worker, after any other run.
+        max_steps: env steps a run may last.
+        outcomes: outcome runs (starts beyond the option's own, ``infos["outcome"]``)
+            instead of transitions.
+        lead_decisions: outcome runs: decisions another option may run before the
+            option starts, at most.
+        stream: keeps the seeds of different kinds of runs apart.
+        factories: the policies given in this process (then ``models`` is not read; not
+            for workers in other processes).
+    """
+
+    task: OptionRunTask
+    models: Path | None
+    options: tuple[str, ...]
+    seed: int
+    max_steps: int
+    outcomes: bool = False
+    lead_decisions: int = 0
+    stream: tuple[int, ...] = ()
+    factories: Mapping[str, PolicyMaker] | None = field(default=None, hash=False,
+                                                       compare=False)
+
+
+@dataclass
+class OptionRuns:
+    """What a worker holds for an :class:`OptionRunsJob`: the env and every run option's
+    spec, its policy bound to that env."""
+
+    job: OptionRunsJob
+    env: gym.Env[Any, Any]
+    specs: dict[str, OptionSpec]
+
+
+def build_option_runs(job: OptionRunsJob) -> OptionRuns:
+    """The environment and the options' policies (once per process)."""
+    env = job.task.make_env()
+    makers = job.factories if job.factories is not None else job.task.policy_makers(job.models)
+    return OptionRuns(job, env, {name: OptionSpec(name, makers[name](env),
+                                                  ConstantTermination(0.0))
+                                 for name in job.options})
+
+
+def option_run(runs: OptionRuns, item: tuple[str, int]) -> tuple[dict[str, Any], list[Episode]]:
+    """Run ``index`` of option ``name`` (``item = (name, index)``): what its start drew
+    (:attr:`RunStart.tags`) and its episodes at the decision rate
+    (:func:`decision_episodes`; none when the task was over at the start)."""
+    name, index = item
+    job, task = runs.job, runs.job.task
+    key = [job.seed, *job.stream, task.option_names.index(name), index]
+    task.before_run(int(np.random.SeedSequence(key).generate_state(1)[0]))
+    rng = np.random.default_rng(key)
+    start = task.run_start(runs, name, rng)
+    if start.over:
+        return start.tags, []
+    spec = runs.specs[name]
+    recording = record_episode(runs.env, list(runs.specs.values()), OptionRun(spec), None,
+                               rng, job.max_steps, start=start,
+                               info_keys=task.run_info_keys, option_names=task.option_names)
+    if not job.outcomes:
+        return start.tags, decision_episodes(recording.episode, task.decision_steps,
+                                             summed=task.run_info_keys)
+    episode = recording.episode
+    episode.infos[OUTCOME_KEY] = np.asarray(task.run_outcomes(spec.policy, recording),
+                                            dtype=bool)
+    return start.tags, decision_episodes(episode, task.decision_steps, to_end=True,
+                                         at_start=(OUTCOME_KEY,))
+
+
+def collect_option_runs(job: OptionRunsJob, runs_per_option: int, workers: Workers = SERIAL,
+                        description: str = "option runs", progress: bool = False,
+                        ) -> list[tuple[dict[str, Any], list[Episode]]]:
+    """``runs_per_option`` runs of every option of ``job`` (:func:`option_run`), option
+    by option, on ``workers``: per run, its start's tags and its episodes, in that order
+    whatever the workers (the same on one worker or many)."""
+    if runs_per_option < 1 or job.max_steps < 1:
+        raise DynoplanError("option runs need at least one run per option and one step")
+    items = [(name, run) for name in job.options for run in range(runs_per_option)]
+    return parallel_map(build_option_runs, option_run, job, items, workers, description,
+                        progress)

@@ -57,6 +57,9 @@ and a dataset folder (``dynoplan pipeline``'s flags of the same names)."""
 UNUSED_CONTROL = ("oracle_horizon", "oracle_samples", "risk_level")
 """Controller settings the generic pipeline's controllers do not read (simulator oracles
 and safety constraints are the gear's)."""
+UNUSED_FIT = ("goal_features", "region_features")
+"""Fit settings that name a task's feature maps, which a Gymnasium task has none of."""
+UNUSED = {"control": UNUSED_CONTROL, "fit": UNUSED_FIT}
 SECTIONS: dict[str, type] = {"": PipelineSettings, "fit": FitSettings,
                              "control": ControllerSettings}
 
@@ -71,6 +74,8 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "fit.region_components": (1, 100), "fit.region_max_components": (1, 100),
     "fit.region_folds": (2, 1000), "fit.region_reg_covar": (0.0, math.inf),
     "fit.outcome_min_gain": (-math.inf, math.inf),
+    "fit.dynamics_max_updates": (1, 10**9), "fit.goal_ranking": (0.0, math.inf),
+    "fit.region_cv_coverage": (0.0, 1.0),
     "control.horizon": (1, HORIZON_MAX), "control.samples": (1, SAMPLES_MAX),
     "control.risk": (-1e6, 1e6), "control.replan_every": (0, STEPS_MAX),
     "control.margin": (0.0, math.inf), "control.max_decisions": (1, STEPS_MAX),
@@ -86,8 +91,7 @@ def setting_keys() -> list[str]:
     keys = []
     for section, cls in SECTIONS.items():
         for f in fields(cls):
-            if f.name in ("fit", "control") or (section == "control"
-                                                and f.name in UNUSED_CONTROL):
+            if f.name in ("fit", "control") or f.name in UNUSED.get(section, ()):
                 continue
             keys.append(f"{section}.{f.name}" if section else f.name)
     return keys
@@ -158,7 +162,7 @@ def pipeline_settings(values: Mapping[str, Any], where: str | None = None
     for key, value in values.items():
         if key in TASK_KEYS:
             continue
-        if key not in hints or key.split(".")[-1] in UNUSED_CONTROL:
+        if key not in setting_keys():
             raise DynoplanError(f"{where or 'the command line'}: unknown setting '{key}'")
         section, _, name = key.rpartition(".")
         shown = f"{where}: {key}" if where is not None else flag(key)

@@ -43,7 +43,12 @@ from dynoplan.models.folder import (
     read_manifest,
     write_manifest,
 )
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
+from dynoplan.models.goal_network import (
+    GoalNetwork,
+    GoalTrainingReport,
+    evaluate_goal,
+    goal_training_set,
+)
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.outcome_initiation import (
     OutcomeInitiation,
@@ -54,8 +59,15 @@ from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination, Termination
-from dynoplan.pipeline.collect import ObservationFn, flat_state
-from dynoplan.types import FloatArray
+from dynoplan.pipeline.collect import OUTCOME_KEY, ObservationFn, flat_state
+from dynoplan.types import FloatArray, IntArray
+
+GoalModel = GoalNetwork | GoalOnFeatures
+"""A goal heuristic as fitted: on the planner state, or on a named feature map of it."""
+RegionsModel = SafetyRegions | RegionsOnFeatures
+"""Safety regions as fitted: on the planner state, or on a named feature map of it."""
+OutcomeModel = OutcomeInitiation | OutcomeInitiationOnFeatures
+"""Initiation learned from outcomes as fitted: on the planner state or a feature map."""
 
 
 @dataclass(frozen=True)
@@ -67,25 +79,36 @@ class FitSettings:
         dynamics_hidden: hidden layer widths of each option's MLP ensemble.
         dynamics_members: ensemble size.
         dynamics_epochs: training epochs of each ensemble.
+        dynamics_max_updates: fewer epochs when an option has so many transitions that
+            ``dynamics_epochs`` would take more gradient steps than this (at least 5;
+            ``None``: no bound), which bounds the training time on large collections.
         goal_hidden: hidden width of the goal network.
         goal_members: goal ensemble size.
         goal_epochs: training epochs of the goal network.
+        goal_ranking: weight of the goal network's ranking loss along demonstrations
+            (:meth:`~dynoplan.models.goal_network.GoalNetwork.fit`; 0: none).
+        goal_features, region_features: names of the task's feature maps the goal
+            heuristic and the regions read (``None``: the planner state itself).
         regions: fit the safety regions (Eq. 5) and intersect every option's initiation
             set with its region.
         region_fit: ``"heldout"`` (default): components and thresholds chosen on
             held-out demonstrations (:meth:`SafetyRegions.fit_heldout`), so
             ``region_coverage`` is the share of *unseen* demonstration states inside;
             ``"bic"``: the paper's reading, BIC components and thresholds on the
-            training states (with few demonstrations: needle-thin regions).
+            training states (with few demonstrations: needle-thin regions); ``"cv"``:
+            BIC components, thresholds on the training states widened by what leaving
+            demonstrations out shows (:func:`fit_regions_cross_validated`).
         region_coverage: share of an option's demonstration states inside its region
-            (held out with ``"heldout"``, in-sample with ``"bic"``).
+            (held out with ``"heldout"``, in-sample with ``"bic"`` and ``"cv"``).
+        region_cv_coverage: ``"cv"``: share of left-out demonstrations' states of an
+            option that its final threshold is widened to admit.
         region_slack: nats subtracted from every region threshold (widens them).
         region_components: mixture size (``None``: chosen in
             ``1..region_max_components``, by held-out likelihood or BIC).
         region_max_components: the largest mixture that may be chosen.
         region_folds: folds of whole demonstrations for ``"heldout"``.
         region_reg_covar: added to every covariance's diagonal, in units of each
-            dimension's spread for ``"heldout"`` (absolute for ``"bic"``: 1e-6).
+            dimension's spread for ``"heldout"``, absolute for ``"cv"`` (``"bic"``: 1e-6).
         outcome_initiation: also learn where each option may start from the outcomes
             of its exploration runs (Bagaria et al. 2023; :func:`fit_outcome_initiation`)
             and intersect its initiation set with that.
@@ -102,12 +125,17 @@ class FitSettings:
     dynamics_hidden: tuple[int, ...] = (64, 64)
     dynamics_members: int = 5
     dynamics_epochs: int = 30
+    dynamics_max_updates: int | None = None
     goal_hidden: int = 64
     goal_members: int = 1
     goal_epochs: int = 150
+    goal_ranking: float = 0.0
+    goal_features: str | None = None
+    region_features: str | None = None
     regions: bool = True
     region_fit: str = "heldout"
     region_coverage: float = 0.95
+    region_cv_coverage: float = 0.97
     region_slack: float = 0.0
     region_components: int | None = None
     region_max_components: int = 6
@@ -123,8 +151,16 @@ class FitSettings:
         if self.dynamics_members < 1 or self.dynamics_epochs < 1 or not self.dynamics_hidden:
             raise DynoplanError("dynamics_members, dynamics_epochs and dynamics_hidden must "
                                 "be positive")
+        if self.dynamics_max_updates is not None and self.dynamics_max_updates < 1:
+            raise DynoplanError(f"dynamics_max_updates must be >= 1 or None, got "
+                                f"{self.dynamics_max_updates}")
         if self.goal_hidden < 1 or self.goal_members < 1 or self.goal_epochs < 1:
             raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
+        if not self.goal_ranking >= 0.0:
+            raise DynoplanError(f"goal_ranking must be >= 0, got {self.goal_ranking}")
+        if not 0.0 < self.region_cv_coverage <= 1.0:
+            raise DynoplanError(f"region_cv_coverage must be in (0, 1], got "
+                                f"{self.region_cv_coverage}")
         if not 0.0 < self.region_coverage <= 1.0:
             raise DynoplanError(f"region_coverage must be in (0, 1], got {self.region_coverage}")
         if self.region_fit not in REGION_FITS:
@@ -143,7 +179,7 @@ class FitSettings:
             raise DynoplanError("region_components and region_max_components must be >= 1")
 
 
-REGION_FITS = ("heldout", "bic")
+REGION_FITS = ("heldout", "bic", "cv")
 """Values of :attr:`FitSettings.region_fit`."""
 UNDEMONSTRATED = ("runs", "none", "everywhere")
 """Values of :attr:`FitSettings.region_undemonstrated`."""
@@ -163,10 +199,25 @@ def ensemble_fitter(settings: FitSettings) -> DynamicsFitter:
             seed: int) -> DynamicsModel:
         model = MLPEnsembleDynamics(states.shape[1], settings.dynamics_hidden,
                                     settings.dynamics_members, option=option, seed=seed)
-        model.fit(states, next_states, epochs=settings.dynamics_epochs, seed=seed)
+        model.fit(states, next_states, epochs=dynamics_epochs(len(states), settings),
+                  batch_size=DYNAMICS_BATCH, seed=seed)
         return model
 
     return fit
+
+
+DYNAMICS_BATCH = 256
+"""Rows per member and gradient step of the dynamics ensembles."""
+
+
+def dynamics_epochs(rows: int, settings: FitSettings) -> int:
+    """Epochs of an option's ensemble on ``rows`` transitions: ``dynamics_epochs``, fewer
+    (at least 5) when that would take more than ``dynamics_max_updates`` gradient steps
+    (the fit holds out 10 % of the rows)."""
+    if settings.dynamics_max_updates is None:
+        return settings.dynamics_epochs
+    batches = -(-round(0.9 * rows) // DYNAMICS_BATCH)
+    return max(5, min(settings.dynamics_epochs, settings.dynamics_max_updates // batches))
 
 
 def episode_states(episode: Episode, state_fn: ObservationFn = flat_state) -> FloatArray:
@@ -256,17 +307,30 @@ def fit_dynamics(transitions: dict[str, tuple[FloatArray, FloatArray]], seed: in
 
 
 def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
-             state_fn: ObservationFn = flat_state) -> tuple[GoalNetwork, dict[str, Any]]:
-    """Fit the goal network on the demonstrations (progress ``t / T`` of each state).
+             state_fn: ObservationFn = flat_state,
+             features: FeatureMap | None = None) -> tuple[GoalModel, dict[str, Any]]:
+    """Fit the goal network on the demonstrations (progress ``t / T`` of each state), on
+    ``features`` of the states when given (then wrapped to read full states).
 
-    Returns the network and ``{"states", "spearman", "mae", "coverage_90"}`` measured on
-    the training demonstrations.
+    Returns the goal heuristic and ``{"states", "spearman", "mae", "coverage_90"}``
+    measured on the training demonstrations.
     """
-    states, progress, _ = goal_training_set(demos, lambda obs: _batch_states(obs, state_fn))
-    goal, _ = GoalNetwork.fit(states, progress, hidden=settings.goal_hidden,
-                              members=settings.goal_members, epochs=settings.goal_epochs,
-                              seed=seed)
-    return goal, {"states": len(states), **evaluate_goal(goal, states, progress)}
+    states, progress, groups = goal_training_set(
+        demos, lambda obs: _batch_states(obs, state_fn))
+    x = states if features is None else features(states)
+    network, _ = fit_goal_network(x, progress, groups, settings, seed)
+    report = {"states": len(states), **evaluate_goal(network, x, progress)}
+    return (network if features is None else GoalOnFeatures(network, features)), report
+
+
+def fit_goal_network(states: FloatArray, progress: FloatArray, groups: IntArray,
+                     settings: FitSettings, seed: int
+                     ) -> tuple[GoalNetwork, GoalTrainingReport]:
+    """The goal network as ``settings`` says, on states (or features) ``(N, d)``, their
+    progress ``(N,)`` and demonstration ids ``(N,)`` (the ranking loss's pairs)."""
+    return GoalNetwork.fit(states, progress, hidden=settings.goal_hidden,
+                           members=settings.goal_members, epochs=settings.goal_epochs,
+                           seed=seed, groups=groups, ranking=settings.goal_ranking)
 
 
 def _batch_states(observations: np.ndarray, state_fn: ObservationFn) -> FloatArray:
@@ -286,7 +350,7 @@ def fit_regions(demos: Sequence[Episode], option_names: Sequence[str], settings:
     """
     states, labels, groups = _labelled_states(demos, len(option_names), state_fn)
     shown = [k for k in range(len(option_names)) if np.any(labels == k)]
-    regions, _ = _fit_labelled(states, labels, groups, [option_names[k] for k in shown],
+    regions, _ = fit_labelled_regions(states, labels, groups, [option_names[k] for k in shown],
                                shown, settings, seed)
     return regions
 
@@ -294,8 +358,10 @@ def fit_regions(demos: Sequence[Episode], option_names: Sequence[str], settings:
 def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
                        option_names: Sequence[str], settings: FitSettings, seed: int,
                        state_fn: ObservationFn = flat_state,
-                       ) -> tuple[SafetyRegions, dict[str, Any]]:
-    """The regions of every option, and what the fit measured.
+                       features: FeatureMap | None = None,
+                       ) -> tuple[RegionsModel, dict[str, Any]]:
+    """The regions of every option (on ``features`` of the states when given, then
+    wrapped to read full states), and what the fit measured.
 
     Demonstrated options: Eq. 5 on the demonstrations (``settings.region_fit``). Options
     no demonstration shows follow ``settings.region_undemonstrated``: ``"runs"`` fits
@@ -314,25 +380,29 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
     """
     names = list(option_names)
     states, labels, groups = _labelled_states(demos, len(names), state_fn)
+    if features is not None:
+        states = features(states)
     shown = [k for k in range(len(names)) if np.any(labels == k)]
-    regions, report = _fit_labelled(states, labels, groups, [names[k] for k in shown], shown,
+    regions, report = fit_labelled_regions(states, labels, groups, [names[k] for k in shown], shown,
                                     settings, seed)
     unshown = [k for k in range(len(names)) if k not in shown]
     report["undemonstrated"] = {}
     report["warnings"] = []
     if not unshown:
-        return regions, report
+        return _on_features(regions, features), report
     how = settings.region_undemonstrated
     nowhere: list[int] = []
     if how == "runs":
         run_states, run_labels, run_groups = _labelled_states(transitions, len(names),
                                                               state_fn)
+        if features is not None and len(run_states):
+            run_states = features(run_states)
         enough = 4 * (states.shape[1] + 1)
         fitted = [k for k in unshown if np.sum(run_labels == k) >= enough]
         nowhere = [k for k in unshown if k not in fitted]
         if fitted:
             keep = np.isin(run_labels, fitted)
-            runs, runs_report = _fit_labelled(run_states[keep], run_labels[keep],
+            runs, runs_report = fit_labelled_regions(run_states[keep], run_labels[keep],
                                               run_groups[keep], [names[k] for k in fitted],
                                               fitted, settings, seed)
             regions = SafetyRegions.merge(regions, runs)
@@ -359,7 +429,11 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
         report["warnings"].append(
             f"option(s) {', '.join(names[k] for k in nowhere)} never appear in the "
             f"demonstrations and get no region ({why}): they are never started")
-    return regions, report
+    return _on_features(regions, features), report
+
+
+def _on_features(regions: SafetyRegions, features: FeatureMap | None) -> RegionsModel:
+    return regions if features is None else RegionsOnFeatures(regions, features)
 
 
 def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
@@ -390,7 +464,7 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
 
 
 def fit_outcome_initiation(transitions: Sequence[Episode], option_names: Sequence[str],
-                           goal: "GoalModel", settings: FitSettings, seed: int,
+                           goal: GoalModel, settings: FitSettings, seed: int,
                            state_fn: ObservationFn = flat_state,
                            ) -> tuple[OutcomeInitiation, dict[str, Any]]:
     """Initiation sets from the options' own outcomes, for any task.
@@ -413,6 +487,68 @@ def fit_outcome_initiation(transitions: Sequence[Episode], option_names: Sequenc
     return learned, fit_report_dict(fit_report)
 
 
+def outcome_starts(episodes: Sequence[Episode], option_names: Sequence[str],
+                   states_of: Callable[[np.ndarray], FloatArray],
+                   ) -> tuple[dict[str, FloatArray], dict[str, np.ndarray]]:
+    """Per option, the states its outcome runs started from and their outcomes.
+
+    ``episodes`` are outcome runs (:func:`~dynoplan.pipeline.collect.option_run` with
+    ``outcomes``): one option each, ``infos["outcome"]`` ``(T,)`` the outcome of starting
+    at each observation but the last. ``states_of`` maps observations ``(T, ...)`` to
+    states ``(T, d)``.
+
+    Returns:
+        ``({name: states (N, d)}, {name: outcomes (N,)})``, ``N`` possibly 0.
+    """
+    names = list(option_names)
+    states: dict[str, list[FloatArray]] = {n: [] for n in names}
+    labels: dict[str, list[np.ndarray]] = {n: [] for n in names}
+    d = 0
+    for episode in episodes:
+        if OUTCOME_KEY not in episode.infos or episode.options is None:
+            raise DynoplanError(f"outcome runs need infos['{OUTCOME_KEY}'] and "
+                                f"infos['{OPTION_KEY}']")
+        k = int(episode.options[0])
+        rows = states_of(episode.observations[:-1])
+        d = rows.shape[1]
+        states[names[k]].append(rows)
+        labels[names[k]].append(np.asarray(episode.infos[OUTCOME_KEY], dtype=bool))
+    return ({n: np.concatenate(v) if v else np.zeros((0, d)) for n, v in states.items()},
+            {n: np.concatenate(v) if v else np.zeros(0, dtype=bool)
+             for n, v in labels.items()})
+
+
+def fit_initiation_from_outcomes(models: Path, episodes: Sequence[Episode],
+                                 option_names: Sequence[str],
+                                 states_of: Callable[[np.ndarray], FloatArray],
+                                 features: FeatureMap | None, seed: int) -> dict[str, Any]:
+    """The initiation learned from outcome runs (:func:`outcome_starts`), on the feature
+    map ``features`` of the states (``None``: the states), written into the models
+    folder ``models`` (``initiation.safetensors``, recorded in ``models.json``).
+
+    Returns:
+        The fit's report per option (``"options"``, with ``admissible_share``: the share
+        of the runs' start states where the option is now admissible, by the learned
+        initiation alone), the options ``"without_runs"``, ``"features"`` and ``"file"``.
+    """
+    from dynoplan.models.folder import set_initiation
+
+    starts, ok = outcome_starts(episodes, option_names, states_of)
+    x = {n: (s if features is None else features(s)) for n, s in starts.items() if len(s)}
+    if not x:
+        raise DynoplanError("no outcome runs to learn initiation from")
+    fitted, report = OutcomeInitiation.fit(x, {n: ok[n] for n in x}, seed=seed)
+    fitted.save(models / INITIATION_FILE)
+    set_initiation(models, INITIATION_FILE, None if features is None else features.name)
+    pooled = np.concatenate(list(x.values()))
+    out = fit_report_dict(report)
+    for name in out:
+        out[name]["admissible_share"] = float(fitted.contains(pooled, name).mean())
+    return {"options": out, "without_runs": [n for n in option_names if n not in x],
+            "features": None if features is None else features.name,
+            "file": str(models / INITIATION_FILE)}
+
+
 def _labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
                      ) -> tuple[FloatArray, np.ndarray, np.ndarray]:
     """Every state an option acted in: ``(N, d)`` states, ``(N,)`` labels and episode ids."""
@@ -427,13 +563,20 @@ def _labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: Obse
     return np.concatenate(states), np.concatenate(labels), np.concatenate(groups)
 
 
-def _fit_labelled(states: FloatArray, labels: np.ndarray, groups: np.ndarray,
-                  names: list[str], indices: list[int], settings: FitSettings,
-                  seed: int) -> tuple[SafetyRegions, dict[str, Any]]:
-    """Regions of the options ``indices`` (labels in ``labels``) named ``names``."""
+def fit_labelled_regions(states: FloatArray, labels: np.ndarray, groups: np.ndarray,
+                         names: list[str], indices: list[int], settings: FitSettings,
+                         seed: int) -> tuple[SafetyRegions, dict[str, Any]]:
+    """Regions of the options ``indices`` (labels in ``labels`` ``(N,)``) named ``names``,
+    on states ``(N, d)`` of the episodes ``groups`` ``(N,)``, fitted as
+    ``settings.region_fit`` says; and what the fit measured."""
     remap = np.full(int(labels.max()) + 1 if labels.size else 1, -1)
     remap[indices] = np.arange(len(indices))
     y = remap[labels]
+    if settings.region_fit == "cv":
+        return fit_regions_cross_validated(
+            states, y, groups, names, reg_covar=settings.region_reg_covar,
+            max_components=settings.region_max_components, coverage=settings.region_coverage,
+            cv_coverage=settings.region_cv_coverage, seed=seed)
     if settings.region_fit == "bic":
         regions = SafetyRegions.fit(states, y, names, n_components=settings.region_components,
                                     max_components=settings.region_max_components,
@@ -447,6 +590,55 @@ def _fit_labelled(states: FloatArray, labels: np.ndarray, groups: np.ndarray,
                                      max_components=settings.region_max_components,
                                      reg_covar=settings.region_reg_covar,
                                      slack=settings.region_slack, seed=seed)
+
+
+def fit_regions_cross_validated(
+    states: FloatArray, labels: IntArray, groups: IntArray, option_names: Sequence[str], *,
+    reg_covar: float, max_components: int, coverage: float, cv_coverage: float, seed: int,
+    max_folds: int = 10,
+) -> tuple[SafetyRegions, dict[str, Any]]:
+    """Safety regions (Eq. 5) whose thresholds are calibrated by leaving demonstrations out.
+
+    The mixture is fitted on all states (``M`` by BIC). Then the demonstrations
+    (``groups``) are dealt into at most ``max_folds`` folds (one demonstration each when
+    there are few); for each fold a mixture of the same ``M`` is fitted without it, and
+    for each of the fold's states of option ``k`` the shortfall
+    ``threshold_k - log L(s | k)`` under that mixture is recorded. Option ``k``'s final
+    threshold is lowered by the ``cv_coverage`` quantile of its shortfalls (if positive):
+    the region is as wide as it needs to be for a demonstration it has not seen,
+    measured on the demonstrations alone.
+
+    Args:
+        states: ``(N, d)``; labels: ``(N,)`` option indices; groups: ``(N,)`` demonstration
+            ids.
+    Returns:
+        The regions and ``{"components", "slack_nats", "folds"}``.
+    """
+    regions = SafetyRegions.fit(states, labels, option_names, max_components=max_components,
+                                coverage=coverage, reg_covar=reg_covar, seed=seed)
+    m = regions.n_components
+    ids = np.unique(groups)
+    fold_of = dict(zip(ids.tolist(), np.random.default_rng(seed).permutation(len(ids)) % max_folds,
+                       strict=True))
+    fold_index = np.array([fold_of[g] for g in groups.tolist()])
+    shortfalls: list[list[FloatArray]] = [[] for _ in option_names]
+    folds = 0
+    for f in np.unique(fold_index):
+        keep = fold_index != f
+        if len(np.unique(labels[keep])) < len(option_names):
+            continue  # the fold holds every demonstration of some option
+        fold = SafetyRegions.fit(states[keep], labels[keep], option_names, n_components=m,
+                                 coverage=coverage, reg_covar=reg_covar, seed=seed)
+        folds += 1
+        for k in range(len(option_names)):
+            rows = (~keep) & (labels == k)
+            if rows.any():
+                shortfalls[k].append(fold.log_thresholds[k] - fold.log_likelihood(states[rows], k))
+    slack = np.array([max(0.0, float(np.quantile(np.concatenate(s), cv_coverage))) if s else 0.0
+                      for s in shortfalls])
+    regions.log_thresholds = regions.log_thresholds - slack
+    return regions, {"components": m, "slack_nats": [round(float(s), 3) for s in slack],
+                     "folds": folds}
 
 
 class StridedTermination:
@@ -468,14 +660,6 @@ def strided(termination: Termination, stride: int) -> Termination:
     if isinstance(termination, ConstantTermination):  # stays stackable
         return ConstantTermination(1.0 - (1.0 - termination.beta) ** stride)
     return StridedTermination(termination, stride)
-
-
-GoalModel = GoalNetwork | GoalOnFeatures
-"""A goal heuristic as fitted: on the planner state, or on a named feature map of it."""
-RegionsModel = SafetyRegions | RegionsOnFeatures
-"""Safety regions as fitted: on the planner state, or on a named feature map of it."""
-OutcomeModel = OutcomeInitiation | OutcomeInitiationOnFeatures
-"""Initiation learned from outcomes as fitted: on the planner state or a feature map."""
 
 
 @dataclass
@@ -714,27 +898,32 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                state_fn: ObservationFn = flat_state,
                fitter: DynamicsFitter | None = None,
                progress: Callable[[str], None] | None = None,
-               task: str = "") -> FittedModels:
+               task: str = "",
+               feature_maps: Mapping[str, FeatureMap] | None = None) -> FittedModels:
     """Fit dynamics (on transitions and demonstrations), goal and regions (on demonstrations).
 
     Args:
         progress: called with a short message before each stage (for a status line).
         task: the task's name, recorded in the models folder.
+        feature_maps: the task's named feature maps (for ``settings.goal_features`` and
+            ``settings.region_features``).
     """
     settings.validate()
+    goal_map = named_feature_map(settings.goal_features, feature_maps)
+    region_map = named_feature_map(settings.region_features, feature_maps)
     names = [s.name for s in specs]
     say = progress or (lambda _msg: None)
     say("dynamics")
     pairs = option_transitions([*transitions, *demos], names, state_fn, settings.stride)
     dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
     say("goal heuristic")
-    goal, goal_report = fit_goal(demos, settings, seed, state_fn)
+    goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map)
     regions = None
     region_report: dict[str, Any] | None = None
     if settings.regions:
         say("safety regions")
         regions, region_report = fit_option_regions(demos, transitions, names, settings,
-                                                    seed, state_fn)
+                                                    seed, state_fn, region_map)
         region_report["options"] = regions.option_names
         for message in region_report["warnings"]:
             warnings.warn(message, DynoplanWarning, stacklevel=2)
@@ -748,3 +937,19 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
               "regions": region_report, "outcome_initiation": outcome_report}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
                         settings.regions, task, learned_initiation=learned)
+
+
+def named_feature_map(name: str | None,
+                      feature_maps: Mapping[str, FeatureMap] | None) -> FeatureMap | None:
+    """The task's feature map ``name`` (``None``: none).
+
+    Raises:
+        DynoplanError: the task defines no feature map of that name.
+    """
+    if name is None:
+        return None
+    maps = dict(feature_maps or {})
+    if name not in maps:
+        raise DynoplanError(f"feature map '{name}': the task defines "
+                            f"{', '.join(maps) or 'none'}")
+    return maps[name]

@@ -8,7 +8,7 @@ options and the controller from it and from the models folder
 
 :class:`GymTask` is the task of a user's Gymnasium environment with user-written options
 (``dynoplan pipeline --env ID --options MODULE:FUNCTION``);
-:class:`~dynoplan.experiments.gear_task.GearTask` is the gear assembly's.
+:class:`~dynoplan.envs.gear.pipeline_task.GearTask` is the gear assembly's.
 
 **Success and the planner state.** A task's environment says when an episode succeeded
 (``info["is_success"]`` at its last step, else ``terminated``). A task that never

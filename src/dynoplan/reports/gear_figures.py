@@ -26,11 +26,11 @@ from threadpoolctl import threadpool_limits
 
 from dynoplan.data import Dataset, read_dataset
 from dynoplan.envs.gear.env import CONTROL_DT
+from dynoplan.envs.gear.learning.data import CAUTIOUS
+from dynoplan.envs.gear.learning.files import HELDOUT_DIR, load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
 from dynoplan.envs.gear.state import PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_model_data import CAUTIOUS
-from dynoplan.experiments.gear_model_files import HELDOUT_DIR, load_gear_models
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.pipeline.fit import GoalModel
@@ -194,7 +194,7 @@ def make_gear_figures(models: Path, demos: Path, heldout: Path | None, out: Path
     """Write Fig. 3(a) and 3(b) into ``out`` and ``figures.json`` (what they show).
 
     Args:
-        models: a folder written by :func:`~dynoplan.experiments.gear_models.train_gear_models`.
+        models: a folder written by :func:`~dynoplan.envs.gear.learning.training.train_gear_models`.
         demos: the demonstrations the models were trained on.
         heldout: held-out trials; ``None``: ``models/heldout-demos``.
         trial: index of the held-out trial drawn in Fig. 3(a).

@@ -3,7 +3,7 @@
 Ten demonstrations cannot teach a mixture (Eq. 5) where the task's phases begin and end,
 so each option also states where it may start (its initiation condition) and where it
 may go on once running (its continuation condition); the controller intersects them
-with the option's learned region (:mod:`dynoplan.experiments.gear_controllers`):
+with the option's learned region (:mod:`dynoplan.envs.gear.controllers`):
 
 - the two moves carry the gear: they go on while it is held (:func:`holding_gear`) and
   start only with the gear outside the insertion corridor above the peg

@@ -9,7 +9,8 @@ with, and measures it on held-out data:
 - the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`): a
   Gaussian mixture with ``M`` chosen by BIC on the demonstration states, components
   assigned to options by their states' labels, and per-option thresholds calibrated on
-  the demonstrations by leave-one-demonstration-out (:func:`fit_regions_cross_validated`),
+  the demonstrations by leave-one-demonstration-out
+  (:func:`~dynoplan.pipeline.fit.fit_regions_cross_validated`),
   for the options the demonstrations show (as :func:`~dynoplan.pipeline.fit.fit_regions`;
   an option registered after the paper's four has no region unless demonstrated);
 - one dynamics model ``D_w`` per registered option (:class:`~dynoplan.models.neural_dynamics.
@@ -27,9 +28,14 @@ feature map (:mod:`dynoplan.envs.gear.features`; ``relative`` by default, the sa
 dynamics models (which predict all 22 columns), the terminations, the preconditions and,
 with ``relative``, the regions.
 
-This module trains; the rest lives in ``gear_model_settings`` (:class:`GearTrainSettings`),
-``gear_model_data`` (datasets to arrays, splits), ``gear_model_metrics`` (held-out
-measurements) and ``gear_model_files`` (the manifest and :func:`load_gear_models`).
+This module trains, with the pipeline's region fit
+(:func:`~dynoplan.pipeline.fit.fit_labelled_regions`), goal network
+(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics epochs
+(:func:`~dynoplan.pipeline.fit.dynamics_epochs`); the rest lives in
+:mod:`.settings` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
+:class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
+(datasets to arrays, splits), :mod:`.metrics` (far-away states) and :mod:`.files` (the
+manifest and :func:`~dynoplan.envs.gear.learning.files.load_gear_models`).
 """
 
 import time
@@ -42,11 +48,8 @@ import numpy as np
 from scipy import stats
 
 from dynoplan.data import Episode, labelled_transitions
-from dynoplan.envs.gear.features import feature_map
-from dynoplan.envs.gear.options.catalog import gear_option_names
-from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
-from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_model_data import (
+from dynoplan.envs.gear.features import FeatureMap, feature_map
+from dynoplan.envs.gear.learning.data import (
     CAUTIOUS,
     check_disjoint,
     demo_arrays,
@@ -56,38 +59,41 @@ from dynoplan.experiments.gear_model_data import (
     read_labelled,
     split_episodes,
 )
-from dynoplan.experiments.gear_model_files import (
-    GOAL_FEATURES,
-    METRICS_FILE,
-    models_manifest,
-)
-from dynoplan.experiments.gear_model_metrics import (
-    far_states,
-    fit_regions_cross_validated,
-    n_step_report,
-)
-from dynoplan.experiments.gear_model_settings import (
+from dynoplan.envs.gear.learning.files import METRICS_FILE, models_manifest
+from dynoplan.envs.gear.learning.metrics import far_states
+from dynoplan.envs.gear.learning.settings import (
+    DEFAULT_METRICS,
     DEFAULT_SETTINGS,
+    QUICK_METRICS,
     QUICK_SETTINGS,
-    GearTrainSettings,
+    GearMetricsSettings,
 )
+from dynoplan.envs.gear.options.catalog import gear_option_names
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
+from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
-from dynoplan.models.evaluation import calibration, one_step_error
+from dynoplan.models.evaluation import calibration, n_step_report, one_step_error
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
+from dynoplan.models.goal_network import evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
+from dynoplan.pipeline.fit import (
+    DYNAMICS_BATCH,
+    FitSettings,
+    dynamics_epochs,
+    fit_goal_network,
+    fit_labelled_regions,
+)
 from dynoplan.progress import track
 from dynoplan.types import FloatArray, IntArray
 
 __all__ = ["train_gear_models"]
 
-_BATCH = 256
-
 
 def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: int,
                       heldout_demos: Path, quick: bool, progress: bool,
-                      settings: GearTrainSettings | None = None) -> dict[str, Any]:
+                      settings: FitSettings | None = None,
+                      measures: GearMetricsSettings | None = None) -> dict[str, Any]:
     """Fit the goal heuristic, the safety regions and one dynamics model per option.
 
     Args:
@@ -102,9 +108,10 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
             metrics (``dynoplan gear demos --heldout``; ``dynoplan gear train`` records
             them when none are given:
             :func:`~dynoplan.experiments.gear_stages.learned_models`).
-        quick: :data:`QUICK_SETTINGS` instead of :data:`DEFAULT_SETTINGS`.
+        quick: :data:`QUICK_SETTINGS` and :data:`QUICK_METRICS` instead of
+            :data:`DEFAULT_SETTINGS` and :data:`DEFAULT_METRICS`.
         progress: progress bars on stderr.
-        settings: overrides ``quick``.
+        settings, measures: override ``quick``.
 
     Returns:
         The content of ``metrics.json``.
@@ -115,6 +122,12 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
             unwritable ``out``.
     """
     cfg = settings or (QUICK_SETTINGS if quick else DEFAULT_SETTINGS)
+    cfg.validate()
+    if cfg.region_undemonstrated != "everywhere" or cfg.outcome_initiation:
+        raise DynoplanError("the gear's models leave undemonstrated options without a region "
+                            "(region_undemonstrated='everywhere') and learn initiation from "
+                            "outcome runs ('gear outcomes'), not in training")
+    measure = measures or (QUICK_METRICS if quick else DEFAULT_METRICS)
     started = time.perf_counter()
     out = ensure_writable_dir(out)
     planner = PlannerState()
@@ -133,7 +146,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         if steps != DECISION_STEPS:
             raise DynoplanError(f"{transitions}: recorded every {steps} environment steps, "
                                 f"the models step every {DECISION_STEPS}")
-        dyn_train, dyn_held = split_episodes(list(collected), cfg.dynamics_heldout_fraction,
+        dyn_train, dyn_held = split_episodes(list(collected), measure.dynamics_heldout_fraction,
                                               np.random.default_rng([seed, 1]))
         dynamics_data = "option transitions"
 
@@ -146,13 +159,13 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     stages: list[tuple[str, Callable[[], None]]] = [
         ("goal", lambda: results.update(goal=_train_goal(train, held, out, cfg, seed))),
         ("regions", lambda: results.update(
-            regions=_train_regions(train, held, out, cfg, seed))),
+            regions=_train_regions(train, held, out, cfg, measure, seed))),
     ]
     dyn_reports: dict[str, Any] = {}
     for k, name in enumerate(gear_option_names()):
         def fit_option(k: int = k, name: str = name) -> None:
             dyn_reports[name] = _train_dynamics(k, name, dyn_train, dyn_held, planner, out,
-                                                cfg, seed)
+                                                cfg, measure, seed)
         stages.append((f"dynamics {name}", fit_option))
     for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
         t0 = time.perf_counter()
@@ -185,26 +198,33 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         "state_dim": STATE_DIM,
         "option_names": list(gear_option_names()),
         "decision_steps": DECISION_STEPS,
-        "task_features": list(GOAL_FEATURES.names),
-        "region_features": list(feature_map(cfg.region_features).names),
+        "task_features": list(gear_features(cfg.goal_features).names),
+        "region_features": list(gear_features(cfg.region_features).names),
         "seed": seed,
-        "settings": {**asdict(cfg), "quick": settings is None and quick},
+        "settings": {**asdict(cfg), **asdict(measure),
+                     "quick": settings is None and measures is None and quick},
         "seconds": seconds,
     }
     write_json(out / METRICS_FILE, metrics)
     return metrics
 
 
+def gear_features(name: str | None) -> FeatureMap:
+    """The gear's feature map ``name``: the goal heuristic and the regions read one."""
+    if name is None:
+        raise DynoplanError("the gear's goal heuristic and regions read a named feature map "
+                            "(FitSettings.goal_features and region_features)")
+    return feature_map(name)
+
+
 def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
-                cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
-    f = GOAL_FEATURES
+                cfg: FitSettings, seed: int) -> dict[str, Any]:
+    f = gear_features(cfg.goal_features)
     x = np.concatenate([f(s) for s, _, _ in train])
     y = np.concatenate([p for _, p, _ in train])
     groups = np.concatenate([np.full(len(p), i) for i, (_, p, _) in enumerate(train)])
-    network, report = GoalNetwork.fit(x, y, hidden=cfg.goal_hidden, members=cfg.goal_members,
-                                      epochs=cfg.goal_epochs, seed=seed, groups=groups,
-                                      ranking=cfg.goal_ranking)
+    network, report = fit_goal_network(x, y, groups, cfg, seed)
     network.save(out / GOAL_FILE)
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
@@ -244,8 +264,8 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
 
 def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                    held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
-                   cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
-    features = feature_map(cfg.region_features)
+                   cfg: FitSettings, measure: GearMetricsSettings, seed: int) -> dict[str, Any]:
+    features = gear_features(cfg.region_features)
     names = gear_option_names()
     s = np.concatenate([st[:-1] for st, _, _ in train])
     y = np.concatenate([lab for _, _, lab in train])
@@ -255,10 +275,8 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
     shown = [k for k in range(len(names)) if np.any(y == k)]
     column = np.full(len(names), -1)
     column[shown] = np.arange(len(shown))
-    fitted, info = fit_regions_cross_validated(
-        features(s), column[y], g, [names[k] for k in shown], reg_covar=cfg.region_reg_covar,
-        max_components=cfg.region_max_components, coverage=cfg.region_coverage,
-        cv_coverage=cfg.region_cv_coverage, seed=seed)
+    fitted, info = fit_labelled_regions(features(s), y, g, [names[k] for k in shown], shown,
+                                        cfg, seed)
     fitted.save(out / REGIONS_FILE)
     regions = RegionsOnFeatures(fitted, features)
     sh = np.concatenate([st[:-1] for st, _, _ in held])
@@ -272,7 +290,7 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
     others = {n: float(member[yh != k, column[k]].mean()) if (yh != k).any() else None
               for k, n in enumerate(names) if column[k] >= 0}
     train_own = regions.contains_all(s)[np.arange(len(s)), column[y]]
-    far, far_info = far_states(s, sh, np.random.default_rng([seed, 2]), cfg.far_states,
+    far, far_info = far_states(s, sh, np.random.default_rng([seed, 2]), measure.far_states,
                                cfg.region_reg_covar, features)
     far_outside = float((~regions.contains_all(far).any(axis=1)).mean()) if len(far) else None
     return {
@@ -291,9 +309,10 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
 
 def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
                     held_eps: Sequence[Episode], planner: PlannerState, out: Path,
-                    cfg: GearTrainSettings, seed: int) -> dict[str, Any]:
+                    cfg: FitSettings, measure: GearMetricsSettings, seed: int
+                    ) -> dict[str, Any]:
     own = [e for e in train_eps if e.options is not None and int(e.options[0]) == k]
-    fit_eps, cal_eps = (split_episodes(own, cfg.dynamics_calibration_fraction,
+    fit_eps, cal_eps = (split_episodes(own, measure.dynamics_calibration_fraction,
                                         np.random.default_rng([seed, 4, k]))
                         if len({e.seed for e in own}) >= 4 else (own, []))
     s, labels, nxt = labelled_transitions(fit_eps, state_fn=planner)
@@ -306,9 +325,8 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
                             "the demonstrations do not show needs `dynoplan gear collect`)")
     model = MLPEnsembleDynamics(STATE_DIM, cfg.dynamics_hidden, cfg.dynamics_members,
                                 option=name, seed=seed + k)
-    batches = -(-round(0.9 * len(s)) // _BATCH)  # fit holds out 10% of the rows
-    epochs = max(5, min(cfg.dynamics_epochs, cfg.dynamics_max_updates // batches))
-    report = model.fit(s, nxt, epochs=epochs, batch_size=_BATCH, seed=seed + k)
+    epochs = dynamics_epochs(len(s), cfg)
+    report = model.fit(s, nxt, epochs=epochs, batch_size=DYNAMICS_BATCH, seed=seed + k)
     std_scale = None
     if cal_eps:
         sc, labels_c, nxtc = labelled_transitions(cal_eps, state_fn=planner)
@@ -334,7 +352,7 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     one = one_step_error(model, sh, nxth)
     cal = calibration(model, sh, nxth, 0.9)
     trajectories = option_trajectories(held_eps, planner, k)
-    multi = n_step_report(model, trajectories, cfg.n_step, cfg.rollouts,
+    multi = n_step_report(model, trajectories, measure.n_step, measure.rollouts,
                           np.random.default_rng([seed, 3, k]))
     return {
         **row,

@@ -10,11 +10,13 @@ pass; then the policy judges its own success from the simulator (``succeeded(inf
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
+from gymnasium.wrappers import RenderCollection
 
+from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
@@ -22,9 +24,14 @@ from dynoplan.envs.gear.options.catalog import gear_option
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.options.termination import ConstantTermination
+from dynoplan.pipeline.collect import OptionRun, RunStart, record_episode
 from dynoplan.pipeline.evaluate import quantile_or_none
 from dynoplan.progress import track
 from dynoplan.reports.video import write_mp4
+
+TRIAL_INFO_KEYS = ("human_contacts", "robot_collisions", "min_human_distance")
+"""What a trial records of every step."""
 
 
 @dataclass(frozen=True)
@@ -46,29 +53,32 @@ class TrialResult:
 def run_trial(env: GearAssemblyEnv, policy: GearOptionPolicy, option: str, index: int,
               seed: int, human_mode: str | None, max_steps: int,
               frames: list[npt.NDArray[np.uint8]] | None = None) -> TrialResult:
-    """Run trial ``index`` of ``option`` (see the module docstring)."""
+    """Run trial ``index`` of ``option`` (see the module docstring), recorded by the
+    pipeline's recorder as an option run
+    (:func:`~dynoplan.pipeline.collect.record_episode`,
+    :class:`~dynoplan.pipeline.collect.OptionRun`); with ``frames``, the start's frame
+    and one after every step are appended."""
     rng = np.random.default_rng([seed, index])
     start = reach_start(env, option, rng, human_mode=human_mode)
-    obs, info = start.observation, start.info
-    policy.reset(obs, rng)
-    contacts = collisions = steps = 0
-    min_distance = float(info["min_human_distance"])
+    spec = OptionSpec(option, policy, ConstantTermination(0.0))
+    rendered = None if frames is None else RenderCollection(env)
     if frames is not None:
         frames.append(_frame(env))
-    while steps < max_steps:
-        obs, _, terminated, truncated, info = env.step(policy.act(obs))
-        steps += 1
-        contacts += int(info["human_contacts"])
-        collisions += int(info["robot_collisions"] > 0)
-        min_distance = min(min_distance, float(info["min_human_distance"]))
-        if frames is not None:
-            frames.append(_frame(env))
-        if policy.finished() or terminated or truncated:
-            break
-    return TrialResult(index=index, env_seed=start.env_seed, human_mode=start.human_mode,
-                       success=bool(policy.succeeded(info)), status=policy.status,
-                       steps=steps, human_contacts=contacts, min_human_distance=min_distance,
-                       robot_collision_steps=collisions, plan_ms=tuple(policy.plan_ms))
+    recording = record_episode(env if rendered is None else rendered, [spec], OptionRun(spec),
+                               None, rng, max_steps,
+                               start=RunStart(start.observation, start.info, start.env_seed),
+                               info_keys=TRIAL_INFO_KEYS)
+    if frames is not None and rendered is not None:
+        frames += [cast(npt.NDArray[np.uint8], f) for f in rendered.render()]
+    infos = recording.episode.infos
+    return TrialResult(
+        index=index, env_seed=start.env_seed, human_mode=start.human_mode,
+        success=bool(policy.succeeded(recording.info)), status=policy.status,
+        steps=len(recording.episode), human_contacts=int(infos["human_contacts"].sum()),
+        min_human_distance=min(float(start.info["min_human_distance"]),
+                               float(infos["min_human_distance"].min())),
+        robot_collision_steps=int((infos["robot_collisions"] > 0).sum()),
+        plan_ms=tuple(policy.plan_ms))
 
 
 def summarise_trials(option: str, results: list[TrialResult], seed: int,

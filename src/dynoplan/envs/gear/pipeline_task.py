@@ -3,7 +3,7 @@
 A :class:`GearTask` is what a worker rebuilds a gear controller from: the environment
 (with a fault wrapped around it, or rendering for a video), and, from a models folder,
 the options bound to that environment under one of the controllers of
-:mod:`~dynoplan.experiments.gear_controllers` (or the flat PPO policy). Its episodes are
+:mod:`~dynoplan.envs.gear.controllers` (or the flat PPO policy). Its episodes are
 the pipeline's (:class:`~dynoplan.pipeline.evaluate.ControllerRunner`): OMPL is reseeded
 from the episode's seed first, the gear measures its own metrics (the human's behaviour,
 contacts, the smallest robot-human distance), and out-of-region starts are counted
@@ -16,7 +16,7 @@ on one worker or many (only the measured decision latencies differ).
 """
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,11 +25,15 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
+from dynoplan.envs.gear.controllers import VARIANTS, StopWhereItIs
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.human import BEHAVIOURS
+from dynoplan.envs.gear.learning.files import TASK_NAME
+from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
+from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_controllers import VARIANTS, StopWhereItIs
-from dynoplan.experiments.gear_model_files import TASK_NAME
+from dynoplan.options.option import OptionPolicy
+from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
 from dynoplan.pipeline.evaluate import (
     ControllerRunner,
     ControllerSettings,
@@ -39,7 +43,7 @@ from dynoplan.pipeline.evaluate import (
 from dynoplan.safety import AT_REST_SPEED, protective_separation
 from dynoplan.safety.shield import SeparationShield
 from dynoplan.seeding import EpisodeSeed
-from dynoplan.types import FloatArray
+from dynoplan.types import BoolArray, FloatArray, Generator
 
 FLAT_POLICY = "flat_ppo"
 """The flat end-to-end baseline's controller name (it needs ``GearTask.flat_folder``)."""
@@ -105,17 +109,17 @@ class GearTask:
 
     def make_runner(self, controller: str, models: Path,
                     settings: ControllerSettings) -> EpisodeRunner:
-        """Controller ``controller`` (of :data:`~dynoplan.experiments.gear_controllers.VARIANTS` or
+        """Controller ``controller`` (of :data:`~dynoplan.envs.gear.controllers.VARIANTS` or
         :data:`FLAT_POLICY`) on a
         new environment, built from the models folder ``models`` (once per process).
         PyTorch runs on one thread, as in the serial command line, so predictions, and
         hence episodes, are bit-identical in every process."""
         import torch
 
+        from dynoplan.envs.gear.controllers import make_gear_controller
+        from dynoplan.envs.gear.learning.files import load_gear_models
         from dynoplan.envs.gear.options.catalog import policy_factories
         from dynoplan.envs.gear.options.motion import reseed_ompl
-        from dynoplan.experiments.gear_controllers import make_gear_controller
-        from dynoplan.experiments.gear_model_files import load_gear_models
 
         if controller not in (*VARIANTS, FLAT_POLICY):
             raise DynoplanError(f"unknown controller {controller!r}; expected one of "
@@ -135,6 +139,48 @@ class GearTask:
             env, make_gear_controller(controller, gear_env, fitted, policy_factories(models),
                                       settings),
             task_metrics=episode_metrics, regions=fitted.regions, before_episode=reseed_ompl)
+
+    # --- option runs (:class:`~dynoplan.pipeline.collect.OptionRunTask`) ---------------
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        """The registered options, in label order."""
+        from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
+
+        return GEAR_OPTIONS.names()
+
+    @property
+    def decision_steps(self) -> int:
+        return DECISION_STEPS
+
+    @property
+    def run_info_keys(self) -> tuple[str, ...]:
+        return RUN_INFO_KEYS
+
+    def policy_makers(self, models: Path | None) -> Mapping[str, PolicyMaker]:
+        """The registered options' policies, their networks read from ``models``
+        (:func:`~dynoplan.envs.gear.options.catalog.policy_factories`); PyTorch on one
+        thread, as in the evaluation."""
+        import torch
+
+        from dynoplan.envs.gear.options.catalog import policy_factories
+
+        torch.set_num_threads(1)
+        return policy_factories(models)
+
+    def before_run(self, seed: int) -> None:
+        """OMPL reseeded from the run's seed."""
+        from dynoplan.envs.gear.options.motion import reseed_ompl
+
+        reseed_ompl(seed)
+
+    def run_start(self, runs: OptionRuns, option: str, rng: Generator) -> RunStart:
+        """:func:`~dynoplan.envs.gear.runs.beyond_start` for outcome runs, else
+        :func:`~dynoplan.envs.gear.runs.own_start`."""
+        return (beyond_start if runs.job.outcomes else own_start)(runs, option, rng)
+
+    def run_outcomes(self, policy: OptionPolicy, recording: Recording) -> BoolArray:
+        return ended_well(policy, recording)
 
 
 def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],

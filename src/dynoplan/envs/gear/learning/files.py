@@ -1,6 +1,6 @@
 """A gear models folder: the one models format of :mod:`dynoplan.models.folder`.
 
-:func:`~dynoplan.experiments.gear_models.train_gear_models` writes one safetensors file
+:func:`~dynoplan.envs.gear.learning.training.train_gear_models` writes one safetensors file
 per model, ``metrics.json`` and the manifest ``models.json`` (:func:`models_manifest`:
 the library's format, with the gear's feature maps named and the training seed and
 settings as extra fields). :func:`load_gear_models` reads the folder back as
@@ -18,11 +18,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from dynoplan.envs.gear.features import FEATURE_MAPS, TASK
+from dynoplan.envs.gear.features import FEATURE_MAPS
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_model_settings import GearTrainSettings
 from dynoplan.models.folder import (
     GOAL_FILE,
     MANIFEST_FILE,
@@ -30,22 +29,20 @@ from dynoplan.models.folder import (
     dynamics_file,
     write_manifest,
 )
-from dynoplan.pipeline.fit import FittedModels
+from dynoplan.pipeline.fit import FitSettings, FittedModels
 
 TASK_NAME = "gear_assembly"
 METRICS_FILE = "metrics.json"
 HELDOUT_DIR = "heldout-demos"
-GOAL_FEATURES = TASK
-"""What the goal heuristic reads: arm joints, gripper, tool point and gear (no human)."""
 RETRAIN = "train them with 'dynoplan gear train' or 'dynoplan gear run'"
 
 
-def models_manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, Any]:
+def models_manifest(out: Path, seed: int, cfg: FitSettings) -> dict[str, Any]:
     """Write ``out/models.json`` for the model files in ``out``; return it."""
     names = gear_option_names()
     return write_manifest(
         out, task=TASK_NAME, state_dim=STATE_DIM, option_names=names,
-        stride=DECISION_STEPS, use_regions=True, goal=(GOAL_FILE, GOAL_FEATURES.name),
+        stride=DECISION_STEPS, use_regions=True, goal=(GOAL_FILE, cfg.goal_features),
         regions=(REGIONS_FILE, cfg.region_features),
         dynamics={name: dynamics_file(name) for name in names},
         extra={"state_names": list(STATE_NAMES), "seed": seed, "settings": asdict(cfg)})
@@ -53,7 +50,7 @@ def models_manifest(out: Path, seed: int, cfg: GearTrainSettings) -> dict[str, A
 
 def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
     """Read the models written by
-    :func:`~dynoplan.experiments.gear_models.train_gear_models` from ``folder``.
+    :func:`~dynoplan.envs.gear.learning.training.train_gear_models` from ``folder``.
 
     Raises:
         DynoplanError: (one line) see :meth:`FittedModels.load`, and a task, state
@@ -78,5 +75,5 @@ def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
     return models
 
 
-__all__ = ["GOAL_FEATURES", "HELDOUT_DIR", "METRICS_FILE", "RETRAIN", "TASK_NAME",
+__all__ = ["HELDOUT_DIR", "METRICS_FILE", "RETRAIN", "TASK_NAME",
            "load_gear_models", "models_manifest"]
