@@ -5,26 +5,31 @@
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
+CORE   := $(VENV)/.core
 export MUJOCO_GL ?= egl
 
 .PHONY: install demo test test-fast lint bench clean
 
-$(STAMP): pyproject.toml
+# The core (pip install dynoplan) on the pinned CPU build of PyTorch.
+$(CORE): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	# Pin the CPU build of PyTorch first: an unpinned torch pulls a multi-GB CUDA build.
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e ".[dev]"
-	touch $(STAMP)
+	touch $(CORE)
 
-install: $(STAMP)
+# One stamp per extra: .venv/.installed-gear (make demo), .venv/.installed-dev (make test).
+$(VENV)/.installed-%: $(CORE) pyproject.toml
+	$(BIN)/pip install --quiet -e ".[$*]"
+	touch $@
 
-demo: install
+install: $(VENV)/.installed-dev
+
+demo: $(VENV)/.installed-gear
 	$(BIN)/dynoplan random-walk --out results/random-walk
 	$(BIN)/dynoplan gear run --out results/gear
 
-lint: install
+lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
@@ -32,10 +37,10 @@ test: lint
 	$(BIN)/pytest -m "not slow"
 	$(BIN)/pytest -m slow
 
-test-fast: install
+test-fast: $(VENV)/.installed-dev
 	$(BIN)/pytest -m "not slow" -x
 
-bench: install
+bench: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/planner.py
 
 clean:

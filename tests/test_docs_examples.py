@@ -18,14 +18,24 @@ ROOT = Path(__file__).resolve().parents[1]
 GUIDE = ROOT / "docs" / "guide"
 PAGES = sorted(GUIDE.glob("*.md"))
 _BLOCK = re.compile(r"^```python\n(.*?)^```", re.S | re.M)
-_SNIPPET = re.compile(r'^--8<-- "([^"]+)"$', re.M)
+_SNIPPET = re.compile(r'^--8<-- "([^":]+)(?::(\w+))?"$', re.M)
+
+
+def snippet(match: re.Match[str]) -> str:
+    """A snippet line's file, or its section ``# --8<-- [start:NAME]`` .. ``[end:NAME]``
+    for ``"path:NAME"``, as pymdownx.snippets includes it."""
+    text = (ROOT / match.group(1)).read_text(encoding="utf-8")
+    name = match.group(2)
+    if name is None:
+        return text
+    start, end = f"# --8<-- [start:{name}]\n", f"# --8<-- [end:{name}]"
+    return text[text.index(start) + len(start):text.index(end)]
 
 
 def python_blocks(page: Path) -> list[str]:
     """The page's python blocks, with snippet lines replaced by the files they name."""
     blocks = _BLOCK.findall(page.read_text(encoding="utf-8"))
-    return [_SNIPPET.sub(lambda m: (ROOT / m.group(1)).read_text(encoding="utf-8"), b)
-            for b in blocks]
+    return [_SNIPPET.sub(snippet, b) for b in blocks]
 
 
 def test_the_guide_has_pages_with_examples():

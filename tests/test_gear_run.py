@@ -223,6 +223,11 @@ def test_gear_episode_replays_an_evaluation_episode_decision_by_decision(quick_g
     # the rendered episode is the same episode
     assert replay["video"]["success"] == evaluated["success"]
     assert (out / "episode.mp4").stat().st_size > 10_000
+    # with the decision drawn on it: the running option's line, yellow, top left
+    import imageio.v2 as imageio
+
+    first = imageio.get_reader(out / "episode.mp4").get_data(0)[:30, :320].astype(int)
+    assert ((first[..., 0] > 180) & (first[..., 1] > 150) & (first[..., 2] < 120)).sum() > 20
 
 
 def test_gear_episode_rejects_an_unknown_controller_without_writing(tmp_path: Path):

@@ -6,7 +6,7 @@ from typing import Any
 
 import typer
 
-from dynoplan.cli.params import folder, human_mode
+from dynoplan.cli.params import folder, human_mode, require_gear
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
     EPISODES_MAX,
@@ -23,6 +23,12 @@ gear_app = typer.Typer(
 )
 
 DEFAULT_MODELS = Path("results/gear-models")
+
+
+@gear_app.callback()
+def _gear() -> None:
+    """The simulated PR2 gear assembly (the ``gear`` extra: pip install 'dynoplan[gear]')."""
+    require_gear()
 
 
 @gear_app.command("expert")

@@ -4,6 +4,10 @@ Mounted by ``cli/main.py`` as ``app.add_typer(generic_app, name="pipeline")``::
 
     dynoplan pipeline --env MountainCarContinuous-v0 \\
         --options examples.mountain_car.options:make_options --out results/mountain-car
+
+Every setting of :mod:`dynoplan.pipeline.config` is a flag of the same name (``--explore``
+is ``exploration_episodes``), and ``--config FILE`` reads them from TOML; a flag given
+overrides the file. The effective settings are written to ``OUT/settings.toml``.
 """
 
 import shlex
@@ -19,18 +23,11 @@ import typer
 from dynoplan.cli.params import folder
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.errors import DynoplanError, DynoplanWarning
-from dynoplan.limits import (
-    EPISODES_MAX,
-    EPOCHS_MAX,
-    HORIZON_MAX,
-    SAMPLES_MAX,
-    SEED_MAX,
-    STEPS_MAX,
-    STRIDE_MAX,
-)
+from dynoplan.pipeline.config import BOUNDS
 
 generic_app = typer.Typer(
-    help="DynoPlan on any Gymnasium environment with a Box observation space.",
+    help="DynoPlan on any Gymnasium environment (a Box observation, or a Dict with a "
+         "state_fn or flattened).",
     pretty_exceptions_enable=False,
     add_completion=False,
 )
@@ -57,11 +54,23 @@ def warnings_as_lines() -> Iterator[None]:
             warnings.showwarning = shown
 
 
+def _bounds(key: str) -> dict[str, Any]:
+    """typer's ``min``/``max`` of setting ``key`` (:data:`~dynoplan.pipeline.config.BOUNDS`)."""
+    low, high = BOUNDS[key]
+    return {k: v for k, v in (("min", low), ("max", high)) if abs(v) != float("inf")}
+
+
 @generic_app.callback(invoke_without_command=True)
 def pipeline(
-    env: str = typer.Option(..., "--env", help="Gymnasium environment id."),
-    options: str = typer.Option(
-        ..., "--options", help="MODULE:FUNCTION returning the options (a list of option_spec)."),
+    env: str | None = typer.Option(None, "--env", help="Gymnasium environment id (required, "
+                                   "here or in --config)."),
+    options: str | None = typer.Option(
+        None, "--options",
+        help="MODULE:FUNCTION returning the options, a list of option_spec (required, here "
+             "or in --config)."),
+    config: Path | None = typer.Option(
+        None, "--config", help="TOML file of settings (keys as these flags, in snake_case; "
+        "\\[fit] and \\[control] sections; see OUT/settings.toml); flags given override it."),
     demonstrator: str | None = typer.Option(
         None, "--demonstrator",
         help="MODULE:FUNCTION returning the scripted demonstrator "
@@ -69,109 +78,200 @@ def pipeline(
     demo_dataset: Path | None = typer.Option(
         None, "--demo-dataset", callback=folder,
         help="Use recorded demonstrations (a dataset folder) instead."),
-    demos: int = typer.Option(5, "--demos", min=1, max=EPISODES_MAX,
-                              help="Demonstrations to record."),
-    explore: int = typer.Option(20, "--explore", min=1, max=EPISODES_MAX,
-                                help="Episodes of random options for the dynamics models."),
-    episodes: int = typer.Option(100, "--episodes", min=1, max=EPISODES_MAX,
-                                 help="Evaluation episodes per controller."),
-    seed: int = typer.Option(0, "--seed", min=0, max=SEED_MAX, help="Seed of every random choice."),
+    success: str | None = typer.Option(
+        None, "--success",
+        help="MODULE:FUNCTION, success(observation, info) -> bool, called after every step; "
+             "the episode ends at the first success (default: info['is_success'] at the "
+             "last step, else terminated)."),
+    state_fn: str | None = typer.Option(
+        None, "--state-fn",
+        help="MODULE:FUNCTION, state_fn(observation) -> (d,) vector: the planner state, "
+             "which the options also see (default: a Box observation as it is, a Dict "
+             "flattened)."),
+    demos: int | None = typer.Option(None, "--demos", **_bounds("demos"),
+                                     help="Demonstrations to record [5]."),
+    exploration_episodes: int | None = typer.Option(
+        None, "--explore", "--exploration-episodes", **_bounds("exploration_episodes"),
+        help="Episodes of random options for the dynamics models [20]."),
+    exploration_option_steps: int | None = typer.Option(
+        None, "--exploration-option-steps", **_bounds("exploration_option_steps"),
+        help="Most steps an option runs while exploring [100]."),
+    episodes: int | None = typer.Option(None, "--episodes", **_bounds("episodes"),
+                                        help="Evaluation episodes per controller [100]."),
+    seed: int | None = typer.Option(None, "--seed", **_bounds("seed"),
+                                    help="Seed of every random choice [0]."),
+    controllers: str | None = typer.Option(
+        None, "--controllers", help="Comma-separated controllers to evaluate: dynoplan, "
+        "option:NAME, random [all]."),
     out: Path = typer.Option(Path("results/pipeline"), "--out", callback=folder,
                              help="Output folder."),
-    stride: int = typer.Option(1, "--stride", min=1, max=STRIDE_MAX,
-                               help="Environment steps per model step."),
-    horizon: int = typer.Option(20, "--horizon", min=1, max=HORIZON_MAX,
-                                help="Planning horizon n, in model steps."),
-    samples: int = typer.Option(32, "--samples", min=1, max=SAMPLES_MAX,
-                                help="Monte-Carlo rollouts per option."),
-    replan_every: int = typer.Option(
-        10, "--replan-every", min=0, max=STEPS_MAX,
-        help="Plan again after this many steps (0: only when the "
-                                   "option stops)."),
-    hold: bool = typer.Option(True, "--hold/--no-hold",
-                              help="Where no option is admissible, hold the zero action "
-                              "of a Box action space until one is (--no-hold: end the "
-                              "episode there)."),
-    regions: bool = typer.Option(True, "--regions/--no-regions",
-                                 help="Fit the safety regions (Eq. 5) and enforce them."),
-    region_fit: str = typer.Option(
-        "heldout", "--region-fit",
+    stride: int | None = typer.Option(None, "--stride", **_bounds("fit.stride"),
+                                      help="Environment steps per model step [1]."),
+    dynamics_hidden: str | None = typer.Option(
+        None, "--dynamics-hidden", help="Hidden layer widths of each dynamics ensemble "
+        "member, comma-separated [64,64]."),
+    dynamics_members: int | None = typer.Option(
+        None, "--dynamics-members", **_bounds("fit.dynamics_members"),
+        help="Members of each dynamics ensemble [5]."),
+    dynamics_epochs: int | None = typer.Option(
+        None, "--dynamics-epochs", **_bounds("fit.dynamics_epochs"),
+        help="Epochs per ensemble [30]."),
+    dynamics_max_updates: int | None = typer.Option(
+        None, "--dynamics-max-updates", **_bounds("fit.dynamics_max_updates"),
+        help="Fewer epochs when an option has so many transitions that --dynamics-epochs "
+             "would take more gradient steps than this [no bound]."),
+    goal_hidden: int | None = typer.Option(None, "--goal-hidden", **_bounds("fit.goal_hidden"),
+                                           help="Hidden width of the goal network [64]."),
+    goal_members: int | None = typer.Option(
+        None, "--goal-members", **_bounds("fit.goal_members"),
+        help="Members of the goal ensemble [1]."),
+    goal_epochs: int | None = typer.Option(None, "--goal-epochs", **_bounds("fit.goal_epochs"),
+                                           help="Epochs of the goal network [150]."),
+    goal_ranking: float | None = typer.Option(
+        None, "--goal-ranking", **_bounds("fit.goal_ranking"),
+        help="Weight of the goal network's ranking loss along demonstrations [0]."),
+    regions: bool | None = typer.Option(None, "--regions/--no-regions",
+                                        help="Fit the safety regions (Eq. 5) and enforce "
+                                        "them [on]."),
+    region_fit: str | None = typer.Option(
+        None, "--region-fit",
         help="heldout: components and thresholds chosen on held-out demonstrations; "
-             "bic: BIC and in-sample thresholds (the paper's reading)."),
-    region_coverage: float = typer.Option(
-        0.95, "--region-coverage", min=0.0, max=1.0,
-        help="Share of (held-out) demonstration states of an option inside its region."),
-    region_slack: float = typer.Option(
-        0.0, "--region-slack", min=0.0, help="Nats subtracted from every region threshold."),
+             "bic: BIC and in-sample thresholds (the paper's reading); cv: BIC components, "
+             "thresholds widened by leaving demonstrations out [heldout]."),
+    region_cv_coverage: float | None = typer.Option(
+        None, "--region-cv-coverage", **_bounds("fit.region_cv_coverage"),
+        help="cv: share of left-out demonstrations' states a threshold is widened to admit "
+             "[0.97]."),
+    region_coverage: float | None = typer.Option(
+        None, "--region-coverage", **_bounds("fit.region_coverage"),
+        help="Share of (held-out) demonstration states of an option inside its region "
+             "[0.95]."),
+    region_slack: float | None = typer.Option(
+        None, "--region-slack", **_bounds("fit.region_slack"),
+        help="Nats subtracted from every region threshold [0]."),
     region_components: int | None = typer.Option(
-        None, "--region-components", min=1, max=100,
-        help="Mixture size per option (default: chosen by the fit)."),
-    outcome_initiation: bool = typer.Option(
-        False, "--outcome-initiation/--no-outcome-initiation",
-        help="Also learn where each option may start from the outcomes of its exploration "
-             "runs (did the goal heuristic rise?), intersected with its region."),
-    region_undemonstrated: str = typer.Option(
-        "runs", "--region-undemonstrated",
+        None, "--region-components", **_bounds("fit.region_components"),
+        help="Mixture size per option [chosen by the fit]."),
+    region_max_components: int | None = typer.Option(
+        None, "--region-max-components", **_bounds("fit.region_max_components"),
+        help="Largest mixture the fit may choose [6]."),
+    region_folds: int | None = typer.Option(
+        None, "--region-folds", **_bounds("fit.region_folds"),
+        help="Folds of whole demonstrations of the held-out fit [5]."),
+    region_reg_covar: float | None = typer.Option(
+        None, "--region-reg-covar", **_bounds("fit.region_reg_covar"),
+        help="Covariance floor, in units of each dimension's spread (heldout) [0.01]."),
+    region_undemonstrated: str | None = typer.Option(
+        None, "--region-undemonstrated",
         help="Region of an option no demonstration shows: runs (from its own exploration "
-             "runs), none (never admissible), everywhere (its own initiation set)."),
-    dynamics_epochs: int = typer.Option(30, "--dynamics-epochs", min=1, max=EPOCHS_MAX,
-                                        help="Epochs per ensemble."),
-    goal_epochs: int = typer.Option(150, "--goal-epochs", min=1, max=EPOCHS_MAX,
-                                    help="Epochs of the goal network."),
+             "runs), none (never admissible), everywhere (its own initiation set) [runs]."),
+    outcome_initiation: bool | None = typer.Option(
+        None, "--outcome-initiation/--no-outcome-initiation",
+        help="Also learn where each option may start from the outcomes of its exploration "
+             "runs (did the goal heuristic rise?), intersected with its region [off]."),
+    outcome_min_gain: float | None = typer.Option(
+        None, "--outcome-min-gain",
+        help="A run is good when the goal heuristic rose by more than this [0]."),
+    horizon: int | None = typer.Option(None, "--horizon", **_bounds("control.horizon"),
+                                       help="Planning horizon n, in model steps [20]."),
+    samples: int | None = typer.Option(None, "--samples", **_bounds("control.samples"),
+                                       help="Monte-Carlo rollouts per option [32]."),
+    risk: float | None = typer.Option(None, "--risk", **_bounds("control.risk"),
+                                      help="k in E[G] - k std[G] of Eq. 1 [0]."),
+    replan_every: int | None = typer.Option(
+        None, "--replan-every", **_bounds("control.replan_every"),
+        help="Plan again after this many steps (0: only when the option stops) [10]."),
+    margin: float | None = typer.Option(
+        None, "--margin", **_bounds("control.margin"),
+        help="Score advantage needed to replace a running option at a replan [0]."),
+    max_decisions: int | None = typer.Option(
+        None, "--max-decisions", **_bounds("control.max_decisions"),
+        help="Planning steps before an episode is given up [1000]."),
+    max_option_steps: int | None = typer.Option(
+        None, "--max-option-steps", **_bounds("control.max_option_steps"),
+        help="Environment steps one option may run between decisions [1000]."),
+    hold: bool | None = typer.Option(
+        None, "--hold/--no-hold",
+        help="Where no option is admissible, hold (--hold-action, else the zero action of a "
+             "Box action space) until one is; --no-hold: end the episode there [hold]."),
+    hold_action: str | None = typer.Option(
+        None, "--hold-action", help="The action to hold with, comma-separated numbers "
+        "[the zero action of a Box action space]."),
+    dynamics_noise: float | None = typer.Option(
+        None, "--dynamics-noise", **_bounds("control.dynamics_noise"),
+        help="Std of Gaussian noise on every learned prediction of the planner (a fault) "
+             "[0]."),
+    epistemic: float | None = typer.Option(
+        None, "--epistemic", **_bounds("control.epistemic"),
+        help="Weight of the dynamics ensemble's disagreement in the planner's score [0]."),
+    end_inside: bool | None = typer.Option(
+        None, "--end-inside/--no-end-inside",
+        help="Rollouts that leave an option's continuation set end at their last state "
+             "inside it [off]."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Collect, fit dynamics/goal/regions, run DynoPlan and compare with each option alone
-    and random choice; writes OUT/summary.json, OUT/results.md, datasets and models."""
+    and random choice; writes OUT/summary.json, OUT/results.md, OUT/settings.toml,
+    datasets and models."""
     from dynoplan.data.dataset import read_dataset
-    from dynoplan.io import staged_folder
+    from dynoplan.io import staged_folder, write_text
     from dynoplan.parallel import parse_workers
-    from dynoplan.pipeline import (
-        ControllerSettings,
-        FitSettings,
-        GymTask,
-        PipelineSettings,
-        call_factory,
-        load_object,
-        run_pipeline,
+    from dynoplan.pipeline import GymTask, call_factory, load_object, run_pipeline
+    from dynoplan.pipeline.config import (
+        TASK_KEYS,
+        pipeline_settings,
+        read_config,
+        setting_keys,
+        settings_toml,
     )
 
+    # every parameter by name: a setting's flag is named as its field (config.setting_keys)
+    flags = dict(locals())
+    flags["demo_dataset"] = None if demo_dataset is None else str(demo_dataset)
+    given = {key: flags[key.rpartition(".")[2]] for key in [*TASK_KEYS, *setting_keys()]
+             if flags.get(key.rpartition(".")[2]) is not None}
+    values = {**(read_config(config) if config is not None else {}), **given}
+    pipeline_settings(given)  # a flag's mistake names the flag
+    settings = pipeline_settings(values, str(config) if config is not None else None)
+    task_refs = {key: values.get(key) for key in TASK_KEYS}
+    for key in ("env", "options"):
+        if not isinstance(task_refs[key], str) or not task_refs[key]:
+            raise DynoplanError(f"give --{key} (or {key} = \"...\" in the --config file)")
+    for key in ("demonstrator", "demo_dataset", "success", "state_fn"):
+        if task_refs[key] is not None and not isinstance(task_refs[key], str):
+            raise DynoplanError(f"{config}: {key} must be a string, got {task_refs[key]!r}")
+    env_id, options_ref = str(task_refs["env"]), str(task_refs["options"])
     pool = parse_workers(workers, ray_address)
-    task = GymTask(env, options)
+    task = GymTask(env_id, options_ref, task_refs["success"], task_refs["state_fn"])
     made = task.make_options()
-    demo_data = read_dataset(demo_dataset) if demo_dataset is not None else None
+    dataset = task_refs["demo_dataset"]
+    demo_data = read_dataset(Path(dataset)) if dataset is not None else None
     demo_maker = None
     if demo_data is None:
-        reference = demonstrator or f"{options.partition(':')[0]}:make_demonstrator"
-        if demonstrator is None:
+        module = options_ref.partition(":")[0]
+        reference = task_refs["demonstrator"] or f"{module}:make_demonstrator"
+        if task_refs["demonstrator"] is None:
             try:
                 load_object(reference)
             except DynoplanError:
                 raise DynoplanError(
-                    f"'{options.partition(':')[0]}' defines no make_demonstrator(); give "
+                    f"'{module}' defines no make_demonstrator(); give "
                     "--demonstrator MODULE:FUNCTION or --demo-dataset PATH") from None
         demo_maker = call_factory(reference, "demonstrator")
-    settings = PipelineSettings(
-        demos=demos, exploration_episodes=explore, episodes=episodes, seed=seed,
-        fit=FitSettings(stride=stride, regions=regions, dynamics_epochs=dynamics_epochs,
-                        goal_epochs=goal_epochs, region_fit=region_fit,
-                        region_coverage=region_coverage, region_slack=region_slack,
-                        region_components=region_components,
-                        region_undemonstrated=region_undemonstrated,
-                        outcome_initiation=outcome_initiation),
-        control=ControllerSettings(horizon=horizon, samples=samples,
-                                   replan_every=replan_every or None, hold=hold))
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    settings.validate()
-    with staged_folder(out) as folder, warnings_as_lines():
+    with staged_folder(out) as staged, warnings_as_lines():
         # nothing of a failed run, the previous run's kept
-        result = run_pipeline(env, list(made), demonstrator=demo_maker, demos=demo_data,
-                              settings=settings, out=folder, progress=not quiet,
+        result = run_pipeline(task.make_env(), list(made), demonstrator=demo_maker,
+                              demos=demo_data, settings=settings, out=staged,
+                              progress=not quiet,
                               status=None if quiet else lambda m: typer.echo(f"-- {m}",
                                                                              err=True),
                               command=command, workers=pool, task=task)
+        write_text(staged / "settings.toml", settings_toml(task_refs, settings))
     typer.echo(result.table)
     typer.echo(result.admissibility_table)
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.summary["stage_seconds"].items())
-    typer.echo(f"{result.summary['seconds']:.1f} s ({stages}) -> {out}/summary.json")
+    typer.echo(f"{result.summary['seconds']:.1f} s ({stages}) -> {out}/summary.json, "
+               "settings.toml")

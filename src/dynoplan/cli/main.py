@@ -13,7 +13,7 @@ import typer
 
 from dynoplan.cli.gear import gear_app
 from dynoplan.cli.generic import generic_app
-from dynoplan.cli.params import folder
+from dynoplan.cli.params import folder, require_gear
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.errors import DynoplanError
 from dynoplan.limits import (
@@ -82,6 +82,7 @@ def sweep(
     """Evaluate a grid of planner settings and seeds on gear models (resumable)."""
     import os
 
+    require_gear()
     os.environ.setdefault("MUJOCO_GL", "egl")
     from dynoplan.experiments.sweep import run_sweep
     from dynoplan.parallel import parse_workers

@@ -1,9 +1,15 @@
 """Checks of command-line values that typer's types do not make (counts and seeds use
 typer's ``min``/``max`` with the bounds of :mod:`dynoplan.limits`)."""
 
+import importlib.util
 from pathlib import Path
 
 import typer
+
+from dynoplan.errors import DynoplanError
+
+GEAR_MODULES = ("mujoco", "ompl", "mink", "daqp", "imageio", "stable_baselines3")
+"""What the gear's commands import: the ``gear`` extra (the core install has none)."""
 
 
 def folder(value: Path | None) -> Path | None:
@@ -33,4 +39,16 @@ def human_mode(value: str | None) -> str | None:
     return value
 
 
-__all__ = ["folder", "human_mode"]
+def require_gear() -> None:
+    """Check that the ``gear`` extra is installed, before a gear command starts.
+
+    Raises:
+        DynoplanError: one line naming the missing modules and the install command.
+    """
+    missing = [m for m in GEAR_MODULES if importlib.util.find_spec(m) is None]
+    if missing:
+        raise DynoplanError(f"the gear needs {', '.join(missing)}, which the core install "
+                            "does not have: pip install 'dynoplan[gear]'")
+
+
+__all__ = ["GEAR_MODULES", "folder", "human_mode", "require_gear"]

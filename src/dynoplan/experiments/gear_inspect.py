@@ -21,7 +21,7 @@ from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
+from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET, caption_gear_frames
 from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRecord
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -59,6 +59,8 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
         trace = runner.run(episode, frames)
     finally:
         runner.env.close()
+    if frames is not None:
+        caption_gear_frames(frames, trace)
     metrics = runner.record(trace, episode)
     names = tuple(o.name for o in runner.controller.options)
     gear_env = runner.env.unwrapped

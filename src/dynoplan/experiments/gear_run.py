@@ -42,7 +42,9 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
+from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.envs.gear.learning.files import load_gear_models
 from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.experiments.gear_eval import (
@@ -371,8 +373,18 @@ def render_video(models_dir: Path, seed: EpisodeSeed, planner: ControllerSetting
         trace = runner.run(seed, frames)
     finally:
         runner.env.close()
+    caption_gear_frames(frames, trace)
     return video_clip(frames, trace.success,
                       [d.option for d in trace.decisions if d.option is not None])
+
+
+def caption_gear_frames(frames: list[Any], trace: EpisodeTrace) -> None:
+    """Draw the decision on every frame of a gear episode, in place
+    (:func:`~dynoplan.reports.video.caption_frames`): the running option, every option's
+    score at the last decision and the robot's distance to the human's hand."""
+    from dynoplan.reports.video import caption_frames
+
+    caption_frames(frames, trace, CONTROL_DT, "min_human_distance", "robot-hand distance")
 
 
 def video_clip(frames: Sequence[Any], success: bool, options: Sequence[str]) -> dict[str, Any]:

@@ -24,6 +24,7 @@ from dynoplan.pipeline.evaluate import (
     controller_names,
     evaluate_controllers,
     evaluate_many,
+    learned_regions,
     make_controller,
     neutral_action,
     results_table,
@@ -52,7 +53,18 @@ from dynoplan.pipeline.run import (
     run_pipeline,
     start_states,
 )
-from dynoplan.pipeline.task import GymTask, Task, call_factory, load_object
+from dynoplan.pipeline.task import (
+    EndOnSuccess,
+    GymTask,
+    StateFn,
+    StateObservation,
+    SuccessFn,
+    Task,
+    call_factory,
+    load_function,
+    load_object,
+    task_env,
+)
 
 __all__ = [
     "CallableDemonstrator",
@@ -60,6 +72,7 @@ __all__ = [
     "ControllerSettings",
     "Demonstrator",
     "DynamicsFitter",
+    "EndOnSuccess",
     "EpisodeRecord",
     "FitSettings",
     "FittedModels",
@@ -67,7 +80,10 @@ __all__ = [
     "PipelineResult",
     "PipelineSettings",
     "RandomOptions",
+    "StateFn",
+    "StateObservation",
     "StridedTermination",
+    "SuccessFn",
     "Task",
     "admissibility",
     "box_state_dim",
@@ -85,6 +101,8 @@ __all__ = [
     "fit_outcome_initiation",
     "fit_regions",
     "flat_state",
+    "learned_regions",
+    "load_function",
     "load_object",
     "make_controller",
     "make_env",
@@ -98,4 +116,5 @@ __all__ = [
     "run_pipeline",
     "start_states",
     "summarize",
+    "task_env",
 ]

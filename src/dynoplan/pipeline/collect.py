@@ -394,7 +394,9 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
     if len(kept) < episodes:
         raise DynoplanError(
             f"only {len(kept)} of {tried} demonstrations reached the goal; {episodes} were "
-            "asked for: check the demonstrator")
+            "asked for: check the demonstrator, and how success is judged (info['is_success'] "
+            "at the last step, else terminated; a task that never terminates needs a success "
+            "function, --success MODULE:FUNCTION)")
     return kept
 
 

@@ -7,11 +7,12 @@ so the rows of a results table differ only by the controller.
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import gymnasium as gym
 import numpy as np
 
+from dynoplan.adapters.spec import OptionSpec
 from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
 from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.errors import DynoplanError
@@ -26,6 +27,9 @@ from dynoplan.progress import track
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 from dynoplan.types import FloatArray
+
+if TYPE_CHECKING:
+    from dynoplan.pipeline.fit import FittedModels
 
 DYNOPLAN = "dynoplan"
 RANDOM = "random"
@@ -47,7 +51,8 @@ class ControllerSettings:
         max_option_steps: environment steps one option may run between decisions.
         hold_action: action when no option is admissible (``None``: the task's own;
             a Gymnasium task's is :func:`neutral_action`, the zero action of a ``Box``
-            action space).
+            action space); a tuple is the action as an array (a tuple keeps the settings
+            hashable, as worker jobs need).
         hold: hold when no option is admissible; ``False``: end the episode there (and
             so with no hold action at all, e.g. a discrete action space).
         oracle_horizon: decisions a simulator oracle simulates per rollout (tasks whose
@@ -136,7 +141,7 @@ def planning_steps_summary(traces: Sequence[EpisodeTrace]) -> dict[str, Any]:
     }
 
 
-def controller_names(options: Sequence[Option]) -> list[str]:
+def controller_names(options: Sequence[Option] | Sequence[OptionSpec]) -> list[str]:
     """``dynoplan``, then ``option:<name>`` for every option, then ``random``."""
     return [DYNOPLAN, *(OPTION_PREFIX + o.name for o in options), RANDOM]
 
@@ -201,6 +206,8 @@ def hold_action(settings: ControllerSettings, action_space: gym.Space[Any] | Non
     """The action a generic controller holds with (``None``: it ends the episode)."""
     if not settings.hold:
         return None
+    if isinstance(settings.hold_action, tuple):
+        return np.asarray(settings.hold_action)
     if settings.hold_action is not None:
         return settings.hold_action
     return None if action_space is None else neutral_action(action_space)
@@ -387,6 +394,30 @@ class ControllerRunner:
         return self.record(self.run(seed), seed)
 
 
+class NoRegions:
+    """A region model without regions: no option ever starts outside one (what
+    out-of-region starts are counted against when no regions were fitted)."""
+
+    @property
+    def option_names(self) -> list[str]:
+        return []
+
+    def option_index(self, option: str | int) -> int:
+        raise DynoplanError(f"no regions were fitted, none for option {option!r}")
+
+    def contains(self, states: Any, option: str | int) -> Any:
+        raise DynoplanError(f"no regions were fitted, none for option {option!r}")
+
+
+def learned_regions(models: "FittedModels") -> RegionModel:
+    """What a pipeline's out-of-region starts are counted against: the fitted regions
+    of ``models`` when the options use them, else none (:class:`NoRegions`), so that a
+    start outside the user's own initiation set is never counted as out of region."""
+    if models.use_regions and models.regions is not None:
+        return models.regions
+    return NoRegions()
+
+
 def starts_outside(trace: EpisodeTrace, regions: RegionModel) -> int:
     """Options of ``trace`` started outside their learned region in ``regions`` (an
     option without a region, one the demonstrations do not show, never is)."""
@@ -430,13 +461,16 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                          controllers: Sequence[str] | None = None,
                          progress: bool = False, workers: Workers = SERIAL,
                          task: Task | None = None,
-                         models: Path | None = None) -> dict[str, dict[str, Any]]:
+                         models: Path | None = None,
+                         regions: RegionModel | None = None) -> dict[str, dict[str, Any]]:
     """Run each controller on the same ``episodes`` seeded episodes; one summary each.
 
     ``controllers`` defaults to :func:`controller_names` (DynoPlan, every option alone,
     random choice). On one worker the controllers run here on ``env`` and ``options``; on
     several, every worker rebuilds them from ``task`` and the models folder ``models``
     (:class:`ControllerJob`), which must hold the same models, and the table is the same.
+    Out-of-region starts are counted against ``regions`` (:class:`ControllerRunner`; a
+    task's workers count as :meth:`~dynoplan.pipeline.task.Task.make_runner` says).
     """
     if episodes < 1:
         raise DynoplanError(f"episodes must be >= 1, got {episodes}")
@@ -450,7 +484,7 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                                   for kind in kinds]
     else:
         jobs = [_LocalJob(env, make_controller(kind, options, goal, settings, planner_options,
-                                               env.action_space))
+                                               env.action_space), regions)
                 for kind in kinds]
     done = evaluate_many([(job, seeds) for job in jobs], workers,
                          f"evaluate ({len(kinds)} controllers)", progress)
@@ -463,9 +497,10 @@ class _LocalJob:
 
     env: gym.Env[Any, Any]
     controller: Controller
+    regions: RegionModel | None = None
 
     def build(self) -> ControllerRunner:
-        return ControllerRunner(self.env, self.controller)
+        return ControllerRunner(self.env, self.controller, regions=self.regions)
 
 
 _COLUMNS = ["controller", "success_rate", "steps_to_success_mean", "return_mean",

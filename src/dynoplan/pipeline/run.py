@@ -43,7 +43,13 @@ from dynoplan.pipeline.collect import (
     probe_options,
     record_demonstrations,
 )
-from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_controllers, results_table
+from dynoplan.pipeline.evaluate import (
+    ControllerSettings,
+    controller_names,
+    evaluate_controllers,
+    learned_regions,
+    results_table,
+)
 from dynoplan.pipeline.fit import (
     DynamicsFitter,
     FitSettings,
@@ -51,7 +57,7 @@ from dynoplan.pipeline.fit import (
     episode_states,
     fit_models,
 )
-from dynoplan.pipeline.task import Task
+from dynoplan.pipeline.task import StateFn, SuccessFn, Task, task_env
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
 from dynoplan.types import FloatArray
@@ -252,7 +258,8 @@ def run_pipeline(
     demos: Dataset | Sequence[Episode] | None = None,
     settings: PipelineSettings | None = None,
     out: str | Path | None = None,
-    state_fn: ObservationFn = flat_state,
+    state_fn: StateFn | None = None,
+    success: SuccessFn | None = None,
     fitter: DynamicsFitter | None = None,
     progress: bool = False,
     status: Callable[[str], None] | None = None,
@@ -263,7 +270,7 @@ def run_pipeline(
     """Collect, fit, control and evaluate on any Gymnasium environment with a Box space.
 
     Args:
-        env: a Gymnasium id or an environment.
+        env: a Gymnasium id or an environment (a task's: ``task.make_env()``).
         options: the user's options (:func:`~dynoplan.adapters.option_spec`); the
             dynamics models of all of them are learned (those of given ``Option`` s are
             replaced).
@@ -274,7 +281,13 @@ def run_pipeline(
         settings: see :class:`PipelineSettings`.
         out: a folder for ``summary.json``, ``results.md``, the datasets (``demos/``,
             ``transitions/``) and the models (``models/``); ``None`` writes nothing.
-        state_fn: observation -> planner state ``(d,)``; default: the flat observation.
+        state_fn: observation -> planner state ``(d,)``, the observation every part of
+            the pipeline then sees, the options included; default: a ``Box`` observation
+            as it is, a ``Dict`` flattened with a warning (:func:`task_env`).
+        success: ``success(observation, info) -> bool`` after every step; the episode
+            ends at the first success (:class:`~dynoplan.pipeline.task.EndOnSuccess`);
+            default: the environment's ``info["is_success"]`` at the last step, else
+            ``terminated``.
         fitter: learns each option's dynamics; default: an MLP ensemble.
         progress: show progress bars on stderr.
         status: called with the name of each stage as it starts.
@@ -285,17 +298,19 @@ def run_pipeline(
         task: the same environment and options as references workers can rebuild.
 
     Raises:
-        DynoplanError: a non-Box observation space, options that disagree with the
+        DynoplanError: an observation space that does not flatten to a ``Box`` and no
+            ``state_fn``, a success function that raises, options that disagree with the
             environment or each other, demonstrations without option labels, no
             demonstrator and no demonstrations, a failing demonstrator.
     """
     settings = settings or PipelineSettings()
     settings.validate()
     if workers.parallel and (task is None or out is None or fitter is not None
-                             or state_fn is not flat_state):
+                             or state_fn is not None or success is not None):
         raise DynoplanError("the pipeline on several workers needs a task and an output "
-                            "folder, and the default dynamics fitter and planner state "
-                            "(workers rebuild the controllers from files)")
+                            "folder, and the default dynamics fitter; the success function "
+                            "and state_fn come from the task (workers rebuild the "
+                            "controllers from files)")
     stages: dict[str, float] = {}
     since = [time.perf_counter()]
     current = [""]
@@ -309,12 +324,16 @@ def run_pipeline(
             status(message)
 
     started = time.perf_counter()
-    environment = make_env(env) if isinstance(env, str) else env
+    environment = task_env(make_env(env) if isinstance(env, str) else env, success, state_fn)
     specs = [as_spec(o) for o in options]
     seeds = _seeds(settings.seed)
-    state_dim = probe_options(environment, options, state_fn, seeds["demos"])
+    state_dim = probe_options(environment, options, flat_state, seeds["demos"])
     folder = ensure_writable_dir(out) if out is not None else None
     names = [s.name for s in specs]
+    unknown = [c for c in settings.controllers or () if c not in controller_names(specs)]
+    if unknown:  # before any work
+        raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
+                            f"{', '.join(controller_names(specs))})")
 
     if demos is not None:
         demo_episodes = demos_from_dataset(demos, names)
@@ -326,15 +345,15 @@ def run_pipeline(
         raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
     say("option transitions")
     transitions = collect_transitions(environment, specs, settings.exploration_episodes,
-                                      seeds["exploration"], state_fn,
+                                      seeds["exploration"], flat_state,
                                       settings.exploration_option_steps, progress=progress)
     models = fit_models(specs, transitions, demo_episodes, settings.fit, seeds["fit"],
-                        state_fn, fitter, say, task.name if task is not None else
+                        flat_state, fitter, say, task.name if task is not None else
                         _env_id(environment) or "")
     run_options, planner_options = models.build(specs)
     say("admissibility")
-    starts = start_states(environment, seeds["evaluation"], settings.episodes, state_fn)
-    admissible, notes = admissibility(run_options, starts, demo_episodes, state_fn)
+    starts = start_states(environment, seeds["evaluation"], settings.episodes)
+    admissible, notes = admissibility(run_options, starts, demo_episodes)
     for note in notes:
         warnings.warn(note, DynoplanWarning, stacklevel=2)
     models_dir = models.save(folder / "models") if folder is not None else None
@@ -342,7 +361,7 @@ def run_pipeline(
     evaluation = evaluate_controllers(environment, run_options, models.goal, settings.control,
                                       settings.episodes, seeds["evaluation"], planner_options,
                                       settings.controllers, progress, workers, task,
-                                      models_dir)
+                                      models_dir, learned_regions(models))
     say("")
     region_warnings = (models.report.get("regions") or {}).get("warnings", [])
     summary = {
