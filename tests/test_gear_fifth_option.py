@@ -158,8 +158,10 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     assert figures["fig3b"]["region_share"]["lift"] is None
     assert figures["fig3b"]["region_share"]["pick"] is not None
 
-    # DynoPlan plans with it: admissible once the gear is carried, scored, one episode run
-    runner = GearTask().make_runner("dynoplan", models,
+    # DynoPlan on the options' own conditions plans with it: admissible once the gear is
+    # carried, scored, one episode run (the learned sets would need its outcome runs, the
+    # outcomes stage, to let it start anywhere: it has no region)
+    runner = GearTask().make_runner("dynoplan+rules", models,
                                     dataclasses.replace(GEAR_CONTROL, horizon=3, samples=8))
     names = [o.name for o in runner.controller.options]
     assert names == [*PAPER_OPTIONS, "lift"]
