@@ -18,14 +18,15 @@ $(CORE): pyproject.toml
 	$(BIN)/pip install --quiet torch==2.13.0
 	touch $(CORE)
 
-# One stamp per extra: .venv/.installed-gear (make demo), .venv/.installed-dev (make test).
+# One stamp per extra: .venv/.installed-gear and -ray (make demo: the gear run's episodes on
+# every CPU), .venv/.installed-dev (make test).
 $(VENV)/.installed-%: $(CORE) pyproject.toml
 	$(BIN)/pip install --quiet -e ".[$*]"
 	touch $@
 
 install: $(VENV)/.installed-dev
 
-demo: $(VENV)/.installed-gear
+demo: $(VENV)/.installed-gear $(VENV)/.installed-ray
 	$(BIN)/dynoplan random-walk --out results/random-walk
 	$(BIN)/dynoplan gear run --out results/gear
 
