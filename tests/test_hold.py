@@ -50,6 +50,8 @@ def test_the_controller_holds_until_an_option_is_admissible_and_then_succeeds():
     holds = [d for d in trace.decisions if d.option is None]
     assert len(holds) == 4  # -1 -> 0 by the drift alone, at 0.25 a step
     assert trace.success and trace.decisions[-1].option == "right"
+    # a hold is recorded like an option: env_step counts the steps taken before it
+    assert [d.env_step for d in trace.decisions] == [0, 1, 2, 3, 4]
 
 
 def test_without_hold_the_episode_ends_where_nothing_is_admissible():

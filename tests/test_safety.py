@@ -249,10 +249,10 @@ def test_a_robot_held_or_stopped_while_the_hand_pushes_it_is_at_rest():
     infos = [{"human_contacts": 5, "robot_speed": 0.2, "human_speed": 0.0,
               "min_human_distance": 0.0, "protective_stop": stop}
              for stop in (False, False, True)]
-    # the controller held in the second step (a hold is recorded after its step)
+    # the controller held in the second step
     trace = SimpleNamespace(infos=infos, decisions=[
         SimpleNamespace(option="pick", env_step=0, steps=1),
-        SimpleNamespace(option=None, env_step=2, steps=1),
+        SimpleNamespace(option=None, env_step=1, steps=1),
         SimpleNamespace(option="pick", env_step=2, steps=1)])
     metrics = episode_metrics(env, trace)  # type: ignore[arg-type]
     assert metrics["human_mode"] == "reach"

@@ -23,8 +23,7 @@ def trace():
     hold = plan([np.nan, np.nan, np.nan], [False, False, False], None)
     last = plan([0.2, 0.7, -0.3], [True, True, True], 1)
     decisions = [Decision(0, 0, state, first, "pick", 2, "terminated", state, 0.01),
-                 Decision(1, 3, state, hold, None, 1, "hold", state, 0.01),  # as the
-                 # Controller records a hold: after its step
+                 Decision(1, 2, state, hold, None, 1, "hold", state, 0.01),
                  Decision(2, 3, state, last, "move", 1, "episode_end", state, 0.01)]
     infos = [{"gap": d} for d in (0.9, 0.8, 0.7, 0.6)]
     return EpisodeTrace(decisions, success=True, env_steps=4, infos=infos)

@@ -52,7 +52,9 @@ class Decision:
 
     ``stop_reason`` is one of ``terminated`` (beta fired or the policy finished),
     ``left_region``, ``invalid_state``, ``replan``, ``step_cap``, ``episode_end``,
-    ``hold`` (no admissible option).
+    ``hold`` (no admissible option). ``env_step`` is the number of environment steps
+    taken before the decision's first step, for an option and a hold alike: its steps
+    are ``trace.infos[env_step:env_step + steps]``.
     """
 
     index: int
@@ -173,9 +175,10 @@ class Controller:
                                                     "hold", state, latency))
                     break
                 hold = self.hold_action(obs) if callable(self.hold_action) else self.hold_action
+                start_step = trace.env_steps
                 obs, reward, terminated, truncated, info = env.step(hold)
                 self._count(trace, reward, info)
-                trace.decisions.append(Decision(k, trace.env_steps, state, plan, None, 1,
+                trace.decisions.append(Decision(k, start_step, state, plan, None, 1,
                                                 "hold", self.state_fn(obs), latency))
                 state = self.state_fn(obs)
                 if terminated or truncated:

@@ -83,9 +83,8 @@ def step_captions(trace: EpisodeTrace, dt: float, distance_key: str | None = Non
             (name, float(plan.scores[i]) if bool(plan.admissible[i])
              and np.isfinite(plan.scores[i]) else None, d.option == name)
             for i, name in enumerate(plan.option_names))
-        # the Controller records a hold after its step: its env_step is the step after
-        first = d.env_step - d.steps if d.option is None else d.env_step
-        for k in range(max(first, 0), min(first + d.steps, trace.env_steps)):
+        first = d.env_step
+        for k in range(first, min(first + d.steps, trace.env_steps)):
             distance = None
             if distance_key is not None and k < len(trace.infos) and \
                     distance_key in trace.infos[k]:

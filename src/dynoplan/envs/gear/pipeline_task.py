@@ -223,8 +223,8 @@ def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, An
     assert isinstance(gear_env, GearAssemblyEnv)
     held = np.zeros(len(trace.infos), dtype=bool)
     for decision in trace.decisions:
-        if decision.option is None:  # the controller's hold, recorded after its step
-            held[decision.env_step - decision.steps:decision.env_step] = True
+        if decision.option is None:  # the controller's hold
+            held[decision.env_step:decision.env_step + decision.steps] = True
     return gear_metrics(gear_env, trace.infos, held=held)
 
 
