@@ -151,11 +151,13 @@ def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
 
 
 def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the models again",
-                  ) -> Manifest:
+                  with_initiation: bool = True) -> Manifest:
     """Read and check ``folder/models.json`` (module docstring); no model is loaded.
 
     Args:
         retrain: how to make a new folder, said when the folder is missing or old.
+        with_initiation: ``False`` leaves the learned initiation out (not checked, and
+            ``None`` in the result): for replacing it.
 
     Raises:
         DynoplanError: one line: no or unreadable manifest, another kind or format
@@ -223,7 +225,7 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
     dynamics = {name: None if entries[name] is None else inside(entries[name],
                                                                 f"dynamics of {name}")
                 for name in names}
-    initiation = (None if doc.get("initiation") is None
+    initiation = (None if doc.get("initiation") is None or not with_initiation
                   else model("initiation", "the learned initiation"))
     return Manifest(root, task, state_dim, [str(n) for n in names], stride, use_regions,
                     goal, regions, dynamics, {k: v for k, v in doc.items() if k not in _CORE},
@@ -233,8 +235,9 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
 def set_initiation(folder: str | os.PathLike[str], file: str,
                    features: str | None = None) -> dict[str, Any]:
     """Record the initiation learned from outcomes (``folder/file``, already written) in
-    the manifest of the complete models folder ``folder``; return the new manifest."""
-    m = read_manifest(folder)
+    the manifest of the complete models folder ``folder``, replacing any initiation
+    recorded there; return the new manifest."""
+    m = read_manifest(folder, with_initiation=False)
     return write_manifest(
         m.folder, task=m.task, state_dim=m.state_dim, option_names=m.option_names,
         stride=m.stride, use_regions=m.use_regions,
