@@ -245,7 +245,7 @@ def outcomes(
 
     import torch
 
-    from dynoplan.experiments.gear_outcomes import (
+    from dynoplan.envs.gear.learning.outcomes import (
         OutcomeSettings,
         collect_outcomes,
         fit_gear_initiation,
@@ -255,10 +255,10 @@ def outcomes(
     from dynoplan.io import write_json
     from dynoplan.parallel import parse_workers, ray_session
 
-    sizes = run_settings(quick)
-    runs = sizes.outcome_runs if runs is None else runs
-    max_decisions = sizes.outcome_max_decisions if max_decisions is None else max_decisions
-    lead_decisions = sizes.outcome_lead_decisions if lead_decisions is None else lead_decisions
+    sizes = run_settings(quick).outcomes
+    runs = sizes.runs if runs is None else runs
+    max_decisions = sizes.max_decisions if max_decisions is None else max_decisions
+    lead_decisions = sizes.lead_decisions if lead_decisions is None else lead_decisions
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     if collect:
@@ -305,16 +305,21 @@ def train(
 ) -> None:
     """Fit the goal heuristic, the safety regions and the per-option dynamics (gear run's
     train stage)."""
+    from dataclasses import replace
+
     import torch
 
+    from dynoplan.experiments.gear_run import run_settings
     from dynoplan.experiments.gear_stages import learned_models
     from dynoplan.parallel import parse_workers, ray_session
 
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
+    sizes = run_settings(quick)
+    fit = sizes.fit if goal_ranking is None else replace(sizes.fit, goal_ranking=goal_ranking)
     with ray_session(pool):
-        m = learned_models(demos, transitions, out, seed, heldout, quick, progress=not quiet,
-                           workers=pool, log=typer.echo, goal_ranking=goal_ranking)
+        m = learned_models(demos, transitions, out, seed, heldout, fit, sizes.metrics,
+                           progress=not quiet, workers=pool, log=typer.echo)
     typer.echo(f"goal spearman {m['goal_spearman']:.3f}, mae {m['goal_mae']:.3f}; regions "
                f"inside {m['region_inside_rate']:.3f}, far outside "
                f"{m['region_far_outside_rate']:.3f}; dynamics coverage_90 "
@@ -341,10 +346,12 @@ def figures(
 ) -> None:
     """Draw Fig. 3(a) (goal heuristic vs truth) and Fig. 3(b) (t-SNE with regions), as gear
     run's figures stage."""
+    from dynoplan.experiments.gear_run import run_settings
     from dynoplan.experiments.gear_stages import figures as draw_figures
 
-    info = draw_figures(models, demos, heldout, out, seed, quick, trial=trial, points=points,
-                        progress=not quiet)
+    info = draw_figures(models, demos, heldout, out, seed,
+                        run_settings(quick).figure_points if points is None else points,
+                        trial=trial, progress=not quiet)
     typer.echo(" ".join(str(v["file"]) for v in info.values()
                         if isinstance(v, dict) and "file" in v) or str(out))
 
@@ -393,7 +400,8 @@ def run(
     settings = replace(settings, oracle_episodes=min(settings.oracle_episodes,
                                                      settings.episodes),
                        ablation_episodes=min(settings.ablation_episodes, settings.episodes),
-                       fault_episodes=min(settings.fault_episodes, settings.episodes),
+                       faults=replace(settings.faults, episodes=min(settings.faults.episodes,
+                                                                    settings.episodes)),
                        video=not no_video)
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
                                 log=(lambda _: None) if quiet else typer.echo, workers=pool)
@@ -505,10 +513,10 @@ def episode(
     import torch
 
     from dynoplan.envs.gear.controllers import GEAR_CONTROL
-    from dynoplan.experiments.gear_eval import seconds
-    from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
-    from dynoplan.experiments.gear_run import save_video, video_clip
     from dynoplan.io import staged_folder, write_csv, write_json
+    from dynoplan.reports.gear_episode import episode_summary, inspect_episode, save_video
+    from dynoplan.reports.gear_results import seconds
+    from dynoplan.reports.video import video_clip
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself

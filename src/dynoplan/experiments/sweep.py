@@ -24,17 +24,17 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from dynoplan.envs.gear.evaluation import evaluation_seeds
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS, summarise
-from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.experiments.sweep_config import Cell, SweepConfig, load_sweep_config
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.pipeline.evaluate import ControllerJob, EpisodeRecord, build_runner, runner_episode
+from dynoplan.reports.gear_results import RESULT_COLUMNS, summarise
 from dynoplan.reports.tables import markdown_table
-from dynoplan.seeding import EpisodeSeed, episode_seeds
+from dynoplan.seeding import EpisodeSeed
 
 CELL_FORMAT = "dynoplan-sweep-cell"
 CELL_VERSION = 1
@@ -113,7 +113,7 @@ def run_sweep(config_path: Path, out: Path, workers: Workers = SERIAL, progress:
     for i in todo:
         cell = cells[i]
         job = ControllerJob(GearTask(), config.models, cell.controller, cell.planner)
-        for s in episode_seeds(cell.seed + EVAL_SEED_OFFSET, cell.episodes):
+        for s in evaluation_seeds(cell.seed, cell.episodes):
             tasks.append((job, s))
             owner.append(i)
     buffers: dict[int, dict[int, EpisodeRecord]] = {i: {} for i in todo}

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
+from dynoplan.envs.gear.learning.transitions import write_runs
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_collect import write_runs
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import OptionRunsJob, collect_option_runs
 from dynoplan.pipeline.fit import fit_initiation_from_outcomes, outcome_starts
@@ -46,7 +46,7 @@ class OutcomeSettings:
             in ``0..lead_decisions``).
     """
 
-    runs: int = 40
+    runs: int = 30
     max_decisions: int = 30
     lead_decisions: int = 12
 
