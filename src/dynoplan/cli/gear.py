@@ -203,8 +203,8 @@ def collect(
     sizes = run_settings(quick)
     with ray_session(pool):
         summary = option_transitions(
-            models, sizes.collect_runs if runs is None else runs, seed, out,
-            sizes.collect_max_decisions if max_decisions is None else max_decisions,
+            models, sizes.collect.runs if runs is None else runs, seed, out,
+            sizes.collect.max_decisions if max_decisions is None else max_decisions,
             progress=not quiet, workers=pool, log=typer.echo)
     counts = ", ".join(f"{k} {v}" for k, v in summary["transitions"].items())
     typer.echo(f"{summary['runs']} runs, transitions: {counts} -> {out}")
@@ -242,11 +242,11 @@ def outcomes(
     """Run every option from starts beyond its own region and learn, from what came of
     it, where each option may start (initiation from outcomes, Bagaria et al. 2023)."""
     import json
+    from dataclasses import replace
 
     import torch
 
     from dynoplan.envs.gear.learning.outcomes import (
-        OutcomeSettings,
         collect_outcomes,
         fit_gear_initiation,
         transitions_beyond,
@@ -263,8 +263,9 @@ def outcomes(
     torch.set_num_threads(1)
     if collect:
         with ray_session(pool):
-            summary = collect_outcomes(models, seed, out, OutcomeSettings(
-                runs, max_decisions, lead_decisions), progress=not quiet, workers=pool)
+            summary = collect_outcomes(models, seed, out, replace(
+                sizes, runs=runs, max_decisions=max_decisions, lead_decisions=lead_decisions),
+                progress=not quiet, workers=pool)
         write_json(out / "outcomes.json", summary)
         typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
             f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"

@@ -37,7 +37,7 @@ is the same on one worker or many.
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -52,7 +52,6 @@ from dynoplan.envs.gear.evaluation import (
     video_episode,
 )
 from dynoplan.envs.gear.learning.files import load_gear_models
-from dynoplan.envs.gear.learning.outcomes import OutcomeSettings
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
     DEFAULT_SETTINGS,
@@ -63,6 +62,7 @@ from dynoplan.envs.gear.learning.settings import (
 from dynoplan.experiments.gear_stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
+from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
 from dynoplan.pipeline.fit import FitSettings
 from dynoplan.reports.gear_results import results_markdown, results_rows, summarise, write_results
@@ -81,14 +81,20 @@ class FaultSettings:
     observation_noise: float = 0.005
 
 
+TRANSITION_RUNS = OptionRunSettings(runs=40, max_decisions=30, lead_decisions=0)
+"""The collect stage's option runs: from every option's own starts."""
+OUTCOME_RUNS = OptionRunSettings(runs=30, max_decisions=30, lead_decisions=12)
+"""The outcomes stage's option runs: from starts beyond every option's own."""
+
+
 @dataclass(frozen=True)
 class GearRunSettings:
     """Sizes of every stage (recorded in ``summary.json``).
 
     Attributes:
         demos: demonstrations (and held-out trials) recorded.
-        collect_runs: option runs per option for the dynamics data.
-        collect_max_decisions: decisions per collection run at most.
+        collect: the option runs of every option for the dynamics data (runs per option,
+            decisions per run at most).
         fit, metrics: how the learned models (goal, regions, dynamics) are fitted and
             measured on held-out data.
         figure_points: states embedded by t-SNE in Fig. 3(b) at most.
@@ -105,8 +111,7 @@ class GearRunSettings:
     """
 
     demos: int = 10
-    collect_runs: int = 40
-    collect_max_decisions: int = 30
+    collect: OptionRunSettings = TRANSITION_RUNS
     fit: FitSettings = DEFAULT_SETTINGS
     metrics: GearMetricsSettings = DEFAULT_METRICS
     figure_points: int = FIGURE_POINTS
@@ -117,15 +122,16 @@ class GearRunSettings:
     faults: FaultSettings = FaultSettings()
     planner: ControllerSettings = GEAR_CONTROL
     video: bool = True
-    outcomes: OutcomeSettings = field(default_factory=OutcomeSettings)
+    outcomes: OptionRunSettings = OUTCOME_RUNS
 
 
 QUICK_RUN = GearRunSettings(
-    collect_runs=4, collect_max_decisions=15, fit=QUICK_SETTINGS, metrics=QUICK_METRICS,
+    collect=OptionRunSettings(runs=4, max_decisions=15, lead_decisions=0),
+    fit=QUICK_SETTINGS, metrics=QUICK_METRICS,
     figure_points=QUICK_FIGURE_POINTS, ppo_steps=2048, episodes=6, oracle_episodes=2,
     ablation_episodes=2, faults=FaultSettings(episodes=3),
     planner=replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3),
-    outcomes=OutcomeSettings(runs=2, max_decisions=6, lead_decisions=2))
+    outcomes=OptionRunSettings(runs=2, max_decisions=6, lead_decisions=2))
 """``--quick``: every stage on small settings (CI, a first look)."""
 
 
@@ -205,8 +211,8 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
         demonstrations(settings.demos, seed, out / "heldout", models_dir, heldout=True,
                        progress=progress, workers=workers)])
     summary["collect"] = stage("collect", lambda: option_transitions(
-        models_dir, settings.collect_runs, seed, out / "transitions",
-        settings.collect_max_decisions, progress=progress, workers=workers))
+        models_dir, settings.collect.runs, seed, out / "transitions",
+        settings.collect.max_decisions, progress=progress, workers=workers))
     metrics = stage("train", lambda: learned_models(
         out / "demos", out / "transitions", models_dir, seed, out / "heldout", settings.fit,
         settings.metrics, progress=progress, workers=workers))

@@ -37,7 +37,7 @@ from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.fit import FitSettings
 
 if TYPE_CHECKING:
-    from dynoplan.envs.gear.learning.outcomes import OutcomeSettings
+    from dynoplan.pipeline.collect import OptionRunSettings
 
 DEMONSTRATOR = "options"
 """Who records the demonstrations and the held-out trials: the operator chaining the four
@@ -140,7 +140,7 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
                                  progress=progress, settings=fit, measures=metrics)
 
 
-def learned_initiation(models: Path, out: Path, seed: int, settings: "OutcomeSettings",
+def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",
                        progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
     """Stage ``outcomes``: the outcome runs (``out``) and the initiation learned from them,
     written into ``models`` (``gear outcomes`` with the run's sizes); returns the runs'
