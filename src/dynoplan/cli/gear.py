@@ -390,20 +390,16 @@ def run(
     pool = parse_workers(workers, ray_address)
 
     settings = run_settings(quick)
-    if episodes is not None:
-        settings = replace(settings, episodes=episodes)
-    if oracle_episodes is not None:
-        settings = replace(settings, oracle_episodes=oracle_episodes)
-    if ablation_episodes is not None:
-        settings = replace(settings, ablation_episodes=ablation_episodes)
-    if settings.episodes < 1 or settings.oracle_episodes < 0:
+    sizes = settings.evaluation
+    n = sizes.episodes if episodes is None else episodes
+    oracle = sizes.oracle_episodes if oracle_episodes is None else oracle_episodes
+    ablation = sizes.ablation_episodes if ablation_episodes is None else ablation_episodes
+    if n < 1 or oracle < 0:
         raise DynoplanError("--episodes must be >= 1 and --oracle-episodes >= 0")
-    settings = replace(settings, oracle_episodes=min(settings.oracle_episodes,
-                                                     settings.episodes),
-                       ablation_episodes=min(settings.ablation_episodes, settings.episodes),
-                       faults=replace(settings.faults, episodes=min(settings.faults.episodes,
-                                                                    settings.episodes)),
-                       video=not no_video)
+    settings = replace(settings, evaluation=replace(
+        sizes, episodes=n, oracle_episodes=min(oracle, n), ablation_episodes=min(ablation, n)),
+        faults=replace(settings.faults, episodes=min(settings.faults.episodes, n)),
+        video=not no_video)
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
                                 log=(lambda _: None) if quiet else typer.echo, workers=pool)
     _echo_results(summary["results"])

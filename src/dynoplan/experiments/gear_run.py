@@ -88,6 +88,20 @@ OUTCOME_RUNS = OptionRunSettings(runs=30, max_decisions=30, lead_decisions=12)
 
 
 @dataclass(frozen=True)
+class EvaluationSettings:
+    """The ``evaluate`` stage: every controller on ``episodes`` evaluation episodes, the
+    oracle on the first ``oracle_episodes`` of them (it simulates every option at every
+    decision, which costs real time), each ablation row on the first
+    ``ablation_episodes``; every controller plans and runs as ``planner`` says (horizon,
+    samples, margin, ...), in the faults and the video too."""
+
+    episodes: int = 100
+    oracle_episodes: int = 10
+    ablation_episodes: int = 30
+    planner: ControllerSettings = GEAR_CONTROL
+
+
+@dataclass(frozen=True)
 class GearRunSettings:
     """Sizes of every stage (recorded in ``summary.json``).
 
@@ -99,12 +113,8 @@ class GearRunSettings:
             measured on held-out data.
         figure_points: states embedded by t-SNE in Fig. 3(b) at most.
         ppo_steps: environment steps of the flat PPO baseline.
-        episodes: evaluation episodes of every controller.
-        oracle_episodes: episodes of the oracle (the first ones of the same list: it
-            simulates every option at every decision, which costs real time).
-        ablation_episodes: episodes of each ablation row (the first ones of the same list).
+        evaluation: the evaluate stage.
         faults: the faults stage.
-        planner: how the controllers plan and run (horizon, samples, margin, ...).
         video: render one episode.
         outcomes: the outcome runs (``runs`` 0: no outcome stage; the learned initiation
             sets are then the Eq. 5 regions alone).
@@ -116,11 +126,8 @@ class GearRunSettings:
     metrics: GearMetricsSettings = DEFAULT_METRICS
     figure_points: int = FIGURE_POINTS
     ppo_steps: int = 30_000
-    episodes: int = 100
-    oracle_episodes: int = 10
-    ablation_episodes: int = 30
+    evaluation: EvaluationSettings = EvaluationSettings()
     faults: FaultSettings = FaultSettings()
-    planner: ControllerSettings = GEAR_CONTROL
     video: bool = True
     outcomes: OptionRunSettings = OUTCOME_RUNS
 
@@ -128,9 +135,10 @@ class GearRunSettings:
 QUICK_RUN = GearRunSettings(
     collect=OptionRunSettings(runs=4, max_decisions=15, lead_decisions=0),
     fit=QUICK_SETTINGS, metrics=QUICK_METRICS,
-    figure_points=QUICK_FIGURE_POINTS, ppo_steps=2048, episodes=6, oracle_episodes=2,
-    ablation_episodes=2, faults=FaultSettings(episodes=3),
-    planner=replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3),
+    figure_points=QUICK_FIGURE_POINTS, ppo_steps=2048,
+    evaluation=EvaluationSettings(6, 2, 2, replace(GEAR_CONTROL, horizon=6, samples=32,
+                                                   oracle_horizon=3)),
+    faults=FaultSettings(episodes=3),
     outcomes=OptionRunSettings(runs=2, max_decisions=6, lead_decisions=2))
 """``--quick``: every stage on small settings (CI, a first look)."""
 
@@ -228,24 +236,25 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
         summary["outcomes"] = stage("outcomes", lambda: learned_initiation(
             models_dir, out / "outcomes", seed, settings.outcomes, progress, workers))
     load_gear_models(models_dir)  # checked here once: workers load it again
-    seeds = evaluation_seeds(seed, settings.episodes)
-    rows = controller_rows(models_dir, seeds, settings.planner, flat_folder=out / "flat_ppo",
+    sizes = settings.evaluation
+    seeds = evaluation_seeds(seed, sizes.episodes)
+    rows = controller_rows(models_dir, seeds, sizes.planner, flat_folder=out / "flat_ppo",
                            extra=VARIANT_ROWS, ablation=ABLATION_ROWS,
-                           oracle_episodes=settings.oracle_episodes,
-                           ablation_episodes=settings.ablation_episodes)
+                           oracle_episodes=sizes.oracle_episodes,
+                           ablation_episodes=sizes.ablation_episodes)
     episodes = stage("evaluate", lambda: evaluate_rows(
         rows, workers, f"evaluate ({len(rows)} controllers)", progress, ORACLE_FIRST))
     summary["results"] = results_rows(episodes)
-    summary["ablation"] = [summarise(name, episodes[name][:settings.ablation_episodes])
+    summary["ablation"] = [summarise(name, episodes[name][:sizes.ablation_episodes])
                            for name in (*CONTROLLERS[:2], *VARIANT_ROWS, *ABLATION_ROWS)]
     write_results(out, summary["results"], episodes)
 
     video = None
     if settings.video:
         shown = video_episode(episodes["dynoplan"])
-        video = start("video", render_video, models_dir, seeds[shown], settings.planner)
+        video = start("video", render_video, models_dir, seeds[shown], sizes.planner)
     faults = settings.faults
-    fault_runs = fault_rows(models_dir, seeds[:faults.episodes], settings.planner,
+    fault_runs = fault_rows(models_dir, seeds[:faults.episodes], sizes.planner,
                             faults.dynamics_noise, faults.observation_noise)
     summary["faults"] = stage("faults", lambda: [
         {"fault": fault, **summarise("dynoplan", records)}
@@ -264,5 +273,5 @@ def _timed(fn: Callable[..., T], *args: Any) -> tuple[float, T]:
     return time.perf_counter() - t0, result
 
 
-__all__ = ["QUICK_RUN", "FaultSettings", "GearRunSettings", "run_gear_pipeline",
-           "run_settings"]
+__all__ = ["QUICK_RUN", "EvaluationSettings", "FaultSettings", "GearRunSettings",
+           "run_gear_pipeline", "run_settings"]

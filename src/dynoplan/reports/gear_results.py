@@ -115,7 +115,7 @@ def behaviour_table(rows: Sequence[dict[str, Any]]) -> str:
 def results_markdown(summary: dict[str, Any]) -> str:
     """``results.md``: the controllers' table, the faults, the models and the stages."""
     lines = ["# Gear assembly: DynoPlan and baselines", ""]
-    s = summary["settings"]
+    s = {**summary["settings"], **summary["settings"]["evaluation"]}
     lines.append(f"Seed {summary['seed']}; {s['episodes']} evaluation episodes per controller "
                  f"(oracle: the first {s['oracle_episodes']}); planner horizon "
                  f"{s['planner']['horizon']}, samples {s['planner']['samples']}; flat PPO "
