@@ -28,9 +28,9 @@ from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.envs.gear.state import DECISION_STEPS
-from dynoplan.experiments.gear_eval import seconds
 from dynoplan.pipeline.collect import OptionRunsJob, build_option_runs, option_run
 from dynoplan.pipeline.evaluate import ControllerJob
+from dynoplan.reports.gear_results import seconds
 from dynoplan.seeding import episode_seeds
 
 

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.evaluation import EVAL_SEED_OFFSET
 from dynoplan.envs.gear.human import UNSEEN_BEHAVIOURS
 from dynoplan.envs.gear.pipeline_task import GearTask
-from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.pipeline.evaluate import ControllerRunner
 from dynoplan.reports.tables import markdown_table
 from dynoplan.safety import AT_REST_SPEED, protective_separation

@@ -38,12 +38,12 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.evaluation import EVAL_SEED_OFFSET
 from dynoplan.envs.gear.pipeline_task import GearTask
-from dynoplan.experiments.gear_eval import seconds
-from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.io import write_json
 from dynoplan.parallel import SERIAL, Workers, imap_unordered, ray_session
 from dynoplan.pipeline.evaluate import ControllerJob, build_runner
+from dynoplan.reports.gear_results import seconds
 from dynoplan.seeding import episode_seeds
 
 

@@ -419,6 +419,7 @@ def test_failed_training_keeps_the_previous_models(tmp_path, monkeypatch, gear_m
                                                    failure):
     import dynoplan.envs.gear.learning.training as gear_models_module
     from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
     from dynoplan.experiments.gear_stages import learned_models
 
     folder = tmp_path / "models"
@@ -432,7 +433,8 @@ def test_failed_training_keeps_the_previous_models(tmp_path, monkeypatch, gear_m
 
     monkeypatch.setattr(gear_models_module, "train_gear_models", fail_halfway)
     with pytest.raises(type(failure)):
-        learned_models(tmp_path / "demos", None, folder, 0, tmp_path / "held", quick=True)
+        learned_models(tmp_path / "demos", None, folder, 0, tmp_path / "held", QUICK_SETTINGS,
+                       QUICK_METRICS)
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
     load_gear_models(folder)
     assert not leftovers(tmp_path)

@@ -14,13 +14,13 @@ from dynoplan.data import labelled_transitions, read_dataset
 from dynoplan.envs.gear.controllers import HoldStill
 from dynoplan.envs.gear.env import HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
+from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
 from dynoplan.envs.gear.options.base import GearOptionPolicy
 from dynoplan.envs.gear.options.starts import reach_start, shifted_schedule
 from dynoplan.envs.gear.options.trials import run_option_trials
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState, proximity_beta
 from dynoplan.envs.gear.task import STAGE_INDEX
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_collect import collect_gear_transitions
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import stack_dynamics
 from dynoplan.options import ConstantTermination, Option

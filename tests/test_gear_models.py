@@ -19,6 +19,7 @@ from dynoplan.envs.gear.learning.data import (
     demonstration_transitions,
     write_demonstration_transitions,
 )
+from dynoplan.envs.gear.learning.demos import record_demos
 from dynoplan.envs.gear.learning.files import HELDOUT_DIR, METRICS_FILE, load_gear_models
 from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
 from dynoplan.envs.gear.learning.training import train_gear_models
@@ -26,7 +27,6 @@ from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_demos import record_demos
 from dynoplan.experiments.gear_stages import learned_models
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
@@ -198,13 +198,15 @@ def test_train_records_missing_held_out_trials_by_the_demonstrations_demonstrato
     seed + 1000 in MODELS/heldout-demos, by whoever recorded the demonstrations (here the
     scripted expert, which needs no option network), and kept for the next fit."""
     out = tmp_path / "models"
-    metrics = learned_models(data / "demos", None, out, 0, None, quick=True, progress=False)
+    metrics = learned_models(data / "demos", None, out, 0, None, QUICK_SETTINGS, QUICK_METRICS,
+                             progress=False)
     held = read_dataset(out / HELDOUT_DIR)
     assert len(held) == QUICK_METRICS.heldout_episodes == metrics["data"]["heldout_episodes"]
     assert held.metadata.seed == 1000 and held.metadata.extra["demonstrator"] == "expert"
     assert not any((out / f).exists() for f in network_files().values())
     recorded = (out / HELDOUT_DIR / "data" / "main_data.hdf5").stat().st_mtime_ns
-    learned_models(data / "demos", None, out, 0, None, quick=True, progress=False)
+    learned_models(data / "demos", None, out, 0, None, QUICK_SETTINGS, QUICK_METRICS,
+                             progress=False)
     assert (out / HELDOUT_DIR / "data" / "main_data.hdf5").stat().st_mtime_ns == recorded
 
 

@@ -7,7 +7,7 @@ from gymnasium.utils.env_checker import check_env
 
 from dynoplan.envs import RANDOM_WALK_ID
 from dynoplan.envs.random_walk import NoisyWalkDynamics, NoisyWalkGoal, RandomWalkEnv
-from dynoplan.experiments.random_walk import RandomWalkSettings, make_chooser
+from dynoplan.experiments.random_walk import RandomWalkSettings, make_walk_controller
 from dynoplan.pipeline.evaluate import planning_steps_summary, run_episodes
 from dynoplan.seeding import episode_seeds
 
@@ -59,7 +59,7 @@ def test_dynoplan_beats_every_single_option_and_random_choice():
     seeds = episode_seeds(settings.seed, settings.episodes)
 
     def mean_steps(kind):
-        controller, _ = make_chooser(kind, 0.2, settings)
+        controller = make_walk_controller(kind, 0.2, settings)
         summary = planning_steps_summary(run_episodes(env, controller, seeds, "", False))
         return summary
 

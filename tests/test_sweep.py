@@ -12,8 +12,7 @@ from pathlib import Path
 import pytest
 
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.sweep import cell_key, run_sweep
-from dynoplan.experiments.sweep_config import load_sweep_config
+from dynoplan.experiments.sweep import cell_key, load_sweep_config, run_sweep
 from dynoplan.pipeline.evaluate import ControllerJob, EpisodeRecord
 from dynoplan.seeding import EpisodeSeed
 

@@ -17,6 +17,8 @@ with the architecture and the training budget; loading rebuilds the same PPO pol
 """
 
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +27,16 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
 from dynoplan.errors import DynoplanError
 from dynoplan.io import read_json_object, write_json, write_with
-from dynoplan.types import FloatArray
+from dynoplan.options.option import FunctionPolicy
+from dynoplan.options.termination import ConstantTermination
+from dynoplan.pipeline.collect import CallableDemonstrator, RunStart, record_episode
+from dynoplan.pipeline.evaluate import EpisodeRecord
+from dynoplan.seeding import EpisodeSeed
+from dynoplan.types import FloatArray, Generator
 
 JOINT_STEP = 0.05  # rad per decision at |a| = 1
 MAX_STEPS = 400
@@ -208,5 +216,44 @@ class FlatPolicy:
         return np.concatenate([np.clip(q, lim[:, 0], lim[:, 1]), [(a[6] + 1.0) / 2.0]])
 
 
-__all__ = ["FlatGearTask", "FlatPolicy", "fit_flat_policy", "read_flat_policy",
-           "save_flat_policy", "train_flat_policy"]
+METRIC_KEYS = ("human_contacts", "min_human_distance", "robot_speed", "human_speed")
+"""Step ``info`` entries a flat policy's episode records: what
+:func:`~dynoplan.envs.gear.pipeline_task.gear_metrics` reads."""
+
+
+@dataclass
+class FlatPolicyRunner:
+    """A flat policy ``act(observation) -> action`` on the gear, as an episode runner of
+    the evaluation: the pipeline's recorder runs it as one option that acts until the
+    episode ends (no decisions; its "decision latency" is the time of one ``act`` call)."""
+
+    env: GearAssemblyEnv
+    act: Callable[[FloatArray], FloatArray]
+
+    def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
+        from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, gear_metrics
+
+        ms: list[float] = []
+
+        def timed(observation: FloatArray, _: Generator) -> FloatArray:
+            t0 = time.perf_counter()
+            action = self.act(observation)
+            ms.append(1e3 * (time.perf_counter() - t0))
+            return action
+
+        obs, info = self.env.reset(seed=seed.env_seed)
+        spec = OptionSpec(FLAT_POLICY, FunctionPolicy(timed), ConstantTermination(0.0))
+        recording = record_episode(self.env, [spec], CallableDemonstrator(lambda _: FLAT_POLICY),
+                                   seed.env_seed, seed.rng(),
+                                   start=RunStart(obs, info, seed.env_seed),
+                                   info_keys=METRIC_KEYS)
+        episode = recording.episode
+        infos = [{key: episode.infos[key][t] for key in METRIC_KEYS} for t in range(len(episode))]
+        metrics = gear_metrics(self.env, infos, float(info["min_human_distance"]))
+        return EpisodeRecord(seed.env_seed, recording.success, len(episode),
+                             float(sum(episode.rewards.tolist())), 0, 0, 0, 0, tuple(ms), (),
+                             (), metrics)
+
+
+__all__ = ["METRIC_KEYS", "FlatGearTask", "FlatPolicy", "FlatPolicyRunner", "fit_flat_policy",
+           "read_flat_policy", "save_flat_policy", "train_flat_policy"]

@@ -203,8 +203,8 @@ def collect(
     sizes = run_settings(quick)
     with ray_session(pool):
         summary = option_transitions(
-            models, sizes.collect_runs if runs is None else runs, seed, out,
-            sizes.collect_max_decisions if max_decisions is None else max_decisions,
+            models, sizes.collect.runs if runs is None else runs, seed, out,
+            sizes.collect.max_decisions if max_decisions is None else max_decisions,
             progress=not quiet, workers=pool, log=typer.echo)
     counts = ", ".join(f"{k} {v}" for k, v in summary["transitions"].items())
     typer.echo(f"{summary['runs']} runs, transitions: {counts} -> {out}")
@@ -242,11 +242,11 @@ def outcomes(
     """Run every option from starts beyond its own region and learn, from what came of
     it, where each option may start (initiation from outcomes, Bagaria et al. 2023)."""
     import json
+    from dataclasses import replace
 
     import torch
 
-    from dynoplan.experiments.gear_outcomes import (
-        OutcomeSettings,
+    from dynoplan.envs.gear.learning.outcomes import (
         collect_outcomes,
         fit_gear_initiation,
         transitions_beyond,
@@ -255,16 +255,17 @@ def outcomes(
     from dynoplan.io import write_json
     from dynoplan.parallel import parse_workers, ray_session
 
-    sizes = run_settings(quick)
-    runs = sizes.outcome_runs if runs is None else runs
-    max_decisions = sizes.outcome_max_decisions if max_decisions is None else max_decisions
-    lead_decisions = sizes.outcome_lead_decisions if lead_decisions is None else lead_decisions
+    sizes = run_settings(quick).outcomes
+    runs = sizes.runs if runs is None else runs
+    max_decisions = sizes.max_decisions if max_decisions is None else max_decisions
+    lead_decisions = sizes.lead_decisions if lead_decisions is None else lead_decisions
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     if collect:
         with ray_session(pool):
-            summary = collect_outcomes(models, seed, out, OutcomeSettings(
-                runs, max_decisions, lead_decisions), progress=not quiet, workers=pool)
+            summary = collect_outcomes(models, seed, out, replace(
+                sizes, runs=runs, max_decisions=max_decisions, lead_decisions=lead_decisions),
+                progress=not quiet, workers=pool)
         write_json(out / "outcomes.json", summary)
         typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
             f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
@@ -305,16 +306,21 @@ def train(
 ) -> None:
     """Fit the goal heuristic, the safety regions and the per-option dynamics (gear run's
     train stage)."""
+    from dataclasses import replace
+
     import torch
 
+    from dynoplan.experiments.gear_run import run_settings
     from dynoplan.experiments.gear_stages import learned_models
     from dynoplan.parallel import parse_workers, ray_session
 
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
+    sizes = run_settings(quick)
+    fit = sizes.fit if goal_ranking is None else replace(sizes.fit, goal_ranking=goal_ranking)
     with ray_session(pool):
-        m = learned_models(demos, transitions, out, seed, heldout, quick, progress=not quiet,
-                           workers=pool, log=typer.echo, goal_ranking=goal_ranking)
+        m = learned_models(demos, transitions, out, seed, heldout, fit, sizes.metrics,
+                           progress=not quiet, workers=pool, log=typer.echo)
     typer.echo(f"goal spearman {m['goal_spearman']:.3f}, mae {m['goal_mae']:.3f}; regions "
                f"inside {m['region_inside_rate']:.3f}, far outside "
                f"{m['region_far_outside_rate']:.3f}; dynamics coverage_90 "
@@ -341,10 +347,12 @@ def figures(
 ) -> None:
     """Draw Fig. 3(a) (goal heuristic vs truth) and Fig. 3(b) (t-SNE with regions), as gear
     run's figures stage."""
+    from dynoplan.experiments.gear_run import run_settings
     from dynoplan.experiments.gear_stages import figures as draw_figures
 
-    info = draw_figures(models, demos, heldout, out, seed, quick, trial=trial, points=points,
-                        progress=not quiet)
+    info = draw_figures(models, demos, heldout, out, seed,
+                        run_settings(quick).figure_points if points is None else points,
+                        trial=trial, progress=not quiet)
     typer.echo(" ".join(str(v["file"]) for v in info.values()
                         if isinstance(v, dict) and "file" in v) or str(out))
 
@@ -382,19 +390,16 @@ def run(
     pool = parse_workers(workers, ray_address)
 
     settings = run_settings(quick)
-    if episodes is not None:
-        settings = replace(settings, episodes=episodes)
-    if oracle_episodes is not None:
-        settings = replace(settings, oracle_episodes=oracle_episodes)
-    if ablation_episodes is not None:
-        settings = replace(settings, ablation_episodes=ablation_episodes)
-    if settings.episodes < 1 or settings.oracle_episodes < 0:
+    sizes = settings.evaluation
+    n = sizes.episodes if episodes is None else episodes
+    oracle = sizes.oracle_episodes if oracle_episodes is None else oracle_episodes
+    ablation = sizes.ablation_episodes if ablation_episodes is None else ablation_episodes
+    if n < 1 or oracle < 0:
         raise DynoplanError("--episodes must be >= 1 and --oracle-episodes >= 0")
-    settings = replace(settings, oracle_episodes=min(settings.oracle_episodes,
-                                                     settings.episodes),
-                       ablation_episodes=min(settings.ablation_episodes, settings.episodes),
-                       fault_episodes=min(settings.fault_episodes, settings.episodes),
-                       video=not no_video)
+    settings = replace(settings, evaluation=replace(
+        sizes, episodes=n, oracle_episodes=min(oracle, n), ablation_episodes=min(ablation, n)),
+        faults=replace(settings.faults, episodes=min(settings.faults.episodes, n)),
+        video=not no_video)
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
                                 log=(lambda _: None) if quiet else typer.echo, workers=pool)
     _echo_results(summary["results"])
@@ -505,10 +510,10 @@ def episode(
     import torch
 
     from dynoplan.envs.gear.controllers import GEAR_CONTROL
-    from dynoplan.experiments.gear_eval import seconds
-    from dynoplan.experiments.gear_inspect import episode_summary, inspect_episode
-    from dynoplan.experiments.gear_run import save_video, video_clip
     from dynoplan.io import staged_folder, write_csv, write_json
+    from dynoplan.reports.gear_episode import episode_summary, inspect_episode, save_video
+    from dynoplan.reports.gear_results import seconds
+    from dynoplan.reports.video import video_clip
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself

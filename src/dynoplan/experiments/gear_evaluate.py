@@ -12,19 +12,13 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.envs.gear.controllers import GEAR_CONTROL, VARIANTS
+from dynoplan.envs.gear.evaluation import ORACLE_FIRST, controller_rows, evaluation_seeds
 from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_eval import RESULT_COLUMNS, behaviour_table, write_results
-from dynoplan.experiments.gear_run import (
-    EVAL_SEED_OFFSET,
-    GearRunSettings,
-    evaluate_gear_controllers,
-)
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
-from dynoplan.pipeline.evaluate import ControllerSettings
-from dynoplan.reports.tables import markdown_table
-from dynoplan.seeding import episode_seeds
+from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
+from dynoplan.reports.gear_results import evaluation_markdown, results_rows, write_results
 
 
 def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], episodes: int,
@@ -58,31 +52,22 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     load_gear_models(models)  # one clear error here rather than one per worker
     if FLAT_POLICY in controllers and flat_folder is not None:
         read_flat_policy(flat_folder)
-    settings = GearRunSettings(episodes=episodes, oracle_episodes=episodes, planner=planner)
-    seeds = episode_seeds(seed + EVAL_SEED_OFFSET, episodes)
-    names = [c for c in controllers if c != FLAT_POLICY]
-    flat = flat_folder if FLAT_POLICY in controllers else None
+    rows = controller_rows(models, evaluation_seeds(seed, episodes), planner,
+                           [c for c in controllers if c != FLAT_POLICY],
+                           flat_folder if FLAT_POLICY in controllers else None, task)
     t0 = time.perf_counter()
     with ray_session(workers):
-        rows, per_episode = evaluate_gear_controllers(models, seeds, settings, flat, progress,
-                                                      workers, names, task)
+        per_episode = evaluate_rows(rows, workers, f"evaluate ({len(rows)} controllers)",
+                                    progress, ORACLE_FIRST)
     wall = time.perf_counter() - t0
+    table = results_rows(per_episode)
     summary = {"models": str(models), "seed": seed, "episodes": episodes,
                "human": list(task.human) if task.human is not None else None,
                "shield": task.shield,
                "planner": asdict(planner), "workers": asdict(workers),
-               "wall_s": round(wall, 2), "results": rows}
-    write_results(out, rows, per_episode)
-    write_text(out / "results.md", "\n".join([
-        "# Gear assembly: evaluation", "",
-        f"Models {models}; seed {seed}; {episodes} episodes per controller; planner "
-        f"horizon {planner.horizon}, samples {planner.samples}; {workers.count} worker(s)"
-        f"{'' if workers.address is None else ' on ' + workers.address}; "
-        f"{wall:.1f} s wall; human behaviours "
-        f"{', '.join(task.human or ('away, cross, block (the demonstrations mix)',))}; "
-        f"runtime monitor {'on' if task.shield else 'off'}.",
-        "", markdown_table(rows, RESULT_COLUMNS), "", "Success by human behaviour:", "",
-        behaviour_table(rows)]))
+               "wall_s": round(wall, 2), "results": table}
+    write_results(out, table, per_episode)
+    write_text(out / "results.md", evaluation_markdown(summary))
     write_json(out / "summary.json", summary)
     return summary
 

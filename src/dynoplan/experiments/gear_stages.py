@@ -1,9 +1,9 @@
 """The stages of ``dynoplan gear run`` that have a command of their own, one function each.
 
 ``gear run`` (:mod:`dynoplan.experiments.gear_run`) and the commands ``gear demos``,
-``gear collect``, ``gear train`` and ``gear figures`` call these functions, and take their
-sizes from the same settings (:func:`~dynoplan.experiments.gear_run.run_settings`,
-:data:`~dynoplan.envs.gear.learning.settings.QUICK_SETTINGS`), so the commands
+``gear collect``, ``gear train``, ``gear figures`` and ``gear outcomes`` call these
+functions, and take their sizes from the same settings
+(:func:`~dynoplan.experiments.gear_run.run_settings`), so the commands
 chained into one folder write what ``gear run --out DIR`` writes there for the same seed
 (add ``--quick`` to each for ``gear run --quick``)::
 
@@ -19,9 +19,8 @@ chained into one folder write what ``gear run --out DIR`` writes there for the s
 """
 
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dynoplan.data import read_dataset
 from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
@@ -29,13 +28,16 @@ from dynoplan.envs.gear.learning.files import HELDOUT_DIR
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
     DEFAULT_SETTINGS,
-    QUICK_METRICS,
-    QUICK_SETTINGS,
+    GearMetricsSettings,
 )
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.errors import DynoplanError
-from dynoplan.io import staged_folder
+from dynoplan.io import staged_folder, write_json
 from dynoplan.parallel import SERIAL, Workers
+from dynoplan.pipeline.fit import FitSettings
+
+if TYPE_CHECKING:
+    from dynoplan.pipeline.collect import OptionRunSettings
 
 DEMONSTRATOR = "options"
 """Who records the demonstrations and the held-out trials: the operator chaining the four
@@ -84,9 +86,9 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
 
     The operator's networks are read from ``models``, and trained there first (from
     ``seed``, :func:`option_networks`) when missing. Returns
-    :func:`~dynoplan.experiments.gear_demos.record_demos`'s summary."""
+    :func:`~dynoplan.envs.gear.learning.demos.record_demos`'s summary."""
     from dynoplan.envs.gear.demonstrations import check_request
-    from dynoplan.experiments.gear_demos import record_demos
+    from dynoplan.envs.gear.learning.demos import record_demos
 
     check_request(n, human_mode, demonstrator, count_flag="--n")  # before any training
     if demonstrator == "options":
@@ -101,9 +103,9 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
                        log: Callable[[str], None] = _silent) -> dict[str, Any]:
     """Stage ``collect``: ``runs`` runs of every option, at most ``max_decisions``
     decisions each, into the dataset folder ``out``
-    (:func:`~dynoplan.experiments.gear_collect.collect_gear_transitions`); the options'
+    (:func:`~dynoplan.envs.gear.learning.transitions.collect_gear_transitions`); the options'
     networks read from ``models`` (trained there first when missing)."""
-    from dynoplan.experiments.gear_collect import check_collection, collect_gear_transitions
+    from dynoplan.envs.gear.learning.transitions import check_collection, collect_gear_transitions
 
     check_collection(runs, max_decisions)
     option_networks(models, seed, workers=workers, log=log)
@@ -112,33 +114,45 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
 
 
 def learned_models(demos: Path, transitions: Path | None, models: Path, seed: int,
-                   heldout: Path | None, quick: bool, progress: bool = True,
+                   heldout: Path | None, fit: FitSettings = DEFAULT_SETTINGS,
+                   metrics: GearMetricsSettings = DEFAULT_METRICS, progress: bool = True,
                    workers: Workers = SERIAL,
-                   log: Callable[[str], None] = _silent,
-                   goal_ranking: float | None = None) -> dict[str, Any]:
-    """Stage ``train``: the goal heuristic, the safety regions and the dynamics into
-    ``models`` (:func:`~dynoplan.envs.gear.learning.training.train_gear_models` on
-    :data:`~dynoplan.envs.gear.learning.settings.QUICK_SETTINGS` or
-    :data:`~dynoplan.envs.gear.learning.settings.DEFAULT_SETTINGS`); the content of
-    ``metrics.json``.
+                   log: Callable[[str], None] = _silent) -> dict[str, Any]:
+    """Stage ``train``: the goal heuristic, the safety regions and the dynamics fitted as
+    ``fit`` says into ``models``, measured as ``metrics`` says
+    (:func:`~dynoplan.envs.gear.learning.training.train_gear_models`; ``gear run``'s
+    ``fit`` and ``metrics``: :data:`~dynoplan.envs.gear.learning.settings.DEFAULT_SETTINGS`
+    and ``DEFAULT_METRICS``, ``--quick`` ``QUICK_SETTINGS`` and ``QUICK_METRICS``); the
+    content of ``metrics.json``.
 
-    ``heldout`` ``None``: the settings' ``heldout_episodes`` held-out trials (10;
-    ``quick`` 3) are recorded into ``models/heldout-demos`` by the demonstrator that
-    recorded ``demos``, as :func:`demonstrations` records them (kept when they are
-    there already)."""
+    ``heldout`` ``None``: ``metrics.heldout_episodes`` held-out trials (10; ``--quick``
+    3) are recorded into ``models/heldout-demos`` by the demonstrator that recorded
+    ``demos``, as :func:`demonstrations` records them (kept when they are there
+    already)."""
     from dynoplan.envs.gear.learning.training import train_gear_models
 
-    cfg = QUICK_SETTINGS if quick else DEFAULT_SETTINGS
-    if goal_ranking is not None:  # the goal network's ranking loss (its ablation)
-        cfg = replace(cfg, goal_ranking=goal_ranking)
     if heldout is None:
-        measure = QUICK_METRICS if quick else DEFAULT_METRICS
-        heldout = heldout_trials(demos, measure.heldout_episodes, seed, models / HELDOUT_DIR,
+        heldout = heldout_trials(demos, metrics.heldout_episodes, seed, models / HELDOUT_DIR,
                                  models, progress, workers, log)
     # the previous models stay loadable until the new folder is complete
     with staged_folder(models, keep=True) as staged:
-        return train_gear_models(demos, transitions, staged, seed, heldout, quick,
-                                 progress=progress, settings=cfg)
+        return train_gear_models(demos, transitions, staged, seed, heldout, False,
+                                 progress=progress, settings=fit, measures=metrics)
+
+
+def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",
+                       progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
+    """Stage ``outcomes``: the outcome runs (``out``) and the initiation learned from them,
+    written into ``models`` (``gear outcomes`` with the run's sizes); returns the runs'
+    summary and the fit's report per option (``models/initiation.json`` too)."""
+    from dynoplan.envs.gear.learning.outcomes import collect_outcomes, fit_gear_initiation
+
+    runs = collect_outcomes(models, seed, out, settings, progress=progress, workers=workers)
+    write_json(out / "outcomes.json", runs)
+    report = fit_gear_initiation(models, out, seed)
+    write_json(models / "initiation.json", report)
+    return {"runs": runs["runs"], "starts": runs["starts"], "ended_well": runs["ended_well"],
+            "options": report["options"]}
 
 
 def heldout_trials(demos: Path, n: int, seed: int, out: Path, models: Path,
@@ -164,20 +178,18 @@ def heldout_trials(demos: Path, n: int, seed: int, out: Path, models: Path,
 
 
 def figures(models: Path, demos: Path, heldout: Path | None, out: Path, seed: int,
-            quick: bool, trial: int = 0, points: int | None = None,
+            points: int = FIGURE_POINTS, trial: int = 0,
             progress: bool = False) -> dict[str, Any]:
     """Stage ``figures``: Fig. 3(a) and 3(b) into ``out``
-    (:func:`~dynoplan.reports.gear_figures.make_gear_figures`), t-SNE on
-    :data:`FIGURE_POINTS` states at most (``quick``: :data:`QUICK_FIGURE_POINTS`) unless
-    ``points``; the content of ``figures.json``."""
+    (:func:`~dynoplan.reports.gear_figures.make_gear_figures`), t-SNE on ``points``
+    states at most (:data:`FIGURE_POINTS`; ``--quick``: :data:`QUICK_FIGURE_POINTS`); the
+    content of ``figures.json``."""
     from dynoplan.reports.gear_figures import make_gear_figures
 
-    if points is None:
-        points = QUICK_FIGURE_POINTS if quick else FIGURE_POINTS
     return make_gear_figures(models, demos, heldout, out, seed=seed, trial=trial,
                              max_points=points, progress=progress)
 
 
 __all__ = ["DEMONSTRATOR", "FIGURE_POINTS", "QUICK_FIGURE_POINTS", "demonstrations",
-           "figures", "heldout_trials", "learned_models", "option_networks",
-           "option_transitions"]
+           "figures", "heldout_trials", "learned_initiation", "learned_models",
+           "option_networks", "option_transitions"]

@@ -18,15 +18,19 @@ from typing import Any
 import gymnasium as gym
 
 from dynoplan import __version__
-from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
 from dynoplan.control.controller import Controller
 from dynoplan.envs import RANDOM_WALK_ID
 from dynoplan.envs.random_walk.models import NoisyWalkGoal
 from dynoplan.envs.random_walk.options import make_random_walk_options
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
-from dynoplan.pipeline.evaluate import planning_steps_summary, run_episodes
-from dynoplan.planning.option_planner import OptionPlanner
+from dynoplan.pipeline.evaluate import (
+    ControllerSettings,
+    controller_names,
+    make_controller,
+    planning_steps_summary,
+    run_episodes,
+)
 from dynoplan.reports.random_walk_figures import plot_mdp_solution, plot_robustness
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
@@ -62,21 +66,16 @@ class RandomWalkSettings:
                 f"--start-state must be in [0, {self.goal_state - 1}], got {self.start_state}")
 
 
-def make_chooser(kind: str, noise: float, settings: RandomWalkSettings) -> tuple[
-        Controller, OptionChooser]:
-    """``dynoplan`` (the planner), ``random``, or ``option:<name>`` (that option alone)."""
-    options = make_random_walk_options(noise, settings.goal_state)
-    chooser: OptionChooser
-    if kind == "dynoplan":
-        chooser = OptionPlanner(options, NoisyWalkGoal(noise, settings.goal_state),
-                                horizon=settings.horizon, samples=settings.samples)
-    elif kind == "random":
-        chooser = RandomChoice(options)
-    elif kind.startswith("option:"):
-        chooser = FixedChoice(options, kind.removeprefix("option:"))
-    else:
-        raise DynoplanError(f"unknown controller '{kind}'")
-    return Controller(options, chooser, max_decisions=settings.max_decisions), chooser
+def make_walk_controller(kind: str, noise: float, settings: RandomWalkSettings) -> Controller:
+    """``dynoplan`` (the planner), ``random``, or ``option:<name>`` (that option alone), as
+    the pipeline makes them (:func:`~dynoplan.pipeline.evaluate.make_controller`): the
+    random walk's options and goal at misprediction probability ``noise``, replanning only
+    when an option stops, no hold."""
+    control = ControllerSettings(horizon=settings.horizon, samples=settings.samples,
+                                 replan_every=None, max_decisions=settings.max_decisions,
+                                 hold=False)
+    return make_controller(kind, make_random_walk_options(noise, settings.goal_state),
+                           NoisyWalkGoal(noise, settings.goal_state), control)
 
 
 def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = True) -> dict[
@@ -89,7 +88,7 @@ def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = Tr
     seeds = episode_seeds(settings.seed, settings.episodes)
 
     def evaluate(kind: str, noise: float) -> tuple[dict[str, Any], list[Any]]:
-        controller, _ = make_chooser(kind, noise, settings)
+        controller = make_walk_controller(kind, noise, settings)
         t0 = time.perf_counter()
         traces = run_episodes(env, controller, seeds, f"{kind} (noise {noise:g})", progress)
         summary = planning_steps_summary(traces)
@@ -97,10 +96,9 @@ def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = Tr
         return summary, traces
 
     main, traces = evaluate("dynoplan", settings.noise)
-    baselines = {}
-    for spec_name in make_chooser("random", settings.noise, settings)[1].option_names:
-        baselines[f"option:{spec_name}"] = evaluate(f"option:{spec_name}", settings.noise)[0]
-    baselines["random"] = evaluate("random", settings.noise)[0]
+    options = make_random_walk_options(settings.noise, settings.goal_state)
+    baselines = {kind: evaluate(kind, settings.noise)[0]
+                 for kind in controller_names(options) if kind != "dynoplan"}
     robustness = []
     for noise in settings.robustness_noises:
         row = main if noise == settings.noise else evaluate("dynoplan", noise)[0]

@@ -531,6 +531,22 @@ class OptionRunTask(Protocol):
 
 
 @dataclass(frozen=True)
+class OptionRunSettings:
+    """Sizes of a task's option runs (:func:`collect_option_runs`).
+
+    Attributes:
+        runs: runs per option.
+        max_decisions: decisions an option may run.
+        lead_decisions: outcome runs: decisions another option may run before it, at most
+            (drawn uniformly in ``0..lead_decisions``; a transition run has none).
+    """
+
+    runs: int = 30
+    max_decisions: int = 30
+    lead_decisions: int = 12
+
+
+@dataclass(frozen=True)
 class OptionRunsJob:
     """Option runs as a worker rebuilds them.
 

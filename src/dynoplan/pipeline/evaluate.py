@@ -4,7 +4,7 @@ Every controller runs the same seeded episodes (:func:`~dynoplan.seeding.episode
 so the rows of a results table differ only by the controller.
 """
 
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -350,6 +350,18 @@ def evaluate_many(batches: Sequence[tuple[EpisodeJob, Sequence[EpisodeSeed]]],
         out.append(results[:len(seeds)])
         results = results[len(seeds):]
     return out
+
+
+def evaluate_rows(rows: Mapping[str, tuple[EpisodeJob, Sequence[EpisodeSeed]]],
+                  workers: Workers = SERIAL, description: str = "episodes",
+                  progress: bool = False, first: Sequence[str] = ()) -> dict[str, list[Any]]:
+    """Named rows (row name -> job and its seeds) as one map on ``workers``
+    (:func:`evaluate_many`), the rows named in ``first`` submitted first (the costliest);
+    per row, one result per seed, the rows in the given order."""
+    order = sorted(rows, key=lambda name: name not in first)  # stable
+    done = dict(zip(order, evaluate_many([rows[name] for name in order], workers, description,
+                                         progress), strict=True))
+    return {name: done[name] for name in rows}
 
 
 @dataclass

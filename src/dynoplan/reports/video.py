@@ -8,6 +8,7 @@ reports in its ``info`` (the gear: the robot's distance to the human's hand). Ca
 are drawn after the episode, from its trace, so they change no result.
 """
 
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
@@ -136,3 +137,16 @@ def _font(size: int) -> Any:
 
 
 __all__ = ["HOLD", "Caption", "caption_frames", "draw_caption", "step_captions", "write_mp4"]
+
+
+def video_clip(frames: Sequence[Any], success: bool, options: Sequence[str]) -> dict[str, Any]:
+    """An episode's ``frames`` (RGB arrays, 20 per second) as ``{"mp4": bytes of the H.264
+    file, "success", "options"}`` (the options it ran, consecutive repeats collapsed)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        mp4 = write_mp4(Path(tmp) / "episode.mp4", frames, fps=20).read_bytes()
+    return {"mp4": mp4, "success": success, "options": _runs(options)}
+
+
+def _runs(options: Sequence[str]) -> list[str]:
+    """Consecutive repeats collapsed: ``[a, a, b, a] -> [a, b, a]``."""
+    return [o for k, o in enumerate(options) if k == 0 or options[k - 1] != o]

@@ -9,10 +9,12 @@
 import platform
 import time
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
@@ -94,52 +96,35 @@ def make_demonstrator(kind: str, env: GearAssemblyEnv, models: Path | None = Non
 def run_expert_episode(env: GearAssemblyEnv, expert: Demonstrator, seed: int,
                        human_mode: str | None = None,
                        frames: list[npt.NDArray[np.uint8]] | None = None) -> Episode:
-    """One episode of ``expert`` in ``env`` from ``env.reset(seed=seed)``.
+    """One episode of ``expert`` in ``env`` from ``env.reset(seed=seed)``, recorded by the
+    pipeline's recorder (:func:`~dynoplan.pipeline.collect.record_episode`).
 
     ``progress`` is normalised time: ``progress[t] = (t + 1) / T``, the progress of
     ``observations[t + 1]`` (``observations[0]`` has progress 0). With ``frames``, a
     rendered frame is appended after the reset and after every step.
     Adds ``step_seconds`` (wall time spent in ``env.step``) to the episode.
     """
-    options = {"human_mode": human_mode} if human_mode is not None else None
-    obs, info = env.reset(seed=seed, options=options)
-    expert.reset()
-    observations = [obs]
-    actions: list[npt.NDArray[np.float64]] = []
-    rewards: list[float] = []
-    terms: list[bool] = []
-    truncs: list[bool] = []
-    options_taken: list[int] = []
-    infos: dict[str, list[Any]] = {k: [] for k in _INFO_KEYS}
-    if frames is not None:
-        frames.append(_frame(env))
-    step_seconds = 0.0
-    done = False
-    while not done:
-        decision = expert.act(obs, info)
-        t0 = time.perf_counter()
-        obs, reward, terminated, truncated, info = env.step(decision.action)
-        step_seconds += time.perf_counter() - t0
-        observations.append(obs)
-        actions.append(decision.action)
-        rewards.append(reward)
-        terms.append(terminated)
-        truncs.append(truncated)
-        options_taken.append(decision.option)
-        for k in _INFO_KEYS:
-            infos[k].append(info[k])
-        if frames is not None:
-            frames.append(_frame(env))
-        done = terminated or truncated
-    steps = len(actions)
+    from dynoplan.envs.gear.options.catalog import gear_option_names
+    from dynoplan.pipeline.collect import RunStart, record_episode
+
+    recorded = _Recorded(env, frames)
+    obs, info = recorded.reset(seed=seed, options={"human_mode": human_mode}
+                               if human_mode is not None else None)
+    chooser = _ExpertChoice(expert, recorded, gear_option_names())
+    recording = record_episode(recorded, chooser.specs(), chooser, seed,
+                               np.random.default_rng(seed), start=RunStart(obs, info, seed),
+                               info_keys=_INFO_KEYS)
+    episode = recording.episode
+    infos = episode.infos
+    steps = len(episode)
     return {
-        "observations": np.asarray(observations, dtype=np.float64),
-        "actions": np.asarray(actions, dtype=np.float64),
-        "rewards": np.asarray(rewards, dtype=np.float64),
-        "terminations": np.asarray(terms, dtype=bool),
-        "truncations": np.asarray(truncs, dtype=bool),
+        "observations": np.asarray(episode.observations, dtype=np.float64),
+        "actions": np.asarray(episode.actions, dtype=np.float64),
+        "rewards": np.asarray(episode.rewards, dtype=np.float64),
+        "terminations": np.asarray(episode.terminations, dtype=bool),
+        "truncations": np.asarray(episode.truncations, dtype=bool),
         "infos": {
-            "option": np.asarray(options_taken, dtype=np.int64),
+            "option": np.asarray(infos["option"], dtype=np.int64),
             "progress": np.arange(1, steps + 1, dtype=np.float64) / steps,
             "stage": np.asarray(infos["stage"], dtype=np.int64),
             "min_human_distance": np.asarray(infos["min_human_distance"], dtype=np.float64),
@@ -150,8 +135,65 @@ def run_expert_episode(env: GearAssemblyEnv, expert: Demonstrator, seed: int,
         },
         "seed": seed,
         "human_mode": env.schedule.mode,
-        "step_seconds": step_seconds,
+        "step_seconds": recorded.step_seconds,
     }
+
+
+class _Recorded(gym.Wrapper[Any, Any, Any, Any]):
+    """The gear env as a demonstration records it: the last ``info`` (what the
+    demonstrator reads), the wall time spent in ``env.step`` and, with ``frames``, a
+    rendered frame after the reset and after every step."""
+
+    def __init__(self, env: GearAssemblyEnv, frames: list[npt.NDArray[np.uint8]] | None
+                 ) -> None:
+        super().__init__(env)
+        self.gear_env = env
+        self.frames = frames
+        self.info: dict[str, Any] = {}
+        self.step_seconds = 0.0
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        obs, self.info = self.env.reset(**kwargs)
+        if self.frames is not None:
+            self.frames.append(_frame(self.gear_env))
+        return obs, self.info
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        t0 = time.perf_counter()
+        obs, reward, terminated, truncated, self.info = self.env.step(action)
+        self.step_seconds += time.perf_counter() - t0
+        if self.frames is not None:
+            self.frames.append(_frame(self.gear_env))
+        return obs, reward, terminated, truncated, self.info
+
+
+class _ExpertChoice:
+    """A gear :class:`Demonstrator` as the recorder's demonstrator: at every step it asks
+    the demonstrator for its decision (on the observation and the last ``info``), names
+    the decision's option and hands its action to that option's policy
+    (:meth:`specs`)."""
+
+    def __init__(self, expert: Demonstrator, env: _Recorded, names: Sequence[str]) -> None:
+        self.expert = expert
+        self.env = env
+        self.names = list(names)
+        self.action: FloatArray | None = None
+
+    def specs(self) -> list[Any]:
+        from dynoplan.adapters.spec import OptionSpec
+        from dynoplan.options.option import FunctionPolicy
+        from dynoplan.options.termination import ConstantTermination
+
+        return [OptionSpec(name, FunctionPolicy(lambda _o, _r: self.action),
+                           ConstantTermination(0.0)) for name in self.names]
+
+    def reset(self, observation: Any, rng: Any) -> None:
+        self.expert.reset()
+
+    def choose(self, observation: Any) -> str:
+        decision = self.expert.act(observation, self.env.info)
+        self.action = decision.action
+        return self.names[decision.option]
 
 
 def _frame(env: GearAssemblyEnv) -> npt.NDArray[np.uint8]:

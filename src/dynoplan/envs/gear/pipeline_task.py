@@ -15,8 +15,7 @@ controller, settings)``; an episode depends on its seed alone, so the metrics ar
 on one worker or many (only the measured decision latencies differ).
 """
 
-import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,15 +33,9 @@ from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import OptionPolicy
 from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
-from dynoplan.pipeline.evaluate import (
-    ControllerRunner,
-    ControllerSettings,
-    EpisodeRecord,
-    EpisodeRunner,
-)
+from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRunner
 from dynoplan.safety import AT_REST_SPEED, protective_separation
 from dynoplan.safety.shield import SeparationShield
-from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import BoolArray, FloatArray, Generator
 
 FLAT_POLICY = "flat_ppo"
@@ -129,7 +122,7 @@ class GearTask:
         gear_env = env.unwrapped
         assert isinstance(gear_env, GearAssemblyEnv)
         if controller == FLAT_POLICY:
-            from dynoplan.baselines.flat_policy import FlatPolicy
+            from dynoplan.baselines.flat_policy import FlatPolicy, FlatPolicyRunner
 
             if self.flat_folder is None:
                 raise DynoplanError(f"{FLAT_POLICY} needs the flat policy's folder")
@@ -228,32 +221,4 @@ def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, An
     return gear_metrics(gear_env, trace.infos, held=held)
 
 
-@dataclass
-class FlatPolicyRunner:
-    """A flat policy ``act(observation) -> action`` on the gear: no options, no decisions
-    (its "decision latency" is the time of one ``act`` call)."""
-
-    env: GearAssemblyEnv
-    act: Callable[[FloatArray], FloatArray]
-
-    def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
-        obs, info = self.env.reset(seed=seed.env_seed)
-        first_distance = float(info["min_human_distance"])
-        infos: list[dict[str, Any]] = []
-        ms: list[float] = []
-        reward, done, success = 0.0, False, False
-        while not done:
-            t0 = time.perf_counter()
-            action = self.act(obs)
-            ms.append(1e3 * (time.perf_counter() - t0))
-            obs, r, terminated, truncated, info = self.env.step(action)
-            infos.append(info)
-            reward += float(r)
-            success = bool(info["is_success"])
-            done = terminated or truncated
-        return EpisodeRecord(seed.env_seed, success, len(infos), reward, 0, 0, 0, 0,
-                             tuple(ms), (), (), gear_metrics(self.env, infos, first_distance))
-
-
-__all__ = ["FAULTS", "FLAT_POLICY", "FlatPolicyRunner", "GearTask", "episode_metrics",
-           "gear_metrics"]
+__all__ = ["FAULTS", "FLAT_POLICY", "GearTask", "episode_metrics", "gear_metrics"]

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.env import CONTROL_DT
+from dynoplan.envs.gear.pipeline_task import FLAT_POLICY
 from dynoplan.io import write_csv, write_json
 from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
 from dynoplan.reports.tables import markdown_table
@@ -82,6 +83,18 @@ def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
     return row
 
 
+def results_rows(episodes: dict[str, list[EpisodeRecord]]) -> list[dict[str, Any]]:
+    """One row of ``results.csv`` per controller (:func:`summarise`), in the given order;
+    the flat policy's option columns are empty (it has no options)."""
+    rows = []
+    for name, records in episodes.items():
+        row = summarise(name, records)
+        if name == FLAT_POLICY:
+            row["out_of_region_starts"] = row["switches"] = row["holds"] = None
+        rows.append(row)
+    return rows
+
+
 def write_results(out: Path, rows: Sequence[dict[str, Any]],
                   episodes: dict[str, list[EpisodeRecord]]) -> None:
     """``out/results.csv`` (the :data:`RESULT_COLUMNS` of every row) and
@@ -99,11 +112,65 @@ def behaviour_table(rows: Sequence[dict[str, Any]]) -> str:
                                            for m in modes}} for r in rows])
 
 
+def results_markdown(summary: dict[str, Any]) -> str:
+    """``results.md``: the controllers' table, the faults, the models and the stages."""
+    lines = ["# Gear assembly: DynoPlan and baselines", ""]
+    s = {**summary["settings"], **summary["settings"]["evaluation"]}
+    lines.append(f"Seed {summary['seed']}; {s['episodes']} evaluation episodes per controller "
+                 f"(oracle: the first {s['oracle_episodes']}); planner horizon "
+                 f"{s['planner']['horizon']}, samples {s['planner']['samples']}; flat PPO "
+                 f"{s['ppo_steps']} env steps.")
+    lines += ["", markdown_table(summary["results"], RESULT_COLUMNS), "",
+              "Success by human mode:", "", behaviour_table(summary["results"])]
+    if summary.get("ablation"):
+        lines += ["", "## Ablation: what each learned part does", "",
+                  f"The same first {s['ablation_episodes']} episodes for every row. "
+                  "`dynoplan` and `random` choose on the learned sets (Eq. 5 regions and the "
+                  "initiation learned from outcomes); `dynoplan+rules` adds the hand-written "
+                  "conditions; `dynoplan_regions` plans on the Eq. 5 regions alone (the "
+                  "paper's method); `epistemic=0.3` penalises the dynamics ensemble's "
+                  "disagreement.", "",
+                  markdown_table(summary["ablation"], RESULT_COLUMNS)]
+    lines += ["", "## Faults (DynoPlan)", "",
+              markdown_table(summary["faults"], ("fault", "episodes", "success_rate",
+                                                 "contacts", "switches", "holds")),
+              "", "## Learned models", "",
+              markdown_table([summary["model_metrics"]],
+                             ("goal_spearman", "goal_mae", "region_inside_rate",
+                              "region_far_outside_rate", "dynamics_coverage_90")),
+              "", "## Stages (s)", "", markdown_table([summary["stages_s"]])]
+    if "wall_s" in summary:
+        workers = summary["workers"]
+        on = workers["address"] or f"{workers['count']} worker(s)"
+        lines += ["", f"Whole run: {summary['wall_s']} s on {on}"
+                  + ("; flat_ppo and video ran beside the other stages." if
+                     workers["count"] > 1 or workers["address"] else ".")]
+    return "\n".join(lines)
+
+
+def evaluation_markdown(summary: dict[str, Any]) -> str:
+    """``results.md`` of ``gear evaluate``: its settings, the table and the success by
+    human behaviour."""
+    rows, planner, human = summary["results"], summary["planner"], summary["human"]
+    workers = summary["workers"]
+    return "\n".join([
+        "# Gear assembly: evaluation", "",
+        f"Models {summary['models']}; seed {summary['seed']}; {summary['episodes']} episodes "
+        f"per controller; planner horizon {planner['horizon']}, samples {planner['samples']}; "
+        f"{workers['count']} worker(s)"
+        f"{'' if workers['address'] is None else ' on ' + workers['address']}; "
+        f"{summary['wall_s']:.1f} s wall; human behaviours "
+        f"{', '.join(human or ('away, cross, block (the demonstrations mix)',))}; "
+        f"runtime monitor {'on' if summary['shield'] else 'off'}.",
+        "", markdown_table(rows, RESULT_COLUMNS), "", "Success by human behaviour:", "",
+        behaviour_table(rows)])
+
+
 def _mode_cell(entry: dict[str, Any] | None) -> str:
     if not entry:
         return "–"
     return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
 
 
-__all__ = ["RESULT_COLUMNS", "behaviour_table", "human_mode", "seconds", "summarise",
-           "write_results"]
+__all__ = ["RESULT_COLUMNS", "behaviour_table", "evaluation_markdown", "human_mode",
+           "results_markdown", "results_rows", "seconds", "summarise", "write_results"]

@@ -1,4 +1,5 @@
-"""One evaluation episode of one controller, decision by decision (``dynoplan gear episode``).
+"""One evaluation episode of one controller, replayed: decision by decision (``dynoplan gear
+episode``) or rendered (the video of ``gear run`` and ``gear episode --video``).
 
 The evaluation (``dynoplan gear run`` / ``gear evaluate``) reports per-episode metrics in
 ``episodes.json``; this module replays one of those episodes (the same
@@ -18,12 +19,15 @@ import numpy as np
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
+from dynoplan.envs.gear.evaluation import evaluation_seeds
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET, caption_gear_frames
+from dynoplan.io import write_with
 from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRecord
-from dynoplan.seeding import EpisodeSeed, episode_seeds
+from dynoplan.reports.gear_results import human_mode
+from dynoplan.reports.video import video_clip
+from dynoplan.seeding import EpisodeSeed
 
 TRACE_COLUMNS = (
     "decision", "time_s", "option", "stop_reason", "steps", "admissible", "tool_hand_m",
@@ -39,7 +43,7 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
                     ) -> tuple[EpisodeRecord, list[dict[str, Any]], dict[str, Any]]:
     """Replay evaluation episode ``index`` (0-based, as in ``episodes.json``) of
     ``controller`` on the models in ``models``; with ``frames``, render it offscreen and
-    append one frame per step (for :func:`~dynoplan.experiments.gear_run.video_clip`).
+    append one frame per step (for :func:`~dynoplan.reports.video.video_clip`).
 
     Returns:
         The episode's metrics (the same as the evaluation's for the same models, seed
@@ -53,14 +57,7 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
         raise DynoplanError(f"unknown controller {controller!r}; expected one of "
                             f"{', '.join(VARIANTS)} (flat_ppo has no decisions)")
     episode = evaluation_episode(index, seed)
-    runner = GearTask(render=frames is not None).make_runner(controller, models, planner)
-    assert isinstance(runner, ControllerRunner)
-    try:
-        trace = runner.run(episode, frames)
-    finally:
-        runner.env.close()
-    if frames is not None:
-        caption_gear_frames(frames, trace)
+    runner, trace = replay(models, controller, episode, planner, frames)
     metrics = runner.record(trace, episode)
     names = tuple(o.name for o in runner.controller.options)
     gear_env = runner.env.unwrapped
@@ -76,7 +73,56 @@ def evaluation_episode(index: int, seed: int = 0) -> EpisodeSeed:
     ``--seed seed``."""
     if index < 0:
         raise DynoplanError(f"episode index must be >= 0, got {index}")
-    return episode_seeds(seed + EVAL_SEED_OFFSET, index + 1)[index]
+    return evaluation_seeds(seed, index + 1)[index]
+
+
+def replay(models: Path, controller: str, episode: EpisodeSeed, planner: ControllerSettings,
+           frames: list[Any] | None = None) -> tuple[ControllerRunner, EpisodeTrace]:
+    """Controller ``controller``'s episode ``episode`` on the models in ``models``, built
+    and run as the evaluation builds and runs it
+    (:meth:`~dynoplan.envs.gear.pipeline_task.GearTask.make_runner`): the runner (its env
+    closed) and the trace. With ``frames``, rendered offscreen, one captioned frame per
+    step (:func:`caption_gear_frames`)."""
+    runner = GearTask(render=frames is not None).make_runner(controller, models, planner)
+    assert isinstance(runner, ControllerRunner)
+    try:
+        trace = runner.run(episode, frames)
+    finally:
+        runner.env.close()
+    if frames is not None:
+        caption_gear_frames(frames, trace)
+    return runner, trace
+
+
+def render_video(models: Path, episode: EpisodeSeed, planner: ControllerSettings,
+                 controller: str = "dynoplan") -> dict[str, Any]:
+    """:func:`~dynoplan.reports.video.video_clip` of :func:`replay` rendered. Writes
+    nothing but a temporary file, so it can run as a task on any worker."""
+    frames: list[Any] = []
+    _, trace = replay(models, controller, episode, planner, frames)
+    return video_clip(frames, trace.success,
+                      [d.option for d in trace.decisions if d.option is not None])
+
+
+def caption_gear_frames(frames: list[Any], trace: EpisodeTrace) -> None:
+    """Draw the decision on every frame of a gear episode, in place
+    (:func:`~dynoplan.reports.video.caption_frames`): the running option, every option's
+    score at the last decision and the robot's distance to the human's hand."""
+    from dynoplan.reports.video import caption_frames
+
+    caption_frames(frames, trace, CONTROL_DT, "min_human_distance", "robot-hand distance")
+
+
+def save_video(video: dict[str, Any], evaluated: EpisodeRecord, index: int,
+               path: Path) -> dict[str, Any]:
+    """Write :func:`~dynoplan.reports.video.video_clip`'s file to ``path``; its entry of
+    ``summary.json``."""
+    def write(tmp: Path) -> None:
+        tmp.write_bytes(video["mp4"])
+
+    write_with(path, write)
+    return {"file": path.name, "episode": index, "human_mode": human_mode(evaluated),
+            "success": video["success"], "options": video["options"]}
 
 
 def decision_rows(trace: EpisodeTrace, option_names: tuple[str, ...]) -> list[dict[str, Any]]:
@@ -118,5 +164,5 @@ def episode_summary(metrics: EpisodeRecord, controller: str, index: int, seed: i
     return out
 
 
-__all__ = ["TRACE_COLUMNS", "decision_rows", "episode_summary", "evaluation_episode",
-           "inspect_episode"]
+__all__ = ["TRACE_COLUMNS", "caption_gear_frames", "decision_rows", "episode_summary",
+           "evaluation_episode", "inspect_episode", "render_video", "replay", "save_video"]

@@ -14,20 +14,19 @@ plus ``infos["outcome"]`` ``(T,)``: the outcome of starting at each observation.
 """
 
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
+from dynoplan.envs.gear.learning.transitions import write_runs
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_collect import write_runs
 from dynoplan.parallel import SERIAL, Workers
-from dynoplan.pipeline.collect import OptionRunsJob, collect_option_runs
+from dynoplan.pipeline.collect import OptionRunSettings, OptionRunsJob, collect_option_runs
 from dynoplan.pipeline.fit import fit_initiation_from_outcomes, outcome_starts
 
 DATASET_ID = "dynoplan/gear-assembly/option-outcomes-v0"
@@ -35,24 +34,8 @@ OUTCOME_STREAM = 17
 """Seed stream of the outcome runs (disjoint from ``gear collect``'s ``[seed, o, r]``)."""
 
 
-@dataclass(frozen=True)
-class OutcomeSettings:
-    """Sizes of the outcome runs.
-
-    Attributes:
-        runs: runs per option.
-        max_decisions: decisions (0.5 s each) the option may run.
-        lead_decisions: decisions another source option may run first (drawn uniformly
-            in ``0..lead_decisions``).
-    """
-
-    runs: int = 40
-    max_decisions: int = 30
-    lead_decisions: int = 12
-
-
 def collect_outcomes(models: Path, seed: int, out: Path,
-                     settings: OutcomeSettings = OutcomeSettings(), progress: bool = True,
+                     settings: OptionRunSettings = OptionRunSettings(), progress: bool = True,
                      workers: Workers = SERIAL) -> dict[str, Any]:
     """Run every registered option ``settings.runs`` times from starts beyond its own
     region (module docstring); write the dataset ``out``; return a summary (runs, starts
@@ -129,5 +112,5 @@ def read_outcomes(path: Path) -> list[Episode]:
     return list(dataset)
 
 
-__all__ = ["DATASET_ID", "OUTCOME_STREAM", "OutcomeSettings", "collect_outcomes",
+__all__ = ["DATASET_ID", "OUTCOME_STREAM", "collect_outcomes",
            "fit_gear_initiation", "read_outcomes", "transitions_beyond"]

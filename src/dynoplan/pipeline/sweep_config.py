@@ -1,5 +1,6 @@
-"""The configuration of ``dynoplan sweep``: a grid of planner settings, controllers and
-seeds over one models folder, read from TOML or JSON.
+"""The configuration of a sweep (:mod:`dynoplan.pipeline.sweep`; the gear's: ``dynoplan
+sweep``): a grid of planner settings, controllers and seeds over one models folder, read
+from TOML or JSON.
 
 .. code-block:: toml
 
@@ -16,20 +17,21 @@ seeds over one models folder, read from TOML or JSON.
 
 Grid keys: fields of :class:`~dynoplan.pipeline.evaluate.ControllerSettings`
 (``horizon``, ``samples``, ``oracle_horizon``, ``oracle_samples``, ``margin``,
-``dynamics_noise``, ``epistemic``), ``controller`` and ``seed``. Any mistake is one
+``dynamics_noise``, ``epistemic``), ``controller`` (one of the task's controllers) and
+``seed``; the settings not swept are the task's. Any mistake is one
 :class:`~dynoplan.errors.DynoplanError` naming the file and the field.
 """
 
+import dataclasses
 import itertools
 import json
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
-from dynoplan.envs.gear.pipeline_task import FLAT_POLICY
 from dynoplan.errors import DynoplanError
 from dynoplan.limits import CELLS_MAX, EPISODES_MAX, HORIZON_MAX, SAMPLES_MAX, SEED_MAX
 from dynoplan.pipeline.evaluate import ControllerSettings
@@ -41,8 +43,6 @@ FLOAT_KEYS = ("margin", "dynamics_noise", "epistemic")
 """Grid keys of non-negative numbers."""
 GRID_KEYS = (*INT_KEYS, *FLOAT_KEYS, "controller", "seed")
 TOP_KEYS = ("models", "episodes", "controller", "seed", "grid")
-SWEEP_CONTROLLERS = tuple(c for c in CONTROLLERS if c != FLAT_POLICY)
-"""Controllers a sweep can evaluate (the flat policy has no planner settings)."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,7 @@ class SweepConfig:
         models: the models folder (resolved against the file's folder).
         episodes: episodes per cell.
         grid: key -> values, in the file's order.
+        control: the planner settings the grid changes.
         controller, seed: the values of keys the grid does not sweep.
     """
 
@@ -77,6 +78,7 @@ class SweepConfig:
     models: Path
     episodes: int
     grid: tuple[tuple[str, tuple[Any, ...]], ...]
+    control: ControllerSettings = dataclasses.field(default_factory=ControllerSettings)
     controller: str = "dynoplan"
     seed: int = 0
 
@@ -90,15 +92,17 @@ class SweepConfig:
         out = []
         for values in itertools.product(*(v for _, v in self.grid)):
             chosen = dict(zip(self.swept, values, strict=True))
-            planner = replace(GEAR_CONTROL, **{k: v for k, v in chosen.items()
+            planner = replace(self.control, **{k: v for k, v in chosen.items()
                                                     if k in INT_KEYS + FLOAT_KEYS})
             out.append(Cell(chosen.get("controller", self.controller),
                             chosen.get("seed", self.seed), self.episodes, planner))
         return out
 
 
-def load_sweep_config(path: Path) -> SweepConfig:
-    """Read and check a sweep configuration (``.toml`` or ``.json``).
+def load_sweep_config(path: Path, controllers: Sequence[str],
+                      control: ControllerSettings = ControllerSettings()) -> SweepConfig:
+    """Read and check a sweep configuration (``.toml`` or ``.json``) of the controllers
+    ``controllers``, whose settings not swept are ``control``.
 
     Raises:
         DynoplanError: (one line) unreadable file, unknown or missing key, wrong type
@@ -115,7 +119,8 @@ def load_sweep_config(path: Path) -> SweepConfig:
         raise DynoplanError(f"{path}: models: expected the models folder (a string)")
     episodes = _integer(path, "episodes", raw.get("episodes", 20), 1, EPISODES_MAX)
     seed = _integer(path, "seed", raw.get("seed", 0), 0, SEED_MAX)
-    controller = _controller(path, "controller", raw.get("controller", "dynoplan"))
+    controller = _controller(path, "controller", raw.get("controller", "dynoplan"),
+                             controllers)
     grid = raw.get("grid")
     if not isinstance(grid, dict) or not grid:
         raise DynoplanError(f"{path}: grid: expected a table of key = [values] with at "
@@ -136,7 +141,7 @@ def load_sweep_config(path: Path) -> SweepConfig:
         elif key == "seed":
             vals = tuple(_integer(path, field, v, 0, SEED_MAX) for v in values)
         else:
-            vals = tuple(_controller(path, field, v) for v in values)
+            vals = tuple(_controller(path, field, v, controllers) for v in values)
         if len(set(vals)) != len(vals):
             raise DynoplanError(f"{path}: {field}: repeated values {list(vals)}")
         checked.append((key, vals))
@@ -146,7 +151,7 @@ def load_sweep_config(path: Path) -> SweepConfig:
     folder = Path(models)
     if not folder.is_absolute():
         folder = path.parent / folder
-    return SweepConfig(path, folder, episodes, tuple(checked), controller, seed)
+    return SweepConfig(path, folder, episodes, tuple(checked), control, controller, seed)
 
 
 def _read(path: Path) -> dict[str, Any]:
@@ -189,12 +194,11 @@ def _number(path: Path, field: str, value: Any) -> float:
     return float(value)
 
 
-def _controller(path: Path, field: str, value: Any) -> str:
-    if value not in SWEEP_CONTROLLERS:
+def _controller(path: Path, field: str, value: Any, controllers: Sequence[str]) -> str:
+    if value not in controllers:
         raise DynoplanError(f"{path}: {field}: expected one of "
-                            f"{', '.join(SWEEP_CONTROLLERS)}, got {value!r}")
+                            f"{', '.join(controllers)}, got {value!r}")
     return str(value)
 
 
-__all__ = ["FLOAT_KEYS", "GRID_KEYS", "INT_KEYS", "SWEEP_CONTROLLERS", "Cell", "SweepConfig",
-           "load_sweep_config"]
+__all__ = ["FLOAT_KEYS", "GRID_KEYS", "INT_KEYS", "Cell", "SweepConfig", "load_sweep_config"]

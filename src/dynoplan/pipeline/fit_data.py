@@ -1,0 +1,110 @@
+"""The fit's data: planner states, option labels, transitions and runs cut from labelled
+episodes (``infos["option"]``)."""
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from dynoplan.data.episodes import OPTION_KEY, Episode
+from dynoplan.errors import DynoplanError
+from dynoplan.pipeline.collect import ObservationFn, flat_state
+from dynoplan.types import FloatArray
+
+
+def episode_states(episode: Episode, state_fn: ObservationFn = flat_state) -> FloatArray:
+    """``state_fn`` of every observation of ``episode``: ``(T+1, state_dim)`` float64."""
+    return np.stack([np.asarray(state_fn(o), dtype=np.float64).reshape(-1)
+                     for o in episode.observations])
+
+
+def option_transitions(episodes: Sequence[Episode], option_names: Sequence[str],
+                       state_fn: ObservationFn = flat_state,
+                       stride: int = 1) -> dict[str, tuple[FloatArray, FloatArray]]:
+    """Per option, the pairs ``(s_t, s_{t+stride})`` during which only it acted.
+
+    Returns:
+        ``{name: (states (N, d), next_states (N, d))}``, ``N`` possibly 0.
+
+    Raises:
+        DynoplanError: an episode has no option labels, or labels outside the names.
+    """
+    found: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {
+        n: ([], []) for n in option_names}
+    for index, episode in enumerate(episodes):
+        labels = option_labels(episode, index, len(option_names))
+        if len(labels) < stride:
+            continue
+        rows = episode_states(episode, state_fn)
+        windows = np.lib.stride_tricks.sliding_window_view(labels, stride)  # (T-k+1, k)
+        same = (windows == windows[:, :1]).all(axis=1)
+        for k, name in enumerate(option_names):
+            t = np.flatnonzero(same & (windows[:, 0] == k))
+            found[name][0].append(rows[t])
+            found[name][1].append(rows[t + stride])
+    d = None
+    out: dict[str, tuple[FloatArray, FloatArray]] = {}
+    for name, (s, n) in found.items():
+        if s:
+            out[name] = (np.concatenate(s), np.concatenate(n))
+            d = out[name][0].shape[1]
+    for name in option_names:
+        if name not in out:
+            out[name] = (np.zeros((0, d or 0)), np.zeros((0, d or 0)))
+    return out
+
+
+def option_labels(episode: Episode, index: int, n_options: int) -> np.ndarray:
+    labels = episode.infos.get(OPTION_KEY)
+    if labels is None:
+        known = ", ".join(sorted(episode.infos)) or "none"
+        raise DynoplanError(
+            f"episode {index} has no option labels (infos['{OPTION_KEY}']; its infos: "
+            f"{known}): every step of a demonstration must name the option that acted")
+    if labels.size and (labels.min() < 0 or labels.max() >= n_options):
+        raise DynoplanError(
+            f"episode {index}: option labels must lie in 0..{n_options - 1}, found "
+            f"{int(labels.min())}..{int(labels.max())}")
+    return labels
+
+def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
+                state_fn: ObservationFn = flat_state,
+                ) -> dict[str, tuple[FloatArray, FloatArray, np.ndarray]]:
+    """Every run of every option: where it started, where it ended and how long it ran.
+
+    A run is a maximal stretch of steps with the same option label.
+
+    Returns:
+        ``{name: (starts (R, d), ends (R, d), steps (R,))}``, ``R`` possibly 0.
+    """
+    found: dict[str, tuple[list[FloatArray], list[FloatArray], list[int]]] = {
+        n: ([], [], []) for n in option_names}
+    d = 0
+    for index, episode in enumerate(episodes):
+        labels = option_labels(episode, index, len(option_names))
+        rows = episode_states(episode, state_fn)
+        d = rows.shape[1]
+        cuts = np.flatnonzero(np.diff(labels)) + 1
+        for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
+            name = option_names[int(labels[start])]
+            found[name][0].append(rows[start])
+            found[name][1].append(rows[end])
+            found[name][2].append(int(end - start))
+    return {n: (np.array(a).reshape(-1, d), np.array(b).reshape(-1, d),
+                np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
+
+def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
+                     ) -> tuple[FloatArray, np.ndarray, np.ndarray]:
+    """Every state an option acted in: ``(N, d)`` states, ``(N,)`` labels and episode ids."""
+    states, labels, groups = [], [], []
+    for index, episode in enumerate(episodes):
+        y = option_labels(episode, index, n_options)
+        labels.append(y)
+        states.append(episode_states(episode, state_fn)[:-1])
+        groups.append(np.full(len(y), index))
+    if not states:
+        return np.zeros((0, 0)), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(states), np.concatenate(labels), np.concatenate(groups)
+
+
+__all__ = ["episode_states", "labelled_states", "option_labels", "option_runs",
+           "option_transitions"]

@@ -1,0 +1,103 @@
+"""Each option's dynamics ``D_w`` (see :mod:`dynoplan.pipeline.fit` for the model stride):
+:func:`fit_dynamics` with a :data:`DynamicsFitter`, by default an MLP ensemble
+(:func:`ensemble_fitter`); the planner's per-model-step termination (:func:`strided`)."""
+
+from typing import Any, Protocol
+
+import numpy as np
+
+from dynoplan.errors import DynoplanError
+from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.models.evaluation import one_step_error
+from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
+from dynoplan.options.termination import ConstantTermination, Termination
+from dynoplan.pipeline.fit_settings import FitSettings
+from dynoplan.types import FloatArray
+
+
+class DynamicsFitter(Protocol):
+    """Learns one option's ``D_w``: ``fit(option, states (N, d), next_states (N, d), seed)``."""
+
+    def __call__(self, option: str, states: FloatArray, next_states: FloatArray,
+                 seed: int) -> DynamicsModel: ...
+
+
+def ensemble_fitter(settings: FitSettings) -> DynamicsFitter:
+    """The default :data:`DynamicsFitter`: an MLP ensemble per option (PETS-style)."""
+
+    def fit(option: str, states: FloatArray, next_states: FloatArray,
+            seed: int) -> DynamicsModel:
+        model = MLPEnsembleDynamics(states.shape[1], settings.dynamics_hidden,
+                                    settings.dynamics_members, option=option, seed=seed)
+        model.fit(states, next_states, epochs=dynamics_epochs(len(states), settings),
+                  batch_size=DYNAMICS_BATCH, seed=seed)
+        return model
+
+    return fit
+
+
+DYNAMICS_BATCH = 256
+"""Rows per member and gradient step of the dynamics ensembles."""
+
+
+def dynamics_epochs(rows: int, settings: FitSettings) -> int:
+    """Epochs of an option's ensemble on ``rows`` transitions: ``dynamics_epochs``, fewer
+    (at least 5) when that would take more than ``dynamics_max_updates`` gradient steps
+    (the fit holds out 10 % of the rows)."""
+    if settings.dynamics_max_updates is None:
+        return settings.dynamics_epochs
+    batches = -(-round(0.9 * rows) // DYNAMICS_BATCH)
+    return max(5, min(settings.dynamics_epochs, settings.dynamics_max_updates // batches))
+
+def fit_dynamics(transitions: dict[str, tuple[FloatArray, FloatArray]], seed: int,
+                 fitter: DynamicsFitter, min_transitions: int = 10,
+                 ) -> tuple[dict[str, DynamicsModel], dict[str, dict[str, Any]]]:
+    """Fit one dynamics model per option and report its one-step error.
+
+    Returns:
+        The models by name, and per option ``{"transitions", "rmse", "no_change_rmse"}``
+        (one-step error on its own training pairs, against predicting no change; for
+        models without ``predict`` the errors are ``None``).
+
+    Raises:
+        DynoplanError: an option has fewer than ``min_transitions`` transitions.
+    """
+    models: dict[str, DynamicsModel] = {}
+    report: dict[str, dict[str, Any]] = {}
+    for k, (name, (s, nxt)) in enumerate(transitions.items()):
+        if len(s) < min_transitions:
+            raise DynoplanError(
+                f"option '{name}': only {len(s)} transitions to learn its dynamics from "
+                f"(need >= {min_transitions}); collect more episodes or lower the stride")
+        model = fitter(name, s, nxt, seed + k)
+        models[name] = model
+        row: dict[str, Any] = {"transitions": len(s), "rmse": None, "no_change_rmse": None}
+        if callable(getattr(model, "predict", None)):
+            err = one_step_error(model, s, nxt)  # type: ignore[arg-type]
+            row["rmse"], row["no_change_rmse"] = err.model_rmse_total, err.baseline_rmse_total
+        report[name] = row
+    return models, report
+
+class StridedTermination:
+    """``1 - (1 - beta(s))^k``: the chance that an option stops within ``k`` steps."""
+
+    def __init__(self, base: Termination, stride: int) -> None:
+        self.base = base
+        self.stride = int(stride)
+
+    def probability(self, states: FloatArray) -> FloatArray:
+        beta = np.asarray(self.base.probability(states), dtype=np.float64)
+        return 1.0 - (1.0 - beta) ** self.stride
+
+
+def strided(termination: Termination, stride: int) -> Termination:
+    """The per-model-step termination for ``stride`` environment steps per model step."""
+    if stride == 1:
+        return termination
+    if isinstance(termination, ConstantTermination):  # stays stackable
+        return ConstantTermination(1.0 - (1.0 - termination.beta) ** stride)
+    return StridedTermination(termination, stride)
+
+
+__all__ = ["DYNAMICS_BATCH", "DynamicsFitter", "StridedTermination", "dynamics_epochs",
+           "ensemble_fitter", "fit_dynamics", "strided"]

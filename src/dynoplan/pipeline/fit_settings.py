@@ -1,0 +1,124 @@
+"""How the pipeline's models are learned: :class:`FitSettings` (recorded in the summary and
+in ``models.json``)."""
+
+from dataclasses import dataclass
+
+from dynoplan.errors import DynoplanError
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """How the models are learned (recorded in the summary and in ``models.json``).
+
+    Attributes:
+        stride: environment steps per dynamics-model step (see the module docstring).
+        dynamics_hidden: hidden layer widths of each option's MLP ensemble.
+        dynamics_members: ensemble size.
+        dynamics_epochs: training epochs of each ensemble.
+        dynamics_max_updates: fewer epochs when an option has so many transitions that
+            ``dynamics_epochs`` would take more gradient steps than this (at least 5;
+            ``None``: no bound), which bounds the training time on large collections.
+        goal_hidden: hidden width of the goal network.
+        goal_members: goal ensemble size.
+        goal_epochs: training epochs of the goal network.
+        goal_ranking: weight of the goal network's ranking loss along demonstrations
+            (:meth:`~dynoplan.models.goal_network.GoalNetwork.fit`; 0: none).
+        goal_features, region_features: names of the task's feature maps the goal
+            heuristic and the regions read (``None``: the planner state itself).
+        regions: fit the safety regions (Eq. 5) and intersect every option's initiation
+            set with its region.
+        region_fit: ``"heldout"`` (default): components and thresholds chosen on
+            held-out demonstrations (:meth:`SafetyRegions.fit_heldout`), so
+            ``region_coverage`` is the share of *unseen* demonstration states inside;
+            ``"bic"``: the paper's reading, BIC components and thresholds on the
+            training states (with few demonstrations: needle-thin regions); ``"cv"``:
+            BIC components, thresholds on the training states widened by what leaving
+            demonstrations out shows (:func:`fit_regions_cross_validated`).
+        region_coverage: share of an option's demonstration states inside its region
+            (held out with ``"heldout"``, in-sample with ``"bic"`` and ``"cv"``).
+        region_cv_coverage: ``"cv"``: share of left-out demonstrations' states of an
+            option that its final threshold is widened to admit.
+        region_slack: nats subtracted from every region threshold (widens them).
+        region_components: mixture size (``None``: chosen in
+            ``1..region_max_components``, by held-out likelihood or BIC).
+        region_max_components: the largest mixture that may be chosen.
+        region_folds: folds of whole demonstrations for ``"heldout"``.
+        region_reg_covar: added to every covariance's diagonal, in units of each
+            dimension's spread for ``"heldout"``, absolute for ``"cv"`` (``"bic"``: 1e-6).
+        outcome_initiation: also learn where each option may start from the outcomes
+            of its exploration runs (Bagaria et al. 2023; :func:`fit_outcome_initiation`)
+            and intersect its initiation set with that.
+        outcome_min_gain: a run is good when the goal heuristic's mean rose by more than
+            this from its start to its end.
+        region_undemonstrated: what an option that no demonstration shows gets:
+            ``"runs"``: a region fitted (as above) on the states where it ran while
+            collecting transitions, i.e. where its dynamics model has data; ``"none"``:
+            no region (never admissible); ``"everywhere"``: its own initiation set
+            alone (before 0.x the only behaviour). The pipeline warns either way.
+    """
+
+    stride: int = 1
+    dynamics_hidden: tuple[int, ...] = (64, 64)
+    dynamics_members: int = 5
+    dynamics_epochs: int = 30
+    dynamics_max_updates: int | None = None
+    goal_hidden: int = 64
+    goal_members: int = 1
+    goal_epochs: int = 150
+    goal_ranking: float = 0.0
+    goal_features: str | None = None
+    region_features: str | None = None
+    regions: bool = True
+    region_fit: str = "heldout"
+    region_coverage: float = 0.95
+    region_cv_coverage: float = 0.97
+    region_slack: float = 0.0
+    region_components: int | None = None
+    region_max_components: int = 6
+    region_folds: int = 5
+    region_reg_covar: float = 1e-2
+    region_undemonstrated: str = "runs"
+    outcome_initiation: bool = False
+    outcome_min_gain: float = 0.0
+
+    def validate(self) -> None:
+        if self.stride < 1:
+            raise DynoplanError(f"stride must be >= 1, got {self.stride}")
+        if self.dynamics_members < 1 or self.dynamics_epochs < 1 or not self.dynamics_hidden:
+            raise DynoplanError("dynamics_members, dynamics_epochs and dynamics_hidden must "
+                                "be positive")
+        if self.dynamics_max_updates is not None and self.dynamics_max_updates < 1:
+            raise DynoplanError(f"dynamics_max_updates must be >= 1 or None, got "
+                                f"{self.dynamics_max_updates}")
+        if self.goal_hidden < 1 or self.goal_members < 1 or self.goal_epochs < 1:
+            raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
+        if not self.goal_ranking >= 0.0:
+            raise DynoplanError(f"goal_ranking must be >= 0, got {self.goal_ranking}")
+        if not 0.0 < self.region_cv_coverage <= 1.0:
+            raise DynoplanError(f"region_cv_coverage must be in (0, 1], got "
+                                f"{self.region_cv_coverage}")
+        if not 0.0 < self.region_coverage <= 1.0:
+            raise DynoplanError(f"region_coverage must be in (0, 1], got {self.region_coverage}")
+        if self.region_fit not in REGION_FITS:
+            raise DynoplanError(f"region_fit must be one of {', '.join(REGION_FITS)}, got "
+                                f"'{self.region_fit}'")
+        if self.region_undemonstrated not in UNDEMONSTRATED:
+            raise DynoplanError(f"region_undemonstrated must be one of "
+                                f"{', '.join(UNDEMONSTRATED)}, got "
+                                f"'{self.region_undemonstrated}'")
+        if self.region_folds < 2:
+            raise DynoplanError(f"region_folds must be >= 2, got {self.region_folds}")
+        if self.region_reg_covar <= 0.0:
+            raise DynoplanError(f"region_reg_covar must be > 0, got {self.region_reg_covar}")
+        if self.region_max_components < 1 or (self.region_components is not None
+                                              and self.region_components < 1):
+            raise DynoplanError("region_components and region_max_components must be >= 1")
+
+
+REGION_FITS = ("heldout", "bic", "cv")
+"""Values of :attr:`FitSettings.region_fit`."""
+UNDEMONSTRATED = ("runs", "none", "everywhere")
+"""Values of :attr:`FitSettings.region_undemonstrated`."""
+
+
+__all__ = ["REGION_FITS", "UNDEMONSTRATED", "FitSettings"]

@@ -1,0 +1,196 @@
+"""A sweep: evaluate a grid of planner settings and seeds on one task's trained models (the
+configuration: :mod:`dynoplan.pipeline.sweep_config`), resumably; the gear's is
+``dynoplan sweep CONFIG`` (:mod:`dynoplan.experiments.sweep`).
+
+Every cell's episodes are tasks of one map (:func:`dynoplan.parallel.imap_unordered`),
+so many workers share the whole grid, not one cell at a time. As soon as a cell's last
+episode is in, its result is written to ``OUT/cells/<key>.json`` (a temporary file
+renamed onto the name, :mod:`dynoplan.io`). A re-run reads the cell files back and skips
+the cells whose file is valid: it parses, has this format, the cell's exact settings,
+the same models (the SHA-256 of ``models.json``) and one metric row of the right episode
+count. Anything else (an interrupted write leaves only a hidden temporary file; a
+truncated or edited file; models trained again) is computed again. So an interrupted
+sweep loses only its unfinished cells.
+
+Outputs in ``OUT``: ``results.csv`` and ``results.md`` (one row per cell: the swept
+settings, then the task's metric columns, :class:`SweepTask`), ``sweep.png``, and
+``summary.json``.
+"""
+
+import hashlib
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from dynoplan.errors import DynoplanError
+from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.models.folder import MANIFEST_FILE
+from dynoplan.parallel import SERIAL, Workers, imap_unordered
+from dynoplan.pipeline.evaluate import (
+    ControllerJob,
+    ControllerSettings,
+    EpisodeRecord,
+    build_runner,
+    runner_episode,
+)
+from dynoplan.pipeline.sweep_config import Cell, SweepConfig, load_sweep_config
+from dynoplan.pipeline.task import Task
+from dynoplan.reports.tables import markdown_table
+from dynoplan.seeding import EpisodeSeed
+
+CELL_FORMAT = "dynoplan-sweep-cell"
+CELL_VERSION = 1
+
+
+@dataclass(frozen=True)
+class SweepTask:
+    """What a sweep evaluates and how.
+
+    Attributes:
+        task: the task whose controllers run
+            (:class:`~dynoplan.pipeline.evaluate.ControllerJob`).
+        controllers: the controllers a configuration may name.
+        control: the planner settings the grid changes.
+        seeds: ``seeds(seed, episodes)``, the episodes of a cell.
+        summarise: ``summarise(controller, records)``, a cell's row.
+        columns: the metric columns of a row (the swept settings come first).
+    """
+
+    task: Task
+    controllers: tuple[str, ...]
+    control: ControllerSettings
+    seeds: Callable[[int, int], list[EpisodeSeed]]
+    summarise: Callable[[str, Sequence[EpisodeRecord]], dict[str, Any]]
+    columns: tuple[str, ...]
+
+    def config(self, path: Path) -> SweepConfig:
+        """The sweep configuration in ``path``, checked (:func:`load_sweep_config`)."""
+        return load_sweep_config(path, self.controllers, self.control)
+
+
+def cell_key(cell: Cell) -> str:
+    """A file name for ``cell``: a hash of its settings (stable across runs)."""
+    text = json.dumps(cell.settings(), sort_keys=True)
+    return "cell-" + hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def read_cell(path: Path, cell: Cell, models_sha256: str, columns: Sequence[str]
+              ) -> dict[str, Any] | None:
+    """The row stored in ``path`` if it is a finished result of ``cell`` on the models
+    with ``models_sha256`` (module docstring); None otherwise (missing, damaged, stale)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if not isinstance(data, dict) or data.get("format") != CELL_FORMAT \
+            or data.get("version") != CELL_VERSION:
+        return None
+    row = data.get("row")
+    if data.get("settings") != cell.settings() or data.get("models_sha256") != models_sha256 \
+            or not isinstance(row, dict) or any(c not in row for c in columns) \
+            or row.get("episodes") != cell.episodes:
+        return None
+    return row
+
+
+def write_cell(path: Path, cell: Cell, models_sha256: str,
+               episodes: Sequence[EpisodeRecord], sweep: SweepTask) -> dict[str, Any]:
+    """Write ``cell``'s result (its row: ``sweep.summarise``) atomically; return its row."""
+    row = sweep.summarise(cell.controller, episodes)
+    write_json(path, {"format": CELL_FORMAT, "version": CELL_VERSION,
+                      "settings": cell.settings(), "models_sha256": models_sha256,
+                      "row": row, "episodes": [asdict(e) for e in episodes]})
+    return row
+
+
+def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers = SERIAL,
+              progress: bool = True,
+              log: Callable[[str], None] = lambda _: None, *,
+              setup: Callable[[ControllerJob], Any] = build_runner,
+              run: Callable[[Any, EpisodeSeed], EpisodeRecord] = runner_episode,
+              ) -> dict[str, Any]:
+    """Run (or finish) the sweep of ``config_path`` (of ``sweep``) into ``out``; return
+    the summary.
+
+    ``setup``/``run`` are the job's functions (:func:`~dynoplan.pipeline.evaluate.build_runner`,
+    :func:`~dynoplan.pipeline.evaluate.runner_episode`);
+    tests replace them.
+
+    Raises:
+        DynoplanError: a bad configuration, no ``models.json`` in the models folder, an
+            unwritable ``out``.
+    """
+    config = sweep.config(config_path)
+    manifest = config.models / MANIFEST_FILE
+    try:
+        models_sha256 = hashlib.sha256(manifest.read_bytes()).hexdigest()
+    except OSError:
+        raise DynoplanError(f"{config_path}: models: {manifest} not found (train models "
+                            "with 'dynoplan gear run' or 'dynoplan gear train')") from None
+    ensure_writable_dir(out / "cells")
+    cells = config.cells()
+    rows: dict[int, dict[str, Any]] = {}
+    for i, cell in enumerate(cells):
+        row = read_cell(out / "cells" / f"{cell_key(cell)}.json", cell, models_sha256,
+                        sweep.columns)
+        if row is not None:
+            rows[i] = row
+    todo = [i for i in range(len(cells)) if i not in rows]
+    log(f"{len(cells)} cells: {len(rows)} finished, {len(todo)} to run "
+        f"({len(todo) * config.episodes} episodes)")
+    t0 = time.perf_counter()
+    tasks, owner = [], []
+    for i in todo:
+        cell = cells[i]
+        job = ControllerJob(sweep.task, config.models, cell.controller, cell.planner)
+        for s in sweep.seeds(cell.seed, cell.episodes):
+            tasks.append((job, s))
+            owner.append(i)
+    buffers: dict[int, dict[int, EpisodeRecord]] = {i: {} for i in todo}
+    for t, metrics in imap_unordered(setup, run, tasks, workers, "sweep episodes", progress):
+        i = owner[t]
+        buffers[i][t] = metrics
+        if len(buffers[i]) == cells[i].episodes:
+            finished = buffers.pop(i)
+            rows[i] = write_cell(out / "cells" / f"{cell_key(cells[i])}.json", cells[i],
+                                 models_sha256, [finished[k] for k in sorted(finished)], sweep)
+    table = [{**_swept(config, cells[i]), **{c: rows[i].get(c) for c in sweep.columns}}
+             for i in range(len(cells))]
+    summary = {"config": str(config_path), "models": str(config.models),
+               "models_sha256": models_sha256, "swept": list(config.swept),
+               "cells": len(cells), "cells_run": len(todo),
+               "cells_reused": len(cells) - len(todo),
+               "episodes_per_cell": config.episodes, "workers": asdict(workers),
+               "wall_s": round(time.perf_counter() - t0, 2), "results": table}
+    write_csv(out / "results.csv", table)
+    write_text(out / "results.md", results_markdown(config, table))
+    from dynoplan.reports.sweep_figures import plot_sweep
+
+    plot_sweep(table, config.swept, out / "sweep.png")
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def _swept(config: SweepConfig, cell: Cell) -> dict[str, Any]:
+    """The cell's values of the swept keys (the table's first columns)."""
+    values = cell.settings()
+    return {k: values[k] for k in config.swept}
+
+
+def results_markdown(config: SweepConfig, table: Sequence[dict[str, Any]]) -> str:
+    """``results.md``: what was swept over which models, then one row per cell."""
+    fixed = {k: v for k, v in (("controller", config.controller), ("seed", config.seed))
+             if k not in config.swept}
+    head = ", ".join(f"{k} {v}" for k, v in fixed.items())
+    return "\n".join([
+        f"# Sweep: {config.path.name}", "",
+        f"Models {config.models}; {config.episodes} episodes per cell"
+        f"{'; ' + head if head else ''}; other planner settings at their defaults.", "",
+        markdown_table(table)])
+
+
+__all__ = ["CELL_FORMAT", "CELL_VERSION", "SweepTask", "cell_key", "read_cell",
+           "results_markdown", "run_sweep", "write_cell"]
