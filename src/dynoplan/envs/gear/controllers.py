@@ -40,7 +40,7 @@ from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.arm_points import arm_points
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.options.base import GearPolicyFactory
+from dynoplan.envs.gear.options.base import GearPolicyFactory, gripper_as_it_is
 from dynoplan.envs.gear.options.catalog import gear_option
 from dynoplan.envs.gear.options.preconditions import (
     CARRIED_GEAR_HEIGHT,
@@ -55,7 +55,6 @@ from dynoplan.envs.gear.options.preconditions import (
     holding_gear,
     not_carried,
 )
-from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
@@ -332,13 +331,6 @@ class StopWhereItIs:
         still = float(np.max(np.abs(observation[OBS_SLICES["arm_qvel"]][:6]))) < self.STILL
         left = targets[:6] if still else self.env.arm_qpos[:6]
         return np.concatenate([left, targets[6:], [gripper_as_it_is(observation)]])
-
-
-def gripper_as_it_is(observation: FloatArray) -> float:
-    """The gripper command that keeps the left gripper as it is in ``observation``
-    ((50,)): 1 (closed) when its fingers are closed past 80 % of their travel, else 0."""
-    fingers = np.asarray(observation, dtype=np.float64)[OBS_SLICES["fingers"]]
-    return 1.0 if float(fingers.mean()) < 0.8 * FINGER_TRAVEL else 0.0
 
 
 __all__ = [
