@@ -34,7 +34,7 @@ import numpy as np
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, ExpertAction
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
-from dynoplan.envs.gear.options.give_way import GIVE_WAY_NEAR, left_arm_hand_distance
+from dynoplan.envs.gear.options.give_way import GIVE_WAY, GIVE_WAY_NEAR, left_arm_hand_distance
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState, tool_human_distance
 from dynoplan.envs.gear.task import PAPER_OPTIONS
@@ -49,7 +49,6 @@ INSERT_NEAR = 0.25
 INSERT_CLEAR = 0.3
 """Tool-hand distance (m) the operator waits for before inserting."""
 MAX_PICK_ATTEMPTS = 3
-GIVE_WAY = "give_way"
 
 
 
@@ -70,9 +69,9 @@ class OptionOperator:
         self.policies: dict[int, GearOptionPolicy] = {
             label: factories[name](env) for label, name in enumerate(PAPER_OPTIONS)}
         self.give_way: int | None = None
-        if GIVE_WAY in GEAR_OPTIONS.names() and GIVE_WAY in factories:
-            self.give_way = GEAR_OPTIONS.index(GIVE_WAY)
-            self.policies[self.give_way] = factories[GIVE_WAY](env)
+        if GIVE_WAY.name in GEAR_OPTIONS.names() and GIVE_WAY.name in factories:
+            self.give_way = GEAR_OPTIONS.index(GIVE_WAY.name)
+            self.policies[self.give_way] = factories[GIVE_WAY.name](env)
         self.state_fn = PlannerState()
         self.rng = np.random.default_rng(seed)
         self.reset()
