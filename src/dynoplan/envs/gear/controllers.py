@@ -101,6 +101,9 @@ class ControllerVariant:
     sets: str
     end_inside: bool = False
     safe: bool = False
+    never: tuple[str, ...] = ()
+    """Options never admissible in this variant (an ablation: the same models without
+    an option's choice)."""
 
 
 VARIANTS: dict[str, ControllerVariant] = {
@@ -117,6 +120,10 @@ VARIANTS: dict[str, ControllerVariant] = {
     "random_everywhere": ControllerVariant("random", "everywhere"),
     "dynoplan_safe": ControllerVariant("planner", "learned", end_inside=True, safe=True),
     "dynoplan+rules_safe": ControllerVariant("planner", "rules", safe=True),
+    "dynoplan_no_give_way": ControllerVariant("planner", "learned", end_inside=True,
+                                              never=("give_way",)),
+    "dynoplan_safe_no_give_way": ControllerVariant("planner", "learned", end_inside=True,
+                                                   safe=True, never=("give_way",)),
 }
 """Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
 accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe ones.
@@ -171,13 +178,14 @@ def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Ini
 
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
                  factories: Mapping[str, GearPolicyFactory], sets: str = "rules",
-                 terminations: bool = True) -> list[Option]:
+                 terminations: bool = True, never: tuple[str, ...] = ()) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
     Args:
         sets: their initiation and continuation sets, one of :data:`INITIATION_SETS`.
         terminations: each option's own ``beta_w`` (else 0: the option runs until its
             policy reports it is finished).
+        never: options that are never admissible (their initiation set is empty).
     """
     missing = [n for n in models.option_names if n not in factories]
     if missing:
@@ -187,11 +195,13 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
         initiation, continuation = option_sets(name, models, sets)
+        fallback = option_fallback(name, models, sets)
+        if name in never:
+            initiation, continuation, fallback = Nowhere(), None, None
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
-            initiation=initiation, continuation=continuation,
-            fallback=option_fallback(name, models, sets)))
+            initiation=initiation, continuation=continuation, fallback=fallback))
     return options
 
 
@@ -247,7 +257,7 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
     variant = VARIANTS[name]
     scripted = variant.chooser == "script"
     options = gear_options(env, models, factories, sets=variant.sets,
-                           terminations=not scripted)
+                           terminations=not scripted, never=variant.never)
     chooser: OptionChooser
     if variant.chooser == "planner":
         chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
