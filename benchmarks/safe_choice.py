@@ -10,7 +10,7 @@ too), S_p violations among those (ISO/TS 15066 for the measured speeds), physics
 contact, and, for options, the decisions whose chosen option the constraint predicted
 safe (unsafe share 0) against those it was violated in.
 
-    python benchmarks/safe_choice.py --controller dynoplan_learned_safe --episodes 6 \\
+    python benchmarks/safe_choice.py --controller dynoplan_safe --episodes 6 \\
         --models results/gear/models --out results/safety/safe_choice.md
 """
 
@@ -68,7 +68,7 @@ def tally(controller: str, models: Path, episodes: int) -> list[dict[str, object
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--controller", default="dynoplan_learned_safe")
+    parser.add_argument("--controller", default="dynoplan_safe")
     parser.add_argument("--models", type=Path, default=Path("results/gear/models"))
     parser.add_argument("--episodes", type=int, default=6)
     parser.add_argument("--out", type=Path, default=Path("results/safety/safe_choice.md"))

@@ -40,7 +40,7 @@ from dynoplan.control import Controller
 from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.arm_points import arm_points
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.options.base import GearPolicyFactory
+from dynoplan.envs.gear.options.base import GearPolicyFactory, gripper_as_it_is
 from dynoplan.envs.gear.options.catalog import gear_option
 from dynoplan.envs.gear.options.preconditions import (
     CARRIED_GEAR_HEIGHT,
@@ -55,7 +55,6 @@ from dynoplan.envs.gear.options.preconditions import (
     holding_gear,
     not_carried,
 )
-from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
@@ -102,6 +101,9 @@ class ControllerVariant:
     sets: str
     end_inside: bool = False
     safe: bool = False
+    never: tuple[str, ...] = ()
+    """Options never admissible in this variant (an ablation: the same models without
+    an option's choice)."""
 
 
 VARIANTS: dict[str, ControllerVariant] = {
@@ -118,6 +120,10 @@ VARIANTS: dict[str, ControllerVariant] = {
     "random_everywhere": ControllerVariant("random", "everywhere"),
     "dynoplan_safe": ControllerVariant("planner", "learned", end_inside=True, safe=True),
     "dynoplan+rules_safe": ControllerVariant("planner", "rules", safe=True),
+    "dynoplan_no_give_way": ControllerVariant("planner", "learned", end_inside=True,
+                                              never=("give_way",)),
+    "dynoplan_safe_no_give_way": ControllerVariant("planner", "learned", end_inside=True,
+                                                   safe=True, never=("give_way",)),
 }
 """Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
 accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe ones.
@@ -172,13 +178,14 @@ def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Ini
 
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
                  factories: Mapping[str, GearPolicyFactory], sets: str = "rules",
-                 terminations: bool = True) -> list[Option]:
+                 terminations: bool = True, never: tuple[str, ...] = ()) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``.
 
     Args:
         sets: their initiation and continuation sets, one of :data:`INITIATION_SETS`.
         terminations: each option's own ``beta_w`` (else 0: the option runs until its
             policy reports it is finished).
+        never: options that are never admissible (their initiation set is empty).
     """
     missing = [n for n in models.option_names if n not in factories]
     if missing:
@@ -188,11 +195,13 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
         initiation, continuation = option_sets(name, models, sets)
+        fallback = option_fallback(name, models, sets)
+        if name in never:
+            initiation, continuation, fallback = Nowhere(), None, None
         options.append(Option(
             name, policy, dynamics,
             termination=policy.termination() if terminations else ConstantTermination(0.0),
-            initiation=initiation, continuation=continuation,
-            fallback=option_fallback(name, models, sets)))
+            initiation=initiation, continuation=continuation, fallback=fallback))
     return options
 
 
@@ -248,7 +257,7 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
     variant = VARIANTS[name]
     scripted = variant.chooser == "script"
     options = gear_options(env, models, factories, sets=variant.sets,
-                           terminations=not scripted)
+                           terminations=not scripted, never=variant.never)
     chooser: OptionChooser
     if variant.chooser == "planner":
         chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
@@ -332,13 +341,6 @@ class StopWhereItIs:
         still = float(np.max(np.abs(observation[OBS_SLICES["arm_qvel"]][:6]))) < self.STILL
         left = targets[:6] if still else self.env.arm_qpos[:6]
         return np.concatenate([left, targets[6:], [gripper_as_it_is(observation)]])
-
-
-def gripper_as_it_is(observation: FloatArray) -> float:
-    """The gripper command that keeps the left gripper as it is in ``observation``
-    ((50,)): 1 (closed) when its fingers are closed past 80 % of their travel, else 0."""
-    fingers = np.asarray(observation, dtype=np.float64)[OBS_SLICES["fingers"]]
-    return 1.0 if float(fingers.mean()) < 0.8 * FINGER_TRAVEL else 0.0
 
 
 __all__ = [

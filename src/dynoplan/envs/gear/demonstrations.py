@@ -21,7 +21,6 @@ import numpy.typing as npt
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.expert import ExpertAction, GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
-from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.parallel import SERIAL, Workers, parallel_map
@@ -293,10 +292,13 @@ def summarise(episodes: list[Episode], seed: int, wall_seconds: float) -> dict[s
     step_seconds = float(sum(ep["step_seconds"] for ep in episodes))
     contacts = [int(ep["infos"]["human_contacts"].sum()) for ep in episodes]
     min_dist = [float(ep["infos"]["min_human_distance"].min()) for ep in episodes]
+    from dynoplan.envs.gear.options.catalog import gear_option_names
+
+    names = gear_option_names()
     option_counts: Counter[str] = Counter()
     for ep in episodes:
         for k, c in zip(*np.unique(ep["infos"]["option"], return_counts=True), strict=True):
-            option_counts[PAPER_OPTIONS[int(k)]] += int(c)
+            option_counts[names[int(k)]] += int(c)
     by_mode: dict[str, dict[str, float]] = {}
     for mode in HUMAN_MODES:
         idx = [i for i, ep in enumerate(episodes) if ep["human_mode"] == mode]

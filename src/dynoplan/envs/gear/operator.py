@@ -10,14 +10,23 @@ a simple rule and sight of the human's hand:
   until the running move reaches the pre-insertion offset;
 - **insert** once there with the hand at least :data:`INSERT_CLEAR` away; if the hand
   comes within :data:`INSERT_NEAR` while inserting (or the insertion fails), back to the
-  cautious move, which returns to the offset keeping its clearance.
+  cautious move, which returns to the offset keeping its clearance;
+- when the give-way option is registered
+  (:mod:`~dynoplan.envs.gear.options.give_way_option`): once the gear is picked,
+  **give way** when the hand comes within
+  :data:`~dynoplan.envs.gear.options.give_way.GIVE_WAY_NEAR` of the left arm, until the
+  give-way is done; then the moves go on (an interrupted insertion goes back to them).
+  The pick is not interrupted: the pick's demonstrations, hence its Eq. 5 region, stay
+  those of the four options (giving way during the pick changed which seeds the
+  demonstrations succeeded on, and the pick's region then held 9 of the first 20
+  evaluation starts instead of 20; ``docs/safety.md``).
 
 Every step is labelled with the running option, so the safety regions and the goal
 heuristic learned from these demonstrations describe where the real options go (the
 scripted :class:`~dynoplan.envs.gear.expert.GearExpert` moves along its own paths, which
 the planning options do not follow). It has the expert's interface: ``reset()`` and
-``act(observation, info) -> ExpertAction``. Options registered after the paper's four
-are not demonstrated (the regions then leave them out; their data comes from
+``act(observation, info) -> ExpertAction``. Other options registered after the paper's
+four are not demonstrated (the regions then leave them out; their data comes from
 ``dynoplan gear collect``).
 """
 
@@ -28,7 +37,8 @@ import numpy as np
 
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, ExpertAction
-from dynoplan.envs.gear.options.base import GearPolicyFactory
+from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
+from dynoplan.envs.gear.options.give_way import GIVE_WAY, GIVE_WAY_NEAR, left_arm_hand_distance
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState, tool_human_distance
 from dynoplan.envs.gear.task import PAPER_OPTIONS
@@ -47,17 +57,25 @@ MAX_PICK_ATTEMPTS = 3
 
 
 class OptionOperator:
-    """Chains the paper's option policies built by ``factories`` on ``env`` (module
-    docstring); labels are indices into :data:`~dynoplan.envs.gear.task.PAPER_OPTIONS`,
-    the first registered options."""
+    """Chains the option policies built by ``factories`` on ``env`` (module docstring);
+    labels are the options' indices in the registry
+    (:data:`~dynoplan.envs.gear.options.catalog.GEAR_OPTIONS`): the paper's four are
+    0..3, the give-way option its own label when it is registered."""
 
     def __init__(self, env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory],
                  seed: int = 0) -> None:
+        from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
+
         missing = [n for n in PAPER_OPTIONS if n not in factories]
         if missing:
             raise DynoplanError(f"the operator needs every option; missing {', '.join(missing)}")
         self.env = env
-        self.policies = [factories[name](env) for name in PAPER_OPTIONS]
+        self.policies: dict[int, GearOptionPolicy] = {
+            label: factories[name](env) for label, name in enumerate(PAPER_OPTIONS)}
+        self.give_way: int | None = None
+        if GIVE_WAY.name in GEAR_OPTIONS.names() and GIVE_WAY.name in factories:
+            self.give_way = GEAR_OPTIONS.index(GIVE_WAY.name)
+            self.policies[self.give_way] = factories[GIVE_WAY.name](env)
         self.state_fn = PlannerState()
         self.rng = np.random.default_rng(seed)
         self.reset()
@@ -90,9 +108,18 @@ class OptionOperator:
     def _decide(self, obs: FloatArray, info: dict[str, Any]) -> None:
         """Choose the option for the next decision period (and start it if it changes)."""
         self.steps_in_decision = 0
-        distance = float(tool_human_distance(self.state_fn(obs)[None])[0])
+        state = self.state_fn(obs)[None]
+        distance = float(tool_human_distance(state)[0])
         current = None if self.running is None else self.policies[self.running]
         choice = self.running
+        if self.give_way is not None and self.phase != "pick":
+            if self.running == self.give_way:
+                assert current is not None
+                if not current.finished():
+                    return
+            elif float(left_arm_hand_distance(state)[0]) < GIVE_WAY_NEAR:
+                self._start(self.give_way, obs)
+                return
         if self.phase == "pick":
             if current is None or current.status == "failed":
                 if self.pick_attempts < MAX_PICK_ATTEMPTS:
@@ -104,7 +131,8 @@ class OptionOperator:
             self.phase = "move"
         if self.phase == "insert":
             assert current is not None
-            if distance >= INSERT_NEAR and current.status == "running":
+            if distance >= INSERT_NEAR and current.status == "running" \
+                    and self.running == INSERT:
                 return
             if bool(info.get("is_success", False)):
                 return

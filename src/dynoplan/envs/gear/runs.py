@@ -59,7 +59,7 @@ def own_start(runs: OptionRuns, option: str, rng: Generator) -> RunStart:
     obs, info = start.observation, start.info
     if perturb:
         obs, info = _perturb(env, rng, held=int(info["pads_on_gear"]) >= 2)
-    return RunStart(obs, info, start.env_seed, {"human_mode": mode})
+    return RunStart(obs, info, start.env_seed, {"human_mode": start.human_mode})
 
 
 def beyond_start(runs: OptionRuns, option: str, rng: Generator) -> RunStart:
@@ -81,7 +81,7 @@ def beyond_start(runs: OptionRuns, option: str, rng: Generator) -> RunStart:
                              option_names=names)
         obs, info = led.episode.observations[-1], led.info
     over = bool(info.get("is_success")) or bool(info.get("gear_dropped"))
-    return RunStart(obs, info, start.env_seed, {"source": source, "human_mode": mode},
+    return RunStart(obs, info, start.env_seed, {"source": source, "human_mode": start.human_mode},
                     over=over)
 
 

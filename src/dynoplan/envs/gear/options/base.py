@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.scene import FINGER_TRAVEL
 from dynoplan.options import OptionPolicy, PolicyFactory
 from dynoplan.options.termination import Termination
 from dynoplan.types import FloatArray
@@ -59,7 +60,14 @@ def start_joints(env: GearAssemblyEnv, observation: Any) -> FloatArray:
     return out
 
 
-__all__ = ["GearOptionPolicy", "start_joints"]
+def gripper_as_it_is(observation: FloatArray) -> float:
+    """The gripper command that keeps the left gripper as it is in ``observation``
+    ((50,)): 1 (closed) when its fingers are closed past 80 % of their travel, else 0."""
+    fingers = np.asarray(observation, dtype=np.float64)[OBS_SLICES["fingers"]]
+    return 1.0 if float(fingers.mean()) < 0.8 * FINGER_TRAVEL else 0.0
+
+
+__all__ = ["GearOptionPolicy", "gripper_as_it_is", "start_joints"]
 
 
 GearPolicyFactory = PolicyFactory[GearAssemblyEnv, GearOptionPolicy]

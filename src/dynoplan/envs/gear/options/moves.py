@@ -372,6 +372,9 @@ class CautiousMovePolicy(_CarryMove):
         self._hand_vel = np.zeros(3)
         self._retreat_goals: list[FloatArray] = []
         self._retreat_since = -np.inf
+        self.carry_gear = True
+        """Whether the robot's world model carries the gear in the hand (the moves always
+        do; the give-way option only when it holds the gear)."""
         self.mode = "idle"
         """What the last ``act`` did: ``"move"``, ``"slow"``, ``"stop"``, ``"retreat"``,
         ``"settle"`` (at the goal) or ``"wait"`` (no path yet)."""
@@ -409,7 +412,7 @@ class CautiousMovePolicy(_CarryMove):
 
     # ---------------------------------------------------------------- the human
     def _observe(self, obs: FloatArray) -> None:
-        self.checker.sync(self.env.data, carry_gear=True)
+        self.checker.sync(self.env.data, carry_gear=self.carry_gear)
         self._hand = obs[OBS_SLICES["human_pos"]].copy()
         self._hand_quat = obs[OBS_SLICES["human_quat"]].copy()
         self._hand_vel = obs[OBS_SLICES["human_vel"]].copy()
@@ -475,14 +478,14 @@ class CautiousMovePolicy(_CarryMove):
         old = self.path
         if not self._plan(extra_valid=clear):
             self.path = old
-        checker.sync(self.env.data, carry_gear=True)
+        checker.sync(self.env.data, carry_gear=self.carry_gear)
 
     def _static_clearance(self, q: FloatArray, poses: tuple[FloatArray, FloatArray]) -> float:
         d = np.inf
         for p, quat in zip(*poses, strict=True):
             self.checker.set_human(p, quat)
             d = min(d, self.checker.human_distance(q))
-        self.checker.sync(self.env.data, carry_gear=True)
+        self.checker.sync(self.env.data, carry_gear=self.carry_gear)
         return float(d)
 
     # ---------------------------------------------------------------- monitoring

@@ -91,6 +91,9 @@ class GearOption:
         color: its colour in figures (``None``: one of a fixed palette).
         trial_notes: constants written into its trials' ``summary.json`` (for example
             a stated safety distance).
+        start_sets_human: its ``start`` installs the human's schedule itself (an option
+            that starts where the hand has come to the arm); otherwise a schedule of
+            ``human_mode`` (or the mode a run asks for) is installed after the start.
     """
 
     name: str
@@ -102,6 +105,7 @@ class GearOption:
     human_mode: str = "away"
     color: str | None = None
     trial_notes: dict[str, Any] = field(default_factory=dict)
+    start_sets_human: bool = False
 
     def __post_init__(self) -> None:
         check_option_name(self.name)

@@ -102,7 +102,10 @@ def reach_start(env: GearAssemblyEnv, option: str, rng: Generator,
                 human_mode: str | None = None,
                 config: StartConfig | None = None) -> OptionStart:
     """Reset ``env`` and drive it to a start state of the registered option ``option``
-    (its ``start`` sampler); all randomness from ``rng``. Raises :class:`DynoplanError`
+    (its ``start`` sampler), then install a schedule of ``human_mode`` (default: the
+    option's) unless the option's start installs its own
+    (:attr:`~dynoplan.envs.gear.options.registry.GearOption.start_sets_human`); all
+    randomness from ``rng``. Raises :class:`DynoplanError`
     if no attempt reaches it."""
     from dynoplan.envs.gear.options.catalog import gear_option
 
@@ -116,8 +119,10 @@ def reach_start(env: GearAssemblyEnv, option: str, rng: Generator,
         env.reset(seed=seed, options={"human_mode": "away"})
         if not record.start(env, rng, cfg):
             continue
-        obs, info = env.set_human_schedule(shifted_schedule(env, mode, rng, cfg.event_delay))
-        return OptionStart(observation=obs, info=info, env_seed=seed, human_mode=mode)
+        schedule = (env.schedule if record.start_sets_human
+                    else shifted_schedule(env, mode, rng, cfg.event_delay))
+        obs, info = env.set_human_schedule(schedule)
+        return OptionStart(observation=obs, info=info, env_seed=seed, human_mode=schedule.mode)
     raise DynoplanError(f"could not reach a start state of {option!r} in {cfg.attempts} "
                         "attempts")
 
