@@ -20,9 +20,9 @@ import time
 from pathlib import Path
 
 from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.evaluation import EVAL_SEED_OFFSET
 from dynoplan.envs.gear.human import BEHAVIOURS
 from dynoplan.envs.gear.pipeline_task import GearTask
-from dynoplan.experiments.gear_run import EVAL_SEED_OFFSET
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
 
