@@ -1,7 +1,7 @@
 """Wall seconds per named stage of a run, the one timer of ``gear run`` and the pipeline."""
 
-import time
 from collections.abc import Callable
+from time import perf_counter
 from typing import Any, TypeVar
 
 from dynoplan.parallel import SERIAL, Workers, run_in_background
@@ -20,11 +20,11 @@ class StageClock:
     def __init__(self, say: Callable[[str], None] | None = None, label: str = "{}") -> None:
         self.seconds: dict[str, float] = {}
         self._say, self._label = say, label
-        self._current, self._since = "", time.perf_counter()
+        self._current, self._since = "", perf_counter()
 
     def switch(self, name: str) -> None:
         """End the current stage and start ``name`` (``""``: none)."""
-        now = time.perf_counter()
+        now = perf_counter()
         if self._current:
             self._add(self._current, now - self._since)
         self._current, self._since = name, now
@@ -67,9 +67,9 @@ class StageClock:
 
 def _timed(fn: Callable[..., T], *args: Any) -> tuple[float, T]:
     """``(wall seconds, fn(*args))``: a stage run as one task, and how long it took."""
-    t0 = time.perf_counter()
+    t0 = perf_counter()
     result = fn(*args)
-    return time.perf_counter() - t0, result
+    return perf_counter() - t0, result
 
 
 __all__ = ["StageClock"]

@@ -1,13 +1,9 @@
 """The paper's Simulated MDP experiment: DynoPlan on the 19-state random walk.
 
-Writes into one folder:
-
-- ``summary.json``: DynoPlan's success rate and planning-step distribution at the
-  chosen noise, the same for each option run alone and for a random option choice, and
-  one robustness row per misprediction probability;
-- ``figure_mdp_solution.png``: the paper's Figure 2(b) for the first episode;
-- ``robustness.png`` and ``robustness.csv``: success and planning steps against noise;
-- ``results.md``: both tables in markdown, for the docs.
+Writes ``summary.json`` (DynoPlan's success rate and planning steps, each option alone,
+random choice, one robustness row per misprediction probability), ``results.md`` (both
+tables), ``figure_mdp_solution.png`` (Figure 2(b), first episode), ``robustness.png``
+and ``robustness.csv`` (success and planning steps against noise).
 """
 
 import time
@@ -102,7 +98,7 @@ def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = Tr
     robustness = []
     for noise in settings.robustness_noises:
         row = main if noise == settings.noise else evaluate("dynoplan", noise)[0]
-        robustness.append({"noise": noise, **{k: v for k, v in row.items()}})
+        robustness.append({"noise": noise, **row})
 
     plot_mdp_solution(traces[0], out / "figure_mdp_solution.png", settings.goal_state,
                       title=f"DynoPlan on the random walk (noise {settings.noise:g}, "
