@@ -45,9 +45,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
                             f"expected some of {', '.join(known)}")
     if episodes < 1:
         raise DynoplanError(f"--episodes must be >= 1, got {episodes}")
-    if planner.horizon < 1 or planner.samples < 1:
-        raise DynoplanError("--horizon and --samples must be >= 1")
-    planner.validate()
+    planner.validate()  # horizon, samples, ...
     ensure_writable_dir(out)
     load_gear_models(models)  # one clear error here rather than one per worker
     if FLAT_POLICY in controllers and flat_folder is not None:

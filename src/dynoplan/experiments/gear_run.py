@@ -1,45 +1,27 @@
 """``dynoplan gear run``: the gear assembly end to end, into one output folder.
 
-Stages (each timed in ``summary.json``):
+Stages, each timed in ``summary.json``'s ``stages_s``, with what they write:
+``networks`` (the options' networks, ``models/``), ``demos`` (demonstrations by
+:class:`~dynoplan.envs.gear.operator.OptionOperator` and held-out ones, ``demos/``,
+``heldout/``), ``collect`` (``transitions/``), ``train`` (goal, regions, dynamics;
+``models/metrics.json``), ``figures`` (Fig. 3(a), 3(b); ``figures/``), ``flat_ppo``
+(``flat_ppo/``), ``outcomes`` (outcome runs and the initiation learned from them;
+``outcomes/``, ``models/initiation.safetensors``), ``evaluate`` (every controller, the
+variants :data:`VARIANT_ROWS` and the ablation :data:`ABLATION_ROWS` on the same seeded
+episodes; ``results.csv``, ``results.md``), ``faults`` and ``video`` (``episode.mp4``).
+The first five are :mod:`dynoplan.experiments.gear_stages`, shared with the stage commands.
 
-1. ``networks``: the registered options' networks (the pick option's grasp recogniser
-   and the insertion network; ``models/``);
-2. ``demos``: 10 demonstrations by an operator chaining the options
-   (:class:`~dynoplan.envs.gear.operator.OptionOperator`), and as many held-out ones
-   from other seeds (``demos/``, ``heldout/``);
-3. ``collect``: option transitions at the decision rate (``transitions/``);
-4. ``train``: goal heuristic, safety regions and per-option dynamics
-   (``models/metrics.json``);
-5. ``figures``: Fig. 3(a) and 3(b) (``figures/``);
-6. ``flat_ppo``: the flat end-to-end baseline (``flat_ppo/``);
-7. ``outcomes``: every option run from starts beyond its own region, and the initiation
-   learned from those outcomes (``outcomes/``, ``models/initiation.safetensors``; see
-   :mod:`dynoplan.envs.gear.learning.outcomes`), part of every controller's learned
-   initiation sets;
-8. ``evaluate``: every controller on the same seeded episodes (human: none, crossing or
-   blocking), the named variants (:data:`VARIANT_ROWS`) and, on the first of those
-   episodes, the ablation (:data:`ABLATION_ROWS`); ``results.csv`` and ``results.md``;
-9. ``faults``: DynoPlan under corrupted dynamics, observation noise and a grasp slip;
-10. ``video``: one DynoPlan episode with the human interfering (``episode.mp4``).
-
-Stages 1-5 are the functions of :mod:`dynoplan.experiments.gear_stages`, which the
-commands ``gear demos``, ``gear collect``, ``gear train`` and ``gear figures`` call too
-(the first two train the networks when they are missing).
-
-On one worker the stages run one after another in this process. On several (Ray), the
-stages made of independent episodes (the networks' data, the demonstrations, collection,
-evaluation, faults) spread them over the workers, and two stages run beside the others
-as one Ray task each: the flat PPO training from the start of the run (it needs nothing
-but the seed) and the video beside the faults. Their ``stages_s`` entries are then their
-own durations, which overlap other stages; ``wall_s`` is the whole run's. Every result
-is the same on one worker or many.
+On several workers (Ray) the episode stages spread over them, and ``flat_ppo`` (from
+the start) and ``video`` (beside ``faults``) run as one task each: their ``stages_s``
+are their own durations, ``wall_s`` the run's. Results are the same on one worker or many.
 """
 
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.evaluation import (
@@ -61,13 +43,12 @@ from dynoplan.envs.gear.learning.settings import (
 )
 from dynoplan.experiments.gear_stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
 from dynoplan.io import ensure_writable_dir, write_json, write_text
-from dynoplan.parallel import SERIAL, Workers, ray_session, run_in_background
+from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
 from dynoplan.pipeline.fit import FitSettings
 from dynoplan.reports.gear_results import results_markdown, results_rows, summarise, write_results
-
-T = TypeVar("T")
+from dynoplan.timing import StageClock
 
 
 @dataclass(frozen=True)
@@ -89,11 +70,9 @@ OUTCOME_RUNS = OptionRunSettings(runs=30, max_decisions=30, lead_decisions=12)
 
 @dataclass(frozen=True)
 class EvaluationSettings:
-    """The ``evaluate`` stage: every controller on ``episodes`` evaluation episodes, the
-    oracle on the first ``oracle_episodes`` of them (it simulates every option at every
-    decision, which costs real time), each ablation row on the first
-    ``ablation_episodes``; every controller plans and runs as ``planner`` says (horizon,
-    samples, margin, ...), in the faults and the video too."""
+    """The ``evaluate`` stage: every controller on ``episodes`` episodes, the (slow) oracle
+    on the first ``oracle_episodes``, each ablation row on the first ``ablation_episodes``;
+    ``planner``: how every controller plans (in the faults and the video too)."""
 
     episodes: int = 100
     oracle_episodes: int = 10
@@ -103,22 +82,10 @@ class EvaluationSettings:
 
 @dataclass(frozen=True)
 class GearRunSettings:
-    """Sizes of every stage (recorded in ``summary.json``).
-
-    Attributes:
-        demos: demonstrations (and held-out trials) recorded.
-        collect: the option runs of every option for the dynamics data (runs per option,
-            decisions per run at most).
-        fit, metrics: how the learned models (goal, regions, dynamics) are fitted and
-            measured on held-out data.
-        figure_points: states embedded by t-SNE in Fig. 3(b) at most.
-        ppo_steps: environment steps of the flat PPO baseline.
-        evaluation: the evaluate stage.
-        faults: the faults stage.
-        video: render one episode.
-        outcomes: the outcome runs (``runs`` 0: no outcome stage; the learned initiation
-            sets are then the Eq. 5 regions alone).
-    """
+    """Sizes of every stage (recorded in ``summary.json``): ``demos`` demonstrations (and
+    held-out trials), ``collect``'s option runs, how the models are fitted (``fit``) and
+    measured (``metrics``), t-SNE ``figure_points``, ``ppo_steps`` of the flat baseline,
+    ``outcomes``' runs (``runs`` 0: no outcomes stage, the Eq. 5 regions alone)."""
 
     demos: int = 10
     collect: OptionRunSettings = TRANSITION_RUNS
@@ -152,11 +119,8 @@ def run_settings(quick: bool) -> GearRunSettings:
 def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = GearRunSettings(),
                       progress: bool = True, log: Callable[[str], None] = lambda _: None,
                       workers: Workers = SERIAL) -> dict[str, Any]:
-    """Run every stage (module docstring) into ``out``; return ``summary.json``'s content.
-
-    The stages made of independent episodes run them on ``workers`` (one Ray runtime for
-    the whole run), and on several workers the flat PPO training and the video run
-    beside the other stages; the results are the same on one worker or many."""
+    """Run every stage (module docstring) into ``out`` on ``workers`` (one Ray runtime for
+    the run); return ``summary.json``'s content."""
     t0 = time.perf_counter()
     with ray_session(workers):
         summary = _run_stages(out, seed, settings, progress, log, workers)
@@ -184,31 +148,11 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     torch.set_num_threads(1)
     ensure_writable_dir(out)
     models_dir = out / "models"
-    stages: dict[str, float] = {}
-    summary: dict[str, Any] = {"seed": seed, "settings": asdict(settings), "stages_s": stages,
+    clock = StageClock(log, "[{}]")
+    stage = clock.stage
+    summary: dict[str, Any] = {"seed": seed, "settings": asdict(settings), "stages_s": {},
                                "workers": asdict(workers)}
-
-    def stage(name: str, fn: Callable[[], T]) -> T:
-        log(f"[{name}]")
-        t0 = time.perf_counter()
-        result = fn()
-        stages[name] = round(time.perf_counter() - t0, 2)
-        return result
-
-    def start(name: str, fn: Callable[..., T], *args: Any) -> Callable[[], T]:
-        """Stage ``name``, ``fn(*args)``: run now on one worker, started as a Ray task
-        beside the next stages on several; the returned function waits for the result
-        (and records the stage's own duration)."""
-        log(f"[{name}]" + (" (beside the next stages)" if workers.parallel else ""))
-        wait = run_in_background(_timed, (fn, *args), workers)
-
-        def finish() -> T:
-            seconds, result = wait()
-            stages[name] = round(seconds, 2)
-            return result
-
-        return finish
-
+    start = partial(clock.start, workers=workers)
     flat = (start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
             if workers.parallel else None)
     summary["networks"] = stage("networks", lambda: option_networks(
@@ -263,14 +207,8 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     if video is not None:
         summary["video"] = save_video(video(), episodes["dynoplan"][shown], shown,
                                       out / "episode.mp4")
+    summary["stages_s"] = clock.rounded(2)
     return summary
-
-
-def _timed(fn: Callable[..., T], *args: Any) -> tuple[float, T]:
-    """``(wall seconds, fn(*args))``: a stage run as one task, and how long it took."""
-    t0 = time.perf_counter()
-    result = fn(*args)
-    return time.perf_counter() - t0, result
 
 
 __all__ = ["QUICK_RUN", "EvaluationSettings", "FaultSettings", "GearRunSettings",

@@ -1,11 +1,9 @@
 """The stages of ``dynoplan gear run`` that have a command of their own, one function each.
 
-``gear run`` (:mod:`dynoplan.experiments.gear_run`) and the commands ``gear demos``,
-``gear collect``, ``gear train``, ``gear figures`` and ``gear outcomes`` call these
-functions, and take their sizes from the same settings
-(:func:`~dynoplan.experiments.gear_run.run_settings`), so the commands
-chained into one folder write what ``gear run --out DIR`` writes there for the same seed
-(add ``--quick`` to each for ``gear run --quick``)::
+``gear run`` and the commands ``gear demos``, ``collect``, ``train``, ``figures`` and
+``outcomes`` call them with the same sizes
+(:func:`~dynoplan.experiments.gear_run.run_settings`), so chained into one folder they
+write what ``gear run --out DIR`` writes for the same seed (``--quick``: add it to each)::
 
     dynoplan gear demos --models DIR/models --out DIR/demos
     dynoplan gear demos --heldout --models DIR/models --out DIR/heldout
@@ -40,13 +38,11 @@ if TYPE_CHECKING:
     from dynoplan.pipeline.collect import OptionRunSettings
 
 DEMONSTRATOR = "options"
-"""Who records the demonstrations and the held-out trials: the operator chaining the four
-option policies (:class:`~dynoplan.envs.gear.operator.OptionOperator`); ``expert``, the
-scripted expert with privileged state, is the other choice."""
+"""Who records the demonstrations and held-out trials: the operator chaining the option
+policies (:class:`~dynoplan.envs.gear.operator.OptionOperator`); or ``expert``."""
 
 FIGURE_POINTS = 1500
-"""States embedded by t-SNE in Fig. 3(b) at most (:data:`QUICK_FIGURE_POINTS` with
-``--quick``)."""
+"""States embedded by t-SNE in Fig. 3(b) at most (``--quick``: the next)."""
 QUICK_FIGURE_POINTS = 400
 
 
@@ -57,14 +53,10 @@ def _silent(_: str) -> None:
 def option_networks(models: Path, seed: int, only: Sequence[str] | None = None,
                     workers: Workers = SERIAL,
                     log: Callable[[str], None] = _silent) -> dict[str, Any]:
-    """Stage ``networks``: train the networks of the options ``only`` (default: every
-    registered option with a network,
-    :func:`~dynoplan.envs.gear.options.catalog.network_files`) that are missing from
-    ``models``; their training reports by option name (empty when none was missing).
-
-    Always on full settings (160 data episodes, about 35 s on one core, and 10 s of
-    fits), also under ``--quick``: quick networks fail too often for ten successful
-    demonstrations."""
+    """Stage ``networks``: train into ``models`` the networks missing there of the options
+    ``only`` (default: all, :func:`~dynoplan.envs.gear.options.catalog.network_files`);
+    their training reports by option name. Full settings also under ``--quick`` (quick
+    networks fail too often for ten successful demonstrations)."""
     from dynoplan.envs.gear.options.catalog import train_option_networks
 
     missing = tuple(n for n, f in network_files().items()
@@ -81,12 +73,9 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
                    progress: bool = True, workers: Workers = SERIAL,
                    log: Callable[[str], None] = _silent) -> dict[str, Any]:
     """Stage ``demos``: ``n`` demonstrations by ``demonstrator`` into the dataset folder
-    ``out``, from ``seed``; with ``heldout``, the held-out trials instead, from ``seed +
-    HELDOUT_SEED_OFFSET`` (disjoint episodes). ``gear run`` records both, ``n`` = 10.
-
-    The operator's networks are read from ``models``, and trained there first (from
-    ``seed``, :func:`option_networks`) when missing. Returns
-    :func:`~dynoplan.envs.gear.learning.demos.record_demos`'s summary."""
+    ``out`` from ``seed`` (``heldout``: from ``seed + HELDOUT_SEED_OFFSET``), the
+    operator's networks from ``models`` (:func:`option_networks` first); the summary of
+    :func:`~dynoplan.envs.gear.learning.demos.record_demos`."""
     from dynoplan.envs.gear.demonstrations import check_request
     from dynoplan.envs.gear.learning.demos import record_demos
 
@@ -101,10 +90,9 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
 def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisions: int,
                        progress: bool = True, workers: Workers = SERIAL,
                        log: Callable[[str], None] = _silent) -> dict[str, Any]:
-    """Stage ``collect``: ``runs`` runs of every option, at most ``max_decisions``
-    decisions each, into the dataset folder ``out``
-    (:func:`~dynoplan.envs.gear.learning.transitions.collect_gear_transitions`); the options'
-    networks read from ``models`` (trained there first when missing)."""
+    """Stage ``collect``: ``runs`` runs of every option of at most ``max_decisions``
+    decisions into the dataset folder ``out``, the networks from ``models``
+    (:func:`option_networks` first); the collection's summary."""
     from dynoplan.envs.gear.learning.transitions import check_collection, collect_gear_transitions
 
     check_collection(runs, max_decisions)
@@ -118,17 +106,9 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
                    metrics: GearMetricsSettings = DEFAULT_METRICS, progress: bool = True,
                    workers: Workers = SERIAL,
                    log: Callable[[str], None] = _silent) -> dict[str, Any]:
-    """Stage ``train``: the goal heuristic, the safety regions and the dynamics fitted as
-    ``fit`` says into ``models``, measured as ``metrics`` says
-    (:func:`~dynoplan.envs.gear.learning.training.train_gear_models`; ``gear run``'s
-    ``fit`` and ``metrics``: :data:`~dynoplan.envs.gear.learning.settings.DEFAULT_SETTINGS`
-    and ``DEFAULT_METRICS``, ``--quick`` ``QUICK_SETTINGS`` and ``QUICK_METRICS``); the
-    content of ``metrics.json``.
-
-    ``heldout`` ``None``: ``metrics.heldout_episodes`` held-out trials (10; ``--quick``
-    3) are recorded into ``models/heldout-demos`` by the demonstrator that recorded
-    ``demos``, as :func:`demonstrations` records them (kept when they are there
-    already)."""
+    """Stage ``train``: goal heuristic, safety regions and dynamics fitted as ``fit`` says
+    into ``models`` and measured as ``metrics`` says; the content of ``metrics.json``.
+    ``heldout`` ``None``: :func:`heldout_trials` into ``models/heldout-demos``."""
     from dynoplan.envs.gear.learning.training import train_gear_models
 
     if heldout is None:
@@ -142,9 +122,8 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
 
 def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",
                        progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
-    """Stage ``outcomes``: the outcome runs (``out``) and the initiation learned from them,
-    written into ``models`` (``gear outcomes`` with the run's sizes); returns the runs'
-    summary and the fit's report per option (``models/initiation.json`` too)."""
+    """Stage ``outcomes``: the outcome runs into ``out`` and the initiation learned from
+    them into ``models`` (report: ``models/initiation.json``); their summary."""
     from dynoplan.envs.gear.learning.outcomes import collect_outcomes, fit_gear_initiation
 
     runs = collect_outcomes(models, seed, out, settings, progress=progress, workers=workers)
@@ -158,9 +137,8 @@ def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunS
 def heldout_trials(demos: Path, n: int, seed: int, out: Path, models: Path,
                    progress: bool = True, workers: Workers = SERIAL,
                    log: Callable[[str], None] = _silent) -> Path:
-    """``n`` held-out trials in ``out`` by the demonstrator named in the dataset
-    ``demos`` (:data:`DEMONSTRATOR` when it names none), recorded by
-    :func:`demonstrations` unless ``out`` holds them already; ``out``."""
+    """``out``, holding ``n`` held-out trials by ``demos``' demonstrator (recorded by
+    :func:`demonstrations` unless there already)."""
     demonstrator = read_dataset(demos).metadata.extra.get("demonstrator", DEMONSTRATOR)
     if (out / "data").is_dir():
         try:
@@ -180,10 +158,8 @@ def heldout_trials(demos: Path, n: int, seed: int, out: Path, models: Path,
 def figures(models: Path, demos: Path, heldout: Path | None, out: Path, seed: int,
             points: int = FIGURE_POINTS, trial: int = 0,
             progress: bool = False) -> dict[str, Any]:
-    """Stage ``figures``: Fig. 3(a) and 3(b) into ``out``
-    (:func:`~dynoplan.reports.gear_figures.make_gear_figures`), t-SNE on ``points``
-    states at most (:data:`FIGURE_POINTS`; ``--quick``: :data:`QUICK_FIGURE_POINTS`); the
-    content of ``figures.json``."""
+    """Stage ``figures``: Fig. 3(a) and 3(b) into ``out``, t-SNE on ``points`` states at
+    most; the content of ``figures.json``."""
     from dynoplan.reports.gear_figures import make_gear_figures
 
     return make_gear_figures(models, demos, heldout, out, seed=seed, trial=trial,

@@ -1,13 +1,9 @@
 """The paper's Simulated MDP experiment: DynoPlan on the 19-state random walk.
 
-Writes into one folder:
-
-- ``summary.json``: DynoPlan's success rate and planning-step distribution at the
-  chosen noise, the same for each option run alone and for a random option choice, and
-  one robustness row per misprediction probability;
-- ``figure_mdp_solution.png``: the paper's Figure 2(b) for the first episode;
-- ``robustness.png`` and ``robustness.csv``: success and planning steps against noise;
-- ``results.md``: both tables in markdown, for the docs.
+Writes ``summary.json`` (DynoPlan's success rate and planning steps, each option alone,
+random choice, one robustness row per misprediction probability), ``results.md`` (both
+tables), ``figure_mdp_solution.png`` (Figure 2(b), first episode), ``robustness.png``
+and ``robustness.csv`` (success and planning steps against noise).
 """
 
 import time
@@ -32,7 +28,7 @@ from dynoplan.pipeline.evaluate import (
     run_episodes,
 )
 from dynoplan.reports.random_walk_figures import plot_mdp_solution, plot_robustness
-from dynoplan.reports.tables import markdown_table
+from dynoplan.reports.random_walk_results import random_walk_markdown, trace_rows
 from dynoplan.seeding import episode_seeds
 
 ROBUSTNESS_NOISES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
@@ -102,64 +98,24 @@ def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = Tr
     robustness = []
     for noise in settings.robustness_noises:
         row = main if noise == settings.noise else evaluate("dynoplan", noise)[0]
-        robustness.append({"noise": noise, **{k: v for k, v in row.items()}})
+        robustness.append({"noise": noise, **row})
 
     plot_mdp_solution(traces[0], out / "figure_mdp_solution.png", settings.goal_state,
                       title=f"DynoPlan on the random walk (noise {settings.noise:g}, "
                             f"episode 0 of seed {settings.seed})")
     plot_robustness(robustness, out / "robustness.png")
     write_csv(out / "robustness.csv", robustness)
-    write_text(out / "results.md", _results_markdown(settings, main, baselines, robustness))
+    recorded = {**asdict(settings), "robustness_noises": list(settings.robustness_noises)}
+    write_text(out / "results.md", random_walk_markdown(recorded, main, baselines, robustness))
     summary = {
         "experiment": "random_walk",
         "dynoplan_version": __version__,
-        "settings": {**asdict(settings), "robustness_noises": list(settings.robustness_noises)},
+        "settings": recorded,
         **main,
         "noise": settings.noise,
         "baselines": baselines,
         "robustness": robustness,
-        "figure_episode": _trace_rows(traces[0]),
+        "figure_episode": trace_rows(traces[0]),
     }
     write_json(out / "summary.json", summary)
     return summary
-
-
-def _trace_rows(trace: Any) -> list[dict[str, Any]]:
-    """Per planning step: state, every option's mean predicted end state, choice, outcome."""
-    rows = []
-    for d in trace.decisions:
-        rows.append({
-            "planning_step": d.index,
-            "state": float(d.state[0]),
-            "predicted_end_state_mean": {
-                name: float(d.plan.end_states[o, :, 0].mean())
-                for o, name in enumerate(d.plan.option_names)},
-            "scores": dict(zip(d.plan.option_names, map(float, d.plan.scores), strict=True)),
-            "chosen": d.option,
-            "state_after": float(d.state_after[0]),
-        })
-    return rows
-
-
-_COLUMNS = ["controller", "success_rate", "planning_steps_median", "planning_steps_p90",
-            "planning_steps_mean_of_successes", "seconds"]
-_HEADERS = ["controller", "success rate", "planning steps median", "p90", "mean (successes)",
-            "seconds"]
-
-
-def _results_markdown(settings: RandomWalkSettings, main: dict[str, Any],
-                      baselines: dict[str, dict[str, Any]],
-                      robustness: list[dict[str, Any]]) -> str:
-    command = (f"dynoplan random-walk --episodes {settings.episodes} --noise {settings.noise:g} "
-               f"--seed {settings.seed} --horizon {settings.horizon} "
-               f"--samples {settings.samples}")
-    rows = [{"controller": "DynoPlan", **main}]
-    rows += [{"controller": name, **row} for name, row in baselines.items()]
-    noise_rows = [{"controller": f"DynoPlan, noise {r['noise']:g}", **r} for r in robustness]
-    return (f"Produced by `{command}` ({settings.episodes} episodes per row; at most "
-            f"{settings.max_decisions} planning steps; \"–\" where the quantile falls on "
-            f"failed episodes).\n\n"
-            f"### Noise {settings.noise:g}: DynoPlan against each option alone and random choice"
-            f"\n\n{markdown_table(rows, _COLUMNS, _HEADERS)}\n"
-            f"### Robustness to model misprediction\n\n"
-            f"{markdown_table(noise_rows, _COLUMNS, _HEADERS)}")

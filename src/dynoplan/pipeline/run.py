@@ -60,6 +60,7 @@ from dynoplan.pipeline.fit import (
 from dynoplan.pipeline.task import StateFn, SuccessFn, Task, task_env
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
+from dynoplan.timing import StageClock
 from dynoplan.types import FloatArray
 
 NOWHERE = 0.02
@@ -311,18 +312,8 @@ def run_pipeline(
                             "folder, and the default dynamics fitter; the success function "
                             "and state_fn come from the task (workers rebuild the "
                             "controllers from files)")
-    stages: dict[str, float] = {}
-    since = [time.perf_counter()]
-    current = [""]
-
-    def say(message: str) -> None:  # times every stage from its status message to the next
-        now = time.perf_counter()
-        if current[0]:
-            stages[current[0]] = stages.get(current[0], 0.0) + now - since[0]
-        since[0], current[0] = now, message
-        if status is not None and message:
-            status(message)
-
+    clock = StageClock(status)  # times every stage from its status message to the next
+    say = clock.switch
     started = time.perf_counter()
     environment = task_env(make_env(env) if isinstance(env, str) else env, success, state_fn)
     specs = [as_spec(o) for o in options]
@@ -378,7 +369,7 @@ def run_pipeline(
         "admissibility": admissible,
         "warnings": [*region_warnings, *notes],
         "controllers": evaluation,
-        "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
+        "stage_seconds": clock.rounded(3),
         "seconds": time.perf_counter() - started,
         "command": command,
     }
