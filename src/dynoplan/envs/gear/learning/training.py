@@ -85,6 +85,7 @@ from dynoplan.pipeline.fit import (
     fit_labelled_regions,
 )
 from dynoplan.progress import track
+from dynoplan.timing import StageClock
 from dynoplan.types import FloatArray, IntArray
 
 __all__ = ["train_gear_models"]
@@ -132,7 +133,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     out = ensure_writable_dir(out)
     planner = PlannerState()
     train_set = read_demos(demos, "demonstrations")
-    seconds: dict[str, float] = {}
+    clock = StageClock()
 
     held_set = read_demos(heldout_demos, "held-out trials")
     check_disjoint(train_set, held_set, heldout_demos)
@@ -168,9 +169,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                                                 cfg, measure, seed)
         stages.append((f"dynamics {name}", fit_option))
     for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
-        t0 = time.perf_counter()
-        run()
-        seconds[name] = round(time.perf_counter() - t0, 2)
+        clock.stage(name, run)
 
     models_manifest(out, seed, cfg)
     # coverage over all held-out transitions (options without any do not count)
@@ -178,7 +177,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)
     coverages = np.array([r["coverage_90"] for r in dyn_rows], dtype=np.float64)
     goal, regions = results["goal"], results["regions"]
-    seconds["total"] = round(time.perf_counter() - started, 2)
+    seconds = {**clock.rounded(2), "total": round(time.perf_counter() - started, 2)}
     metrics: dict[str, Any] = {
         "goal_spearman": goal["spearman"],
         "goal_mae": goal["mae"],
