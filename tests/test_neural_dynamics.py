@@ -8,7 +8,12 @@ from scipy.stats import ks_2samp, norm
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel, LoopStackedDynamics, stack_dynamics
 from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
-from dynoplan.models.evaluation import calibration, mixture_quantile, one_step_error
+from dynoplan.models.evaluation import (
+    calibration,
+    mixture_quantile,
+    n_step_report,
+    one_step_error,
+)
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.storage import save_arrays
 from dynoplan.options import ConstantTermination, FunctionPolicy, Option
@@ -285,3 +290,28 @@ def test_calibration_widens_an_over_confident_model_to_the_nominal_coverage(tmp_
     wide = _trained()[0]
     s_easy, nxt_easy = _linear_system(n=600, noise=0.01, seed=7)
     np.testing.assert_array_equal(wide.calibrate(s_easy, nxt_easy), np.ones(3))
+
+
+def test_goal_gap_is_how_far_the_imagined_score_is_from_the_real_one():
+    class Drifting:
+        """Deterministic: dimension 0 moves by +0.1 a step as the truth does, dimension 1
+        (the truth keeps it still) drifts by +0.2 a step."""
+
+        members = 2
+
+        def predict(self, states):
+            m = np.stack([states + np.array([0.1, 0.2])] * 2)
+            return m, np.zeros_like(m)
+
+    truth = np.stack([np.arange(6) * 0.1, np.zeros(6)], axis=1)  # one trajectory
+    rng = np.random.default_rng(0)
+    reads_first = n_step_report(Drifting(), [truth], 3, 4, rng, goal=lambda s: s[:, 0])
+    reads_second = n_step_report(Drifting(), [truth], 3, 4, rng, goal=lambda s: s[:, 1])
+    assert reads_first is not None and reads_second is not None
+    # a goal on the well-predicted dimension scores imagined futures as the real ones
+    assert reads_first["goal_gap"] == pytest.approx(0.0, abs=1e-12)
+    # a goal on the drifting one is off by the 3-step drift, 0.6, from every start
+    assert reads_second["goal_gap"] == pytest.approx(0.6)
+    assert reads_second["goal_imagined"] == pytest.approx(0.6)
+    assert reads_second["goal_real"] == pytest.approx(0.0)
+    assert "goal_gap" not in n_step_report(Drifting(), [truth], 3, 4, rng)

@@ -300,6 +300,9 @@ def train(
     goal_ranking: float | None = typer.Option(None, help="Weight of the goal network's "
                                               "ranking loss along demonstrations (default "
                                               "0: none)."),
+    goal_features: str | None = typer.Option(None, help="The feature map the goal "
+                                             "heuristic reads (task, pose or relative; "
+                                             "default: the gear's settings')."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -318,6 +321,10 @@ def train(
     torch.set_num_threads(1)
     sizes = run_settings(quick)
     fit = sizes.fit if goal_ranking is None else replace(sizes.fit, goal_ranking=goal_ranking)
+    if goal_features is not None:
+        from dynoplan.envs.gear.features import feature_map
+
+        fit = replace(fit, goal_features=feature_map(goal_features).name)
     with ray_session(pool):
         m = learned_models(demos, transitions, out, seed, heldout, fit, sizes.metrics,
                            progress=not quiet, workers=pool, log=typer.echo)

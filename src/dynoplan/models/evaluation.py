@@ -7,7 +7,7 @@ can be compared with the "state stays the same" baseline (:func:`one_step_error`
 uncertainty checked against held-out transitions (:func:`calibration`).
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -146,7 +146,9 @@ def _pair(states: FloatArray, next_states: FloatArray) -> tuple[FloatArray, Floa
 
 
 def n_step_report(model: EnsembleModel, trajectories: Sequence[FloatArray], n: int,
-                  rollouts: int, rng: Generator) -> dict[str, Any] | None:
+                  rollouts: int, rng: Generator,
+                  goal: Callable[[FloatArray], FloatArray] | None = None
+                  ) -> dict[str, Any] | None:
     """``n``-step prediction error of ``model`` along held-out trajectories.
 
     From every state ``s_t`` with ``t + n`` inside its trajectory, ``rollouts`` samples
@@ -155,6 +157,12 @@ def n_step_report(model: EnsembleModel, trajectories: Sequence[FloatArray], n: i
     ``s_{t+n}``, the "state stays the same" baseline's RMSE, and the fraction of
     ``(start, dimension)`` pairs whose truth lies between the rollouts' 5th and 95th
     percentiles. ``None`` when no trajectory has ``n + 1`` states.
+
+    ``goal`` (states ``(N, d)`` -> values ``(N,)``, the goal heuristic's mean): also the
+    goal's *imagination gap*, the mean over starts of ``|mean_r G(rollout_r) - G(s_{t+n})|``
+    (with ``goal_imagined`` and ``goal_real``, the two means): how far the score the
+    planner gives an option's imagined future is from the score of what really came of
+    it. A goal that reads state features the dynamics predict badly shows a large gap.
     """
     starts = [traj[t] for traj in trajectories for t in range(len(traj) - n)]
     targets = [traj[t + n] for traj in trajectories for t in range(len(traj) - n)]
@@ -174,7 +182,17 @@ def n_step_report(model: EnsembleModel, trajectories: Sequence[FloatArray], n: i
     lo, hi = np.nanpercentile(paths, [5.0, 95.0], axis=1)
     model_rmse = float(np.sqrt(np.nanmean((pred - truth) ** 2)))
     base_rmse = float(np.sqrt(np.mean((x0 - truth) ** 2)))
-    return {"n": n, "starts": b, "rmse": model_rmse, "no_change_rmse": base_rmse,
-            "ratio": model_rmse / max(base_rmse, 1e-300),
-            "coverage_90": float(np.mean((truth >= lo) & (truth <= hi)))}
+    report = {"n": n, "starts": b, "rmse": model_rmse, "no_change_rmse": base_rmse,
+              "ratio": model_rmse / max(base_rmse, 1e-300),
+              "coverage_90": float(np.mean((truth >= lo) & (truth <= hi)))}
+    if goal is not None:
+        ends = paths.reshape(b * rollouts, d)
+        finite = np.isfinite(ends).all(axis=1)
+        values = np.full(len(ends), np.nan)
+        values[finite] = goal(ends[finite])
+        imagined = np.nanmean(values.reshape(b, rollouts), axis=1)
+        real = goal(truth)
+        report.update(goal_gap=float(np.nanmean(np.abs(imagined - real))),
+                      goal_imagined=float(np.nanmean(imagined)), goal_real=float(real.mean()))
+    return report
 

@@ -75,7 +75,7 @@ from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.models.evaluation import calibration, n_step_report, one_step_error
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
-from dynoplan.models.goal_network import evaluate_goal
+from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.pipeline.fit import (
     DYNAMICS_BATCH,
@@ -157,8 +157,16 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     for stale in (MANIFEST_FILE, METRICS_FILE):
         (out / stale).unlink(missing_ok=True)
     results: dict[str, Any] = {}
+    goal_of: list[Callable[[FloatArray], FloatArray]] = []  # the fitted goal, for the dynamics
+
+    def fit_goal() -> None:
+        report, network = _train_goal(train, held, out, cfg, seed)
+        results["goal"] = report
+        features = gear_features(cfg.goal_features)
+        goal_of.append(lambda states: network.mean_std(features(states))[0])
+
     stages: list[tuple[str, Callable[[], None]]] = [
-        ("goal", lambda: results.update(goal=_train_goal(train, held, out, cfg, seed))),
+        ("goal", fit_goal),
         ("regions", lambda: results.update(
             regions=_train_regions(train, held, out, cfg, measure, seed))),
     ]
@@ -166,7 +174,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     for k, name in enumerate(gear_option_names()):
         def fit_option(k: int = k, name: str = name) -> None:
             dyn_reports[name] = _train_dynamics(k, name, dyn_train, dyn_held, planner, out,
-                                                cfg, measure, seed)
+                                                cfg, measure, seed, goal_of[0])
         stages.append((f"dynamics {name}", fit_option))
     for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
         clock.stage(name, run)
@@ -218,7 +226,7 @@ def gear_features(name: str | None) -> FeatureMap:
 
 def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
-                cfg: FitSettings, seed: int) -> dict[str, Any]:
+                cfg: FitSettings, seed: int) -> tuple[dict[str, Any], GoalNetwork]:
     f = gear_features(cfg.goal_features)
     x = np.concatenate([f(s) for s, _, _ in train])
     y = np.concatenate([p for _, p, _ in train])
@@ -258,7 +266,7 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                 "different normalised times in trials of different lengths. Trials "
                 "'interrupted' had cautious_move steps (the expert slowed, waited or "
                 "backed away for the human), where time advances but the state does not",
-    }
+    }, network
 
 
 def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
@@ -308,8 +316,8 @@ def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
 
 def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
                     held_eps: Sequence[Episode], planner: PlannerState, out: Path,
-                    cfg: FitSettings, measure: GearMetricsSettings, seed: int
-                    ) -> dict[str, Any]:
+                    cfg: FitSettings, measure: GearMetricsSettings, seed: int,
+                    goal: Callable[[FloatArray], FloatArray]) -> dict[str, Any]:
     own = [e for e in train_eps if e.options is not None and int(e.options[0]) == k]
     fit_eps, cal_eps = (split_episodes(own, measure.dynamics_calibration_fraction,
                                         np.random.default_rng([seed, 4, k]))
@@ -352,7 +360,7 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     cal = calibration(model, sh, nxth, 0.9)
     trajectories = option_trajectories(held_eps, planner, k)
     multi = n_step_report(model, trajectories, measure.n_step, measure.rollouts,
-                          np.random.default_rng([seed, 3, k]))
+                          np.random.default_rng([seed, 3, k]), goal)
     return {
         **row,
         "one_step_rmse": one.model_rmse_total,
