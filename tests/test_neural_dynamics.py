@@ -11,8 +11,8 @@ from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
 from dynoplan.models.evaluation import (
     calibration,
     mixture_quantile,
-    n_step_report,
     one_step_error,
+    option_end_gap,
 )
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.storage import save_arrays
@@ -292,7 +292,7 @@ def test_calibration_widens_an_over_confident_model_to_the_nominal_coverage(tmp_
     np.testing.assert_array_equal(wide.calibrate(s_easy, nxt_easy), np.ones(3))
 
 
-def test_goal_gap_is_how_far_the_imagined_score_is_from_the_real_one():
+def test_option_end_gap_is_how_far_the_imagined_end_scores_from_the_real_one():
     class Drifting:
         """Deterministic: dimension 0 moves by +0.1 a step as the truth does, dimension 1
         (the truth keeps it still) drifts by +0.2 a step."""
@@ -303,15 +303,17 @@ def test_goal_gap_is_how_far_the_imagined_score_is_from_the_real_one():
             m = np.stack([states + np.array([0.1, 0.2])] * 2)
             return m, np.zeros_like(m)
 
-    truth = np.stack([np.arange(6) * 0.1, np.zeros(6)], axis=1)  # one trajectory
+    run = np.stack([np.arange(6) * 0.1, np.zeros(6)], axis=1)  # one option run, 6 states
     rng = np.random.default_rng(0)
-    reads_first = n_step_report(Drifting(), [truth], 3, 4, rng, goal=lambda s: s[:, 0])
-    reads_second = n_step_report(Drifting(), [truth], 3, 4, rng, goal=lambda s: s[:, 1])
-    assert reads_first is not None and reads_second is not None
-    # a goal on the well-predicted dimension scores imagined futures as the real ones
-    assert reads_first["goal_gap"] == pytest.approx(0.0, abs=1e-12)
-    # a goal on the drifting one is off by the 3-step drift, 0.6, from every start
-    assert reads_second["goal_gap"] == pytest.approx(0.6)
-    assert reads_second["goal_imagined"] == pytest.approx(0.6)
-    assert reads_second["goal_real"] == pytest.approx(0.0)
-    assert "goal_gap" not in n_step_report(Drifting(), [truth], 3, 4, rng)
+    first = option_end_gap(Drifting(), [run, run[:1]], lambda s: s[:, 0], 10, 4, rng)
+    second = option_end_gap(Drifting(), [run], lambda s: s[:, 1], 10, 4, rng)
+    capped = option_end_gap(Drifting(), [run], lambda s: s[:, 1], 2, 4, rng)
+    assert first is not None and second is not None and capped is not None
+    # a goal on the well-predicted dimension scores the imagined end as the real one;
+    # a run of one state has no end to imagine
+    assert first["gap"] == pytest.approx(0.0, abs=1e-12) and first["runs"] == 1
+    # a goal on the drifting one is off by the drift over the run's 5 steps
+    assert second["gap"] == pytest.approx(1.0) and second["real"] == pytest.approx(0.0)
+    # the horizon caps the imagined steps (and the real end is taken as many steps in)
+    assert capped["gap"] == pytest.approx(0.4) and capped["imagined"] == pytest.approx(0.4)
+    assert option_end_gap(Drifting(), [run[:1]], lambda s: s[:, 0], 10, 4, rng) is None

@@ -146,9 +146,7 @@ def _pair(states: FloatArray, next_states: FloatArray) -> tuple[FloatArray, Floa
 
 
 def n_step_report(model: EnsembleModel, trajectories: Sequence[FloatArray], n: int,
-                  rollouts: int, rng: Generator,
-                  goal: Callable[[FloatArray], FloatArray] | None = None
-                  ) -> dict[str, Any] | None:
+                  rollouts: int, rng: Generator) -> dict[str, Any] | None:
     """``n``-step prediction error of ``model`` along held-out trajectories.
 
     From every state ``s_t`` with ``t + n`` inside its trajectory, ``rollouts`` samples
@@ -157,42 +155,64 @@ def n_step_report(model: EnsembleModel, trajectories: Sequence[FloatArray], n: i
     ``s_{t+n}``, the "state stays the same" baseline's RMSE, and the fraction of
     ``(start, dimension)`` pairs whose truth lies between the rollouts' 5th and 95th
     percentiles. ``None`` when no trajectory has ``n + 1`` states.
-
-    ``goal`` (states ``(N, d)`` -> values ``(N,)``, the goal heuristic's mean): also the
-    goal's *imagination gap*, the mean over starts of ``|mean_r G(rollout_r) - G(s_{t+n})|``
-    (with ``goal_imagined`` and ``goal_real``, the two means): how far the score the
-    planner gives an option's imagined future is from the score of what really came of
-    it. A goal that reads state features the dynamics predict badly shows a large gap.
     """
     starts = [traj[t] for traj in trajectories for t in range(len(traj) - n)]
     targets = [traj[t + n] for traj in trajectories for t in range(len(traj) - n)]
     if not starts:
         return None
     x0, truth = np.asarray(starts), np.asarray(targets)
-    b, d = x0.shape
-    x = np.repeat(x0, rollouts, axis=0)
-    member = rng.integers(model.members, size=len(x))
-    rows = np.arange(len(x))
-    for _ in range(n):
-        means, variances = model.predict(x)
-        x = means[member, rows] + np.sqrt(variances[member, rows]) * rng.standard_normal(x.shape)
-        x[~np.isfinite(x).all(axis=1)] = np.nan  # a diverged rollout stays out of the mean
-    paths = x.reshape(b, rollouts, d)
+    b = len(x0)
+    paths = _rollouts(model, x0, n, rollouts, rng)  # a diverged one stays out of the mean
     pred = np.nanmean(paths, axis=1)
     lo, hi = np.nanpercentile(paths, [5.0, 95.0], axis=1)
     model_rmse = float(np.sqrt(np.nanmean((pred - truth) ** 2)))
     base_rmse = float(np.sqrt(np.mean((x0 - truth) ** 2)))
-    report = {"n": n, "starts": b, "rmse": model_rmse, "no_change_rmse": base_rmse,
-              "ratio": model_rmse / max(base_rmse, 1e-300),
-              "coverage_90": float(np.mean((truth >= lo) & (truth <= hi)))}
-    if goal is not None:
-        ends = paths.reshape(b * rollouts, d)
-        finite = np.isfinite(ends).all(axis=1)
-        values = np.full(len(ends), np.nan)
-        values[finite] = goal(ends[finite])
-        imagined = np.nanmean(values.reshape(b, rollouts), axis=1)
-        real = goal(truth)
-        report.update(goal_gap=float(np.nanmean(np.abs(imagined - real))),
-                      goal_imagined=float(np.nanmean(imagined)), goal_real=float(real.mean()))
-    return report
+    return {"n": n, "starts": b, "rmse": model_rmse, "no_change_rmse": base_rmse,
+            "ratio": model_rmse / max(base_rmse, 1e-300),
+            "coverage_90": float(np.mean((truth >= lo) & (truth <= hi)))}
 
+
+def _rollouts(model: EnsembleModel, x: FloatArray, steps: int, rollouts: int,
+              rng: Generator) -> FloatArray:
+    """``rollouts`` samples of ``steps`` steps from each row of ``x`` ``(b, d)``, one ensemble
+    member per rollout; ``(b, rollouts, d)`` (NaN rows where a rollout diverged)."""
+    b, d = x.shape
+    x = np.repeat(x, rollouts, axis=0)
+    member = rng.integers(model.members, size=len(x))
+    rows = np.arange(len(x))
+    for _ in range(steps):
+        means, variances = model.predict(x)
+        x = means[member, rows] + np.sqrt(variances[member, rows]) * rng.standard_normal(x.shape)
+        x[~np.isfinite(x).all(axis=1)] = np.nan
+    return x.reshape(b, rollouts, d)
+
+
+def option_end_gap(model: EnsembleModel, runs: Sequence[FloatArray],
+                   goal: Callable[[FloatArray], FloatArray], horizon: int, rollouts: int,
+                   rng: Generator) -> dict[str, Any] | None:
+    """How far the goal's score of an option's imagined end is from that of its real end.
+
+    Eq. 1 asks exactly this: from the state where an option starts, the model rolls it
+    to its end and the goal heuristic scores that. For each held-out run (planner states
+    ``(T_i, d)`` of one option run), ``rollouts`` samples of the model are rolled
+    ``m = min(T_i - 1, horizon)`` steps from its first state; the report holds the mean over
+    runs of ``|mean_r G(rollout_r) - G(s_m)|`` (``gap``) and the means of both scores
+    (``imagined``, ``real``). ``goal`` maps states ``(N, d)`` to values ``(N,)``. A goal
+    that reads features the dynamics predict badly shows a large gap. ``None`` without
+    a run of two or more states.
+    """
+    imagined, real = [], []
+    for run in runs:
+        m = min(len(run) - 1, horizon)
+        if m < 1:
+            continue
+        ends = _rollouts(model, run[:1], m, rollouts, rng)[0]
+        finite = np.isfinite(ends).all(axis=1)
+        if finite.any():
+            imagined.append(float(np.mean(goal(ends[finite]))))
+            real.append(float(goal(run[m:m + 1])[0]))
+    if not imagined:
+        return None
+    im, re = np.asarray(imagined), np.asarray(real)
+    return {"runs": len(im), "horizon": horizon, "gap": float(np.mean(np.abs(im - re))),
+            "imagined": float(im.mean()), "real": float(re.mean())}

@@ -14,10 +14,13 @@ name          size  features
                     distance capped at :data:`HUMAN_DISTANCE_CAP`
 ============  ====  ============================================================
 
-``relative`` is what the safety regions of ``dynoplan gear run`` read. With 10
-demonstrations, joint angles mislead a region (the planning options reach one tool pose
-through other arm configurations), and the gear's random start on the table spreads the
-pick states over an area 10 demonstrations sample thinly; the tool's offset from the gear
+``relative`` is what the goal heuristic, the safety regions and the initiation learned
+from outcomes of ``dynoplan gear run`` read. The goal is asked about the states the
+options' dynamics imagine, and they predict the tool and the gear better than the joint
+angles that take the tool there. With 10 demonstrations, joint angles mislead a region
+(the planning options reach one tool pose through other arm configurations), and the
+gear's random start on the table spreads the pick states over an area 10 demonstrations
+sample thinly; the tool's offset from the gear
 is the same for every start. The capped tool-hand distance lets a region learn that an
 option was only demonstrated with the human away (the operator moves cautiously, or
 backs off, when the hand comes near); beyond the cap, where the hand is does not matter.

@@ -19,14 +19,15 @@ with, and measures it on held-out data:
   transitions collected by ``dynoplan gear collect`` or, without them, from the
   demonstrations subsampled (:func:`demonstration_transitions`).
 
-The goal heuristic reads the planner state without the human's hand (the ``task``
-feature map, columns 0:19): where the task stands does not depend on where the human is,
-and with 10 demonstrations the hand's varied positions otherwise become spurious cues
-(pooled held-out Spearman 0.85 with the hand, 0.90 without). The regions read a named
-feature map (:mod:`dynoplan.envs.gear.features`; ``relative`` by default, the same in
-``dynoplan gear train`` and ``dynoplan gear run``). The human enters planning through the
-dynamics models (which predict all 22 columns), the terminations, the preconditions and,
-with ``relative``, the regions.
+The goal heuristic and the regions read a named feature map
+(:mod:`dynoplan.envs.gear.features`; ``relative`` by default, the same in
+``dynoplan gear train`` and ``dynoplan gear run``): the gripper, the tool relative to the
+gear, the gear and the capped tool-hand distance, not the arm's joint angles. The planner
+asks the goal about the ends of imagined option runs; the dynamics predict the tool and
+the gear there much better than the joints, so a goal that reads the joints scores an
+imagined insertion far below what really comes of it (``metrics.json``'s
+``dynamics.<option>.goal_end_gap``). The human enters planning through the dynamics
+models (which predict all 22 columns), the terminations and the capped distance.
 
 This module trains, with the pipeline's region fit
 (:func:`~dynoplan.pipeline.fit.fit_labelled_regions`), goal network
@@ -72,7 +73,12 @@ from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
-from dynoplan.models.evaluation import calibration, n_step_report, one_step_error
+from dynoplan.models.evaluation import (
+    calibration,
+    n_step_report,
+    one_step_error,
+    option_end_gap,
+)
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
@@ -205,7 +211,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         "state_dim": STATE_DIM,
         "option_names": list(gear_option_names()),
         "decision_steps": DECISION_STEPS,
-        "task_features": list(gear_features(cfg.goal_features).names),
+        "goal_features": list(gear_features(cfg.goal_features).names),
         "region_features": list(gear_features(cfg.region_features).names),
         "seed": seed,
         "settings": {**asdict(cfg), **asdict(measure),
@@ -355,18 +361,22 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     }
     if len(sh) == 0:  # nothing of this option among the held-out data: no report
         return {**row, "one_step_rmse": None, "one_step_no_change_rmse": None,
-                "one_step_ratio": None, "n_step": None, "coverage_90": None}
+                "one_step_ratio": None, "n_step": None, "goal_end_gap": None,
+                "coverage_90": None}
     one = one_step_error(model, sh, nxth)
     cal = calibration(model, sh, nxth, 0.9)
     trajectories = option_trajectories(held_eps, planner, k)
     multi = n_step_report(model, trajectories, measure.n_step, measure.rollouts,
-                          np.random.default_rng([seed, 3, k]), goal)
+                          np.random.default_rng([seed, 3, k]))
+    end_gap = option_end_gap(model, trajectories, goal, measure.end_gap_horizon,
+                             measure.rollouts, np.random.default_rng([seed, 5, k]))
     return {
         **row,
         "one_step_rmse": one.model_rmse_total,
         "one_step_no_change_rmse": one.baseline_rmse_total,
         "one_step_ratio": one.ratio,
         "n_step": multi,
+        "goal_end_gap": end_gap,
         "coverage_90": cal.coverage,
         "coverage_90_by_dimension": dict(zip(STATE_NAMES, cal.per_dimension.tolist(),
                                              strict=True)),
