@@ -187,7 +187,7 @@ def test_sweep_config_out_of_bounds_is_one_line(tmp_path, monkeypatch, capsys, b
 @pytest.fixture(scope="module")
 def gear_models(tmp_path_factory) -> Path:
     """A tiny but valid gear models folder (untrained widths of 4; loads, never runs)."""
-    from dynoplan.envs.gear.features import TASK, feature_map
+    from dynoplan.envs.gear.features import feature_map
     from dynoplan.envs.gear.learning.files import load_gear_models, models_manifest
     from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
     from dynoplan.envs.gear.options.catalog import gear_option_names
@@ -202,8 +202,8 @@ def gear_models(tmp_path_factory) -> Path:
     rng = np.random.default_rng(0)
     names = list(gear_option_names())
     x = rng.normal(size=(20 * len(names), STATE_DIM))
-    goal, _ = GoalNetwork.fit(TASK(x), rng.uniform(size=len(x)), hidden=4, members=1,
-                              epochs=1, seed=0)
+    goal, _ = GoalNetwork.fit(feature_map(QUICK_SETTINGS.goal_features or "")(x),
+                              rng.uniform(size=len(x)), hidden=4, members=1, epochs=1, seed=0)
     goal.save(folder / GOAL_FILE)
     labels = np.repeat(np.arange(len(names)), 20)
     regions = feature_map(QUICK_SETTINGS.region_features)
@@ -564,4 +564,12 @@ def test_rejected_command_leaves_no_output_folder(tmp_path, monkeypatch, capsys,
     monkeypatch.chdir(tmp_path)
     code, _, err = invoke(monkeypatch, capsys, *command(name, tmp_path), *extra)
     assert_one_line_error(code, err, needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], err
+
+
+def test_unknown_goal_feature_map_is_one_line_and_no_output(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = invoke(monkeypatch, capsys, *command("gear train", tmp_path),
+                          "--goal-features", "nosuch")
+    assert_one_line_error(code, err, "unknown feature map 'nosuch'")
     assert sorted(p.name for p in tmp_path.iterdir()) == [], err

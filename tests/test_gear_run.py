@@ -206,9 +206,12 @@ def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
 def test_gear_episode_replays_an_evaluation_episode_decision_by_decision(quick_gear_run: Path,
                                                                          tmp_path: Path):
     out = tmp_path / "episode"
+    planner = json.loads((quick_gear_run / "summary.json").read_text())[
+        "settings"]["evaluation"]["planner"]  # --quick's horizon and samples
     result = CliRunner().invoke(app, ["gear", "episode", "--index", "2", "--models",
                                       str(quick_gear_run / "models"), "--out", str(out),
-                                      "--video"])
+                                      "--video", "--horizon", str(planner["horizon"]),
+                                      "--samples", str(planner["samples"])])
     assert result.exit_code == 0, result.output
     replay = json.loads((out / "summary.json").read_text())
     evaluated = json.loads((quick_gear_run / "episodes.json").read_text())["dynoplan"][2]

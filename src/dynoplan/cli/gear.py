@@ -2,7 +2,7 @@
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -16,6 +16,9 @@ from dynoplan.limits import (
     SEED_MAX,
     STEPS_MAX,
 )
+
+if TYPE_CHECKING:
+    from dynoplan.pipeline.evaluate import ControllerSettings
 
 gear_app = typer.Typer(
     help="The simulated PR2 gear assembly: scripted expert, demonstrations, renders.",
@@ -301,8 +304,8 @@ def train(
                                               "ranking loss along demonstrations (default "
                                               "0: none)."),
     goal_features: str | None = typer.Option(None, help="The feature map the goal "
-                                             "heuristic reads (task, pose or relative; "
-                                             "default: the gear's settings')."),
+                                             "heuristic reads: task, pose, relative or "
+                                             "objects (default: objects)."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -458,24 +461,13 @@ def evaluate(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Evaluate controllers on trained models only; writes results and the wall time."""
-    from dataclasses import replace
-
-    from dynoplan.envs.gear.controllers import GEAR_CONTROL
     from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
     from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
-    planner = GEAR_CONTROL
-    if horizon is not None:
-        planner = replace(planner, horizon=horizon)
-    if samples is not None:
-        planner = replace(planner, samples=samples)
-    if epistemic is not None:
-        planner = replace(planner, epistemic=epistemic)
-    if end_inside:
-        planner = replace(planner, end_inside=True)
+    planner = _planner_settings(horizon, samples, epistemic, end_inside)
     behaviours = _behaviours(human)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
@@ -486,6 +478,25 @@ def evaluate(
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
+
+
+def _planner_settings(horizon: int | None, samples: int | None, epistemic: float | None,
+                      end_inside: bool) -> "ControllerSettings":
+    """The gear's default controller settings with what the command line changed."""
+    from dataclasses import replace
+
+    from dynoplan.envs.gear.controllers import GEAR_CONTROL
+
+    planner = GEAR_CONTROL
+    if horizon is not None:
+        planner = replace(planner, horizon=horizon)
+    if samples is not None:
+        planner = replace(planner, samples=samples)
+    if epistemic is not None:
+        planner = replace(planner, epistemic=epistemic)
+    if end_inside:
+        planner = replace(planner, end_inside=True)
+    return planner
 
 
 @gear_app.command("episode")
@@ -502,6 +513,12 @@ def episode(
     out: Path = typer.Option(Path("results/gear-episode"), callback=folder, help="Output folder."),
     video: bool = typer.Option(False, "--video", help="Also render the episode offscreen "
                                "to OUT/episode.mp4."),
+    horizon: int | None = typer.Option(None, min=1, max=HORIZON_MAX,
+                                       help="Planner horizon, as the evaluation's (default "
+                                       "10; gear run --quick: 6)."),
+    samples: int | None = typer.Option(None, min=1, max=SAMPLES_MAX,
+                                       help="Monte-Carlo rollouts per option, as the "
+                                       "evaluation's (default 64; gear run --quick: 32)."),
     epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
                                            help="Weight of the dynamics ensemble's "
                                            "disagreement in the planner's score (as gear "
@@ -512,11 +529,9 @@ def episode(
                                     "data)."),
 ) -> None:
     """Replay one evaluation episode; write its decisions (OUT/trace.csv) and metrics."""
-    from dataclasses import replace
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from dynoplan.envs.gear.controllers import GEAR_CONTROL
     from dynoplan.io import staged_folder, write_csv, write_json
     from dynoplan.reports.gear_episode import episode_summary, inspect_episode, save_video
     from dynoplan.reports.gear_results import seconds
@@ -524,9 +539,7 @@ def episode(
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
-    planner = replace(GEAR_CONTROL, end_inside=end_inside or GEAR_CONTROL.end_inside)
-    if epistemic is not None:
-        planner = replace(planner, epistemic=epistemic)
+    planner = _planner_settings(horizon, samples, epistemic, end_inside)
     metrics, rows, human = inspect_episode(models, controller, index, seed, planner,
                                            frames=frames)
     summary = episode_summary(metrics, controller, index, seed, human)

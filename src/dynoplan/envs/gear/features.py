@@ -12,18 +12,20 @@ name          size  features
 ``pose``      7     state columns 12:19: gripper, tool point, gear
 ``relative``  8     gripper; tool point minus gear (3); gear (3); tool-hand
                     distance capped at :data:`HUMAN_DISTANCE_CAP`
+``objects``   7     ``relative`` without the tool-hand distance
 ============  ====  ============================================================
 
-``relative`` is what the goal heuristic, the safety regions and the initiation learned
-from outcomes of ``dynoplan gear run`` read. The goal is asked about the states the
-options' dynamics imagine, and they predict the tool and the gear better than the joint
-angles that take the tool there. With 10 demonstrations, joint angles mislead a region
-(the planning options reach one tool pose through other arm configurations), and the
-gear's random start on the table spreads the pick states over an area 10 demonstrations
-sample thinly; the tool's offset from the gear
-is the same for every start. The capped tool-hand distance lets a region learn that an
-option was only demonstrated with the human away (the operator moves cautiously, or
-backs off, when the hand comes near); beyond the cap, where the hand is does not matter.
+``objects`` is what the goal heuristic of ``dynoplan gear run`` reads: where the task
+stands does not depend on where the human is, and the goal is asked about the states the
+options' dynamics imagine, which predict the tool and the gear better than the joint
+angles that take the tool there. ``relative`` is what the safety regions and the
+initiation learned from outcomes read. With 10 demonstrations, joint angles mislead a
+region (the planning options reach one tool pose through other arm configurations), and
+the gear's random start on the table spreads the pick states over an area 10
+demonstrations sample thinly; the tool's offset from the gear is the same for every
+start. The capped tool-hand distance lets a region learn that an option was only
+demonstrated with the human away (the operator moves cautiously, or backs off, when the
+hand comes near); beyond the cap, where the hand is does not matter.
 """
 
 from collections.abc import Sequence
@@ -56,7 +58,9 @@ POSE = _columns("pose", range(STATE_SLICES["gripper"].start, STATE_SLICES["human
 RELATIVE = FeatureMap("relative", ("gripper", "tool_minus_gear_x", "tool_minus_gear_y",
                                    "tool_minus_gear_z", "gear_x", "gear_y", "gear_z",
                                    "tool_hand_distance"), _relative, STATE_DIM)
-FEATURE_MAPS: dict[str, FeatureMap] = {m.name: m for m in (TASK, POSE, RELATIVE)}
+OBJECTS = FeatureMap("objects", RELATIVE.names[:-1], lambda s: _relative(s)[:, :-1],
+                     STATE_DIM)
+FEATURE_MAPS: dict[str, FeatureMap] = {m.name: m for m in (TASK, POSE, RELATIVE, OBJECTS)}
 
 
 def feature_map(name: str) -> FeatureMap:
@@ -67,5 +71,5 @@ def feature_map(name: str) -> FeatureMap:
     return FEATURE_MAPS[name]
 
 
-__all__ = ["FEATURE_MAPS", "HUMAN_DISTANCE_CAP", "POSE", "RELATIVE", "TASK", "FeatureMap",
-           "feature_map"]
+__all__ = ["FEATURE_MAPS", "HUMAN_DISTANCE_CAP", "OBJECTS", "POSE", "RELATIVE", "TASK",
+           "FeatureMap", "feature_map"]

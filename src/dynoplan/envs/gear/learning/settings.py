@@ -8,7 +8,7 @@
 
 from dataclasses import dataclass, replace
 
-from dynoplan.envs.gear.features import RELATIVE
+from dynoplan.envs.gear.features import OBJECTS, RELATIVE
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.models.neural_dynamics import DEFAULT_HIDDEN, DEFAULT_MEMBERS
 from dynoplan.pipeline.fit import FitSettings
@@ -16,17 +16,18 @@ from dynoplan.pipeline.fit import FitSettings
 DEFAULT_SETTINGS = FitSettings(
     stride=DECISION_STEPS, dynamics_hidden=DEFAULT_HIDDEN, dynamics_members=DEFAULT_MEMBERS,
     dynamics_epochs=50, dynamics_max_updates=1500, goal_hidden=64, goal_members=3,
-    goal_epochs=150, goal_features=RELATIVE.name, region_features=RELATIVE.name,
+    goal_epochs=150, goal_features=OBJECTS.name, region_features=RELATIVE.name,
     region_fit="cv", region_coverage=0.99, region_cv_coverage=0.97, region_reg_covar=3e-3,
     region_max_components=8, region_undemonstrated="everywhere")
 """The gear's models, one step per decision:
 
-- the goal heuristic reads the ``relative`` features (the gripper, the tool relative to
-  the gear, the gear, the capped tool-hand distance), not the arm's joint angles: the
-  planner asks it about states the options' dynamics imagine, and those predict where the
-  tool and the gear go far better than which joint angles take them there
-  (``metrics.json``'s ``dynamics.<option>.goal_end_gap``; the ablation in
-  ``docs/gear-options.md``, "The goal reads what the dynamics predict");
+- the goal heuristic reads the ``objects`` features (the gripper, the tool relative to
+  the gear, the gear), neither the arm's joint angles nor the human: the planner asks it
+  about states the options' dynamics imagine, and those predict where the tool and the
+  gear go far better than which joint angles take them there; where the task stands
+  does not depend on where the human is (``metrics.json``'s
+  ``dynamics.<option>.goal_end_gap``; the ablation in ``docs/gear-options.md``, "The
+  remedy: the goal reads what the dynamics predict");
 - the regions read the ``relative`` features, are fitted with ``"cv"`` (BIC components,
   thresholds widened by leaving demonstrations out), and ``region_reg_covar`` 3e-3 (rad^2
   or m^2, absolute) is a floor of about 5 cm / 0.05 rad on their width, so that

@@ -19,15 +19,16 @@ with, and measures it on held-out data:
   transitions collected by ``dynoplan gear collect`` or, without them, from the
   demonstrations subsampled (:func:`demonstration_transitions`).
 
-The goal heuristic and the regions read a named feature map
-(:mod:`dynoplan.envs.gear.features`; ``relative`` by default, the same in
-``dynoplan gear train`` and ``dynoplan gear run``): the gripper, the tool relative to the
-gear, the gear and the capped tool-hand distance, not the arm's joint angles. The planner
-asks the goal about the ends of imagined option runs; the dynamics predict the tool and
-the gear there much better than the joints, so a goal that reads the joints scores an
-imagined insertion far below what really comes of it (``metrics.json``'s
-``dynamics.<option>.goal_end_gap``). The human enters planning through the dynamics
-models (which predict all 22 columns), the terminations and the capped distance.
+The goal heuristic and the regions read named feature maps
+(:mod:`dynoplan.envs.gear.features`; ``objects`` and ``relative`` by default, the same
+in ``dynoplan gear train`` and ``dynoplan gear run``): the gripper, the tool relative to
+the gear and the gear, and for the regions also the capped tool-hand distance; not the
+arm's joint angles. The planner asks the goal about the ends of imagined option runs;
+the dynamics predict the tool and the gear there much better than the joints, so a goal
+that reads the joints scores an imagined insertion far below what really comes of it
+(``metrics.json``'s ``dynamics.<option>.goal_end_gap``). The human enters planning
+through the dynamics models (which predict all 22 columns), the terminations and the
+regions' capped distance.
 
 This module trains, with the pipeline's region fit
 (:func:`~dynoplan.pipeline.fit.fit_labelled_regions`), goal network
