@@ -36,6 +36,7 @@ from dynoplan.models.features import FeatureMap
 from dynoplan.models.mlp import MLP, uniform_init
 from dynoplan.models.mlp_file import linear_arrays, load_linears, require_finite
 from dynoplan.models.storage import as_states, load_arrays, save_arrays
+from dynoplan.models.trainer import train
 from dynoplan.types import BoolArray, FloatArray
 
 _KIND = "outcome_initiation"
@@ -280,19 +281,20 @@ def _fit_classifier(x: FloatArray, y: BoolArray, hidden: int, epochs: int, lr: f
         std = xt.std(dim=0, correction=0)
         net.in_std.copy_(torch.where(std > 1e-8, std, torch.ones_like(std)))
     # class-balanced: each class weighs half of the loss
-    weight = torch.where(yt > 0.5, 0.5 / yt.mean(), 0.5 / (1.0 - yt.mean()))
+    positive, negative = 0.5 / yt.mean(), 0.5 / (1.0 - yt.mean())
+
+    def loss(inputs: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        value = nn.functional.binary_cross_entropy_with_logits(
+            net(inputs), targets, weight=torch.where(targets > 0.5, positive, negative))
+        return value, value
+
     optimiser = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimiser, lambda epoch: 0.5 * (1.0 + math.cos(math.pi * epoch / epochs)))
-    loss_fn = nn.BCEWithLogitsLoss(weight=weight)
-    net.train()
-    for _ in range(epochs):
-        optimiser.zero_grad()
-        loss = loss_fn(net(xt), yt)
-        loss.backward()
-        optimiser.step()
-        schedule.step()
-    return net.eval()
+    every_row = torch.arange(len(xt))  # full-batch gradient steps, one per epoch
+    train(net, loss, xt, yt, optimiser, lambda: every_row, epochs=epochs,
+          batch_size=len(xt), schedule=schedule)
+    return net
 
 
 def fit_report_dict(report: OutcomeFitReport) -> dict[str, Any]:
