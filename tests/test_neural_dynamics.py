@@ -303,17 +303,16 @@ def test_option_end_gap_is_how_far_the_imagined_end_scores_from_the_real_one():
             m = np.stack([states + np.array([0.1, 0.2])] * 2)
             return m, np.zeros_like(m)
 
-    run = np.stack([np.arange(6) * 0.1, np.zeros(6)], axis=1)  # one option run, 6 states
+    # three runs from the origin: 5 steps, 2 steps, and one of 0 steps (nothing to imagine)
+    starts, ends = np.zeros((3, 2)), np.array([[0.5, 0.0], [0.2, 0.0], [0.0, 0.0]])
     rng = np.random.default_rng(0)
-    first = option_end_gap(Drifting(), [run, run[:1]], lambda s: s[:, 0], 10, 4, rng)
-    second = option_end_gap(Drifting(), [run], lambda s: s[:, 1], 10, 4, rng)
-    capped = option_end_gap(Drifting(), [run], lambda s: s[:, 1], 2, 4, rng)
-    assert first is not None and second is not None and capped is not None
-    # a goal on the well-predicted dimension scores the imagined end as the real one;
-    # a run of one state has no end to imagine
-    assert first["gap"] == pytest.approx(0.0, abs=1e-12) and first["runs"] == 1
-    # a goal on the drifting one is off by the drift over the run's 5 steps
-    assert second["gap"] == pytest.approx(1.0) and second["real"] == pytest.approx(0.0)
-    # the horizon caps the imagined steps (and the real end is taken as many steps in)
-    assert capped["gap"] == pytest.approx(0.4) and capped["imagined"] == pytest.approx(0.4)
-    assert option_end_gap(Drifting(), [run[:1]], lambda s: s[:, 0], 10, 4, rng) is None
+    first = option_end_gap(Drifting(), starts, ends, [5, 2, 0], lambda s: s[:, 0], 4, rng)
+    second = option_end_gap(Drifting(), starts, ends, [5, 2, 0], lambda s: s[:, 1], 4, rng)
+    assert first is not None and second is not None
+    # a goal on the well-predicted dimension scores the imagined end as the real one
+    assert first["gap"] == pytest.approx(0.0, abs=1e-12) and first["runs"] == 2
+    # a goal on the drifting one is off by the drift over each run: 1.0 and 0.4
+    assert second["gap"] == pytest.approx(0.7) and second["real"] == pytest.approx(0.0)
+    assert second["imagined"] == pytest.approx(0.7)
+    assert option_end_gap(Drifting(), starts[2:], ends[2:], [0], lambda s: s[:, 0], 4,
+                          rng) is None

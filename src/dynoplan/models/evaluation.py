@@ -187,32 +187,32 @@ def _rollouts(model: EnsembleModel, x: FloatArray, steps: int, rollouts: int,
     return x.reshape(b, rollouts, d)
 
 
-def option_end_gap(model: EnsembleModel, runs: Sequence[FloatArray],
-                   goal: Callable[[FloatArray], FloatArray], horizon: int, rollouts: int,
-                   rng: Generator) -> dict[str, Any] | None:
+def option_end_gap(model: EnsembleModel, starts: FloatArray, ends: FloatArray,
+                   steps: Sequence[int], goal: Callable[[FloatArray], FloatArray],
+                   rollouts: int, rng: Generator) -> dict[str, Any] | None:
     """How far the goal's score of an option's imagined end is from that of its real end.
 
     Eq. 1 asks exactly this: from the state where an option starts, the model rolls it
-    to its end and the goal heuristic scores that. For each held-out run (planner states
-    ``(T_i, d)`` of one option run), ``rollouts`` samples of the model are rolled
-    ``m = min(T_i - 1, horizon)`` steps from its first state; the report holds the mean over
-    runs of ``|mean_r G(rollout_r) - G(s_m)|`` (``gap``) and the means of both scores
+    to its end and the goal heuristic scores that. For each run ``r`` (an option started
+    at ``starts[r]``, ``(R, d)``, and after ``steps[r]`` model steps was at ``ends[r]``),
+    ``rollouts`` samples of the model are rolled ``steps[r]`` steps from its start, one
+    ensemble member per rollout; the report holds the mean over runs of
+    ``|mean_r G(rollout_r) - G(ends[r])|`` (``gap``) and the means of both scores
     (``imagined``, ``real``). ``goal`` maps states ``(N, d)`` to values ``(N,)``. A goal
-    that reads features the dynamics predict badly shows a large gap. ``None`` without
-    a run of two or more states.
+    that reads features the dynamics predict badly shows a large gap. Runs of 0 steps
+    are skipped; ``None`` when none is left.
     """
     imagined, real = [], []
-    for run in runs:
-        m = min(len(run) - 1, horizon)
+    for start, end, m in zip(starts, ends, steps, strict=True):
         if m < 1:
             continue
-        ends = _rollouts(model, run[:1], m, rollouts, rng)[0]
-        finite = np.isfinite(ends).all(axis=1)
+        imagined_ends = _rollouts(model, start[None], int(m), rollouts, rng)[0]
+        finite = np.isfinite(imagined_ends).all(axis=1)
         if finite.any():
-            imagined.append(float(np.mean(goal(ends[finite]))))
-            real.append(float(goal(run[m:m + 1])[0]))
+            imagined.append(float(np.mean(goal(imagined_ends[finite]))))
+            real.append(float(goal(end[None])[0]))
     if not imagined:
         return None
     im, re = np.asarray(imagined), np.asarray(real)
-    return {"runs": len(im), "horizon": horizon, "gap": float(np.mean(np.abs(im - re))),
+    return {"runs": len(im), "gap": float(np.mean(np.abs(im - re))),
             "imagined": float(im.mean()), "real": float(re.mean())}

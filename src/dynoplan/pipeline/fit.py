@@ -65,6 +65,7 @@ from dynoplan.pipeline.fit_dynamics import (
     dynamics_epochs,
     ensemble_fitter,
     fit_dynamics,
+    goal_end_gaps,
     strided,
 )
 from dynoplan.pipeline.fit_goal import GoalModel, fit_goal, fit_goal_network
@@ -340,6 +341,8 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
     say("goal heuristic")
     goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map)
+    goal_report["end_gap"] = goal_end_gaps(dynamics, goal, [*transitions, *demos], state_fn,
+                                           settings.stride, seed)
     regions = None
     region_report: dict[str, Any] | None = None
     if settings.regions:

@@ -67,11 +67,13 @@ def option_labels(episode: Episode, index: int, n_options: int) -> np.ndarray:
     return labels
 
 def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
-                state_fn: ObservationFn = flat_state,
+                state_fn: ObservationFn = flat_state, stride: int = 1,
                 ) -> dict[str, tuple[FloatArray, FloatArray, np.ndarray]]:
     """Every run of every option: where it started, where it ended and how long it ran.
 
-    A run is a maximal stretch of steps with the same option label.
+    A run is a maximal stretch of steps with the same option label. With ``stride`` > 1
+    its length is counted in model steps of ``stride`` environment steps (rounded down)
+    and its "end" is the state after that many model steps.
 
     Returns:
         ``{name: (starts (R, d), ends (R, d), steps (R,))}``, ``R`` possibly 0.
@@ -86,9 +88,10 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
         cuts = np.flatnonzero(np.diff(labels)) + 1
         for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
             name = option_names[int(labels[start])]
+            steps = int(end - start) // stride
             found[name][0].append(rows[start])
-            found[name][1].append(rows[end])
-            found[name][2].append(int(end - start))
+            found[name][1].append(rows[start + steps * stride])
+            found[name][2].append(steps)
     return {n: (np.array(a).reshape(-1, d), np.array(b).reshape(-1, d),
                 np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
 

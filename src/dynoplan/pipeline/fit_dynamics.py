@@ -2,15 +2,20 @@
 :func:`fit_dynamics` with a :data:`DynamicsFitter`, by default an MLP ensemble
 (:func:`ensemble_fitter`); the planner's per-model-step termination (:func:`strided`)."""
 
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
+from dynoplan.data.episodes import Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
-from dynoplan.models.evaluation import one_step_error
+from dynoplan.models.evaluation import one_step_error, option_end_gap
+from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.options.termination import ConstantTermination, Termination
+from dynoplan.pipeline.collect import ObservationFn
+from dynoplan.pipeline.fit_data import option_runs
 from dynoplan.pipeline.fit_settings import FitSettings
 from dynoplan.types import FloatArray
 
@@ -89,6 +94,28 @@ class StridedTermination:
         beta = np.asarray(self.base.probability(states), dtype=np.float64)
         return 1.0 - (1.0 - beta) ** self.stride
 
+GAP_ROLLOUTS = 16
+"""Model rollouts per option run in :func:`goal_end_gaps`."""
+
+
+def goal_end_gaps(dynamics: Mapping[str, DynamicsModel], goal: GoalHeuristic,
+                  episodes: Sequence[Episode], state_fn: ObservationFn, stride: int,
+                  seed: int) -> dict[str, dict[str, Any] | None]:
+    """Per option, how far the goal's score of each recorded run's imagined end is from
+    that of its real end (:func:`~dynoplan.models.evaluation.option_end_gap`: what Eq. 1
+    relies on), over the runs of ``episodes`` (:func:`option_runs` at the model's
+    ``stride``). ``None`` for an option without runs or whose model has no ``predict``.
+    """
+    runs = option_runs(episodes, list(dynamics), state_fn, stride)
+    rng = np.random.default_rng([seed, 5])
+    out: dict[str, dict[str, Any] | None] = {}
+    for name, model in dynamics.items():
+        starts, ends, steps = runs[name]
+        out[name] = (option_end_gap(model, starts, ends, steps,  # type: ignore[arg-type]
+                                    lambda s: goal.mean_std(s)[0], GAP_ROLLOUTS, rng)
+                     if callable(getattr(model, "predict", None)) and len(starts) else None)
+    return out
+
 
 def strided(termination: Termination, stride: int) -> Termination:
     """The per-model-step termination for ``stride`` environment steps per model step."""
@@ -99,5 +126,5 @@ def strided(termination: Termination, stride: int) -> Termination:
     return StridedTermination(termination, stride)
 
 
-__all__ = ["DYNAMICS_BATCH", "DynamicsFitter", "StridedTermination", "dynamics_epochs",
-           "ensemble_fitter", "fit_dynamics", "strided"]
+__all__ = ["DYNAMICS_BATCH", "GAP_ROLLOUTS", "DynamicsFitter", "StridedTermination",
+           "dynamics_epochs", "ensemble_fitter", "fit_dynamics", "goal_end_gaps", "strided"]

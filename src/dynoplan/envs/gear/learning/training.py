@@ -369,8 +369,15 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     trajectories = option_trajectories(held_eps, planner, k)
     multi = n_step_report(model, trajectories, measure.n_step, measure.rollouts,
                           np.random.default_rng([seed, 3, k]))
-    end_gap = option_end_gap(model, trajectories, goal, measure.end_gap_horizon,
-                             measure.rollouts, np.random.default_rng([seed, 5, k]))
+    # each held-out run as the planner sees it: from its start, at most the horizon
+    lengths = [min(len(run) - 1, measure.end_gap_horizon) for run in trajectories]
+    starts = np.array([run[0] for run in trajectories]).reshape(-1, STATE_DIM)
+    ends = np.array([run[m] for run, m in zip(trajectories, lengths, strict=True)]
+                    ).reshape(-1, STATE_DIM)
+    end_gap = option_end_gap(model, starts, ends, lengths, goal, measure.rollouts,
+                             np.random.default_rng([seed, 5, k]))
+    if end_gap is not None:
+        end_gap["horizon"] = measure.end_gap_horizon
     return {
         **row,
         "one_step_rmse": one.model_rmse_total,
