@@ -20,6 +20,17 @@ from dynoplan.limits import (
 if TYPE_CHECKING:
     from dynoplan.pipeline.evaluate import ControllerSettings
 
+def _horizon_option() -> Any:
+    return typer.Option(None, min=1, max=HORIZON_MAX,
+                        help="Planner horizon (default 10; gear run --quick: 6).")
+
+
+def _samples_option() -> Any:
+    return typer.Option(None, min=1, max=SAMPLES_MAX,
+                        help="Monte-Carlo rollouts per option (default 64; gear run "
+                        "--quick: 32).")
+
+
 gear_app = typer.Typer(
     help="The simulated PR2 gear assembly: scripted expert, demonstrations, renders.",
     no_args_is_help=True,
@@ -432,11 +443,8 @@ def evaluate(
     episodes: int = typer.Option(100, min=1, max=EPISODES_MAX, help="Episodes per controller."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Episodes are gear run's for the same seed."),
-    horizon: int | None = typer.Option(None, min=1, max=HORIZON_MAX,
-                                       help="Planner horizon (default 10)."),
-    samples: int | None = typer.Option(None, min=1, max=SAMPLES_MAX,
-                                       help="Monte-Carlo rollouts per option "
-                                       "(default 64)."),
+    horizon: int | None = _horizon_option(),
+    samples: int | None = _samples_option(),
     epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
                                            help="Weight of the dynamics ensemble's "
                                            "disagreement in the planner's score (default "
@@ -513,12 +521,8 @@ def episode(
     out: Path = typer.Option(Path("results/gear-episode"), callback=folder, help="Output folder."),
     video: bool = typer.Option(False, "--video", help="Also render the episode offscreen "
                                "to OUT/episode.mp4."),
-    horizon: int | None = typer.Option(None, min=1, max=HORIZON_MAX,
-                                       help="Planner horizon, as the evaluation's (default "
-                                       "10; gear run --quick: 6)."),
-    samples: int | None = typer.Option(None, min=1, max=SAMPLES_MAX,
-                                       help="Monte-Carlo rollouts per option, as the "
-                                       "evaluation's (default 64; gear run --quick: 32)."),
+    horizon: int | None = _horizon_option(),
+    samples: int | None = _samples_option(),
     epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
                                            help="Weight of the dynamics ensemble's "
                                            "disagreement in the planner's score (as gear "

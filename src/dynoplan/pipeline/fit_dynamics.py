@@ -94,6 +94,7 @@ class StridedTermination:
         beta = np.asarray(self.base.probability(states), dtype=np.float64)
         return 1.0 - (1.0 - beta) ** self.stride
 
+
 GAP_ROLLOUTS = 16
 """Model rollouts per option run in :func:`goal_end_gaps`."""
 
