@@ -168,7 +168,12 @@ def test_collision_checker_queries_at_the_same_joints_answer_as_posed_afresh(env
                 return fresh
 
             cap = float(rng.uniform(0.05, 1.0))
-            assert fast.human_distance(q, distmax=cap) == afresh().human_distance(q, cap)
+            full = afresh().human_distance(q, cap)
+            assert fast.human_distance(q, distmax=cap) == full
+            # asked only whether it is below a threshold, the search may stop early: the
+            # answer is the full search's
+            below = float(rng.uniform(0.0, cap))
+            assert (fast.human_distance(q, cap, stop_below=below) < below) == (full < below)
             assert fast.in_collision(q, margin=0.002) == afresh().in_collision(q, margin=0.002)
             assert fast.in_collision(q, ignore_gear=True) == afresh().in_collision(
                 q, ignore_gear=True)

@@ -189,6 +189,47 @@ def test_the_safety_constraint_rejects_an_option_whose_rollouts_cross_the_predic
     assert plan.unsafe_shares.tolist() == [0.0, 0.0] and plan.chosen_name == "toward"
 
 
+def test_the_separation_constraint_reuses_the_robot_points_it_has_seen():
+    """A rollout's next ``before`` is its last ``after`` but for the rows put back (a
+    continuation set's ``end_inside``): only those rows' points are computed again, and
+    the answers are those of computing every point from scratch."""
+    from dynoplan.safety.constraint import ConstantVelocityHuman, SeparationConstraint
+    from dynoplan.safety.separation import AT_REST_SPEED, protective_separation
+
+    rows_asked = []
+
+    def points(s):
+        rows_asked.append(len(s))
+        return np.stack([s[:, :3], s[:, :3] + 0.1], axis=1)  # two points on the robot
+
+    human = ConstantVelocityHuman(position=lambda s: s[3:6],
+                                  velocity=lambda: np.array([0.0, -0.2, 0.0]))
+    constraint = SeparationConstraint(points, human, step_seconds=0.5, lookahead=10.0)
+    rng = np.random.default_rng(0)
+    state = np.array([0.0, 0, 0, 0.4, 0.1, 0])
+    constraint.prepare(state)
+    before = np.broadcast_to(state, (2, 8, 6)).copy()
+    for step in (1, 2, 3):
+        after = before.copy()
+        after[..., :3] += rng.normal(0.0, 0.05, size=(2, 8, 3))
+        unsafe = constraint.unsafe(before, after, step)
+        p0, p1 = points(before.reshape(-1, 6)), points(after.reshape(-1, 6))
+        rows_asked.pop()
+        rows_asked.pop()
+        speed = np.linalg.norm(p1 - p0, axis=-1).max(axis=-1) / 0.5
+        hand, spread = human.predict(0.5 * step)
+        gap = np.linalg.norm(p1 - hand, axis=-1).min(axis=-1)
+        s_p = protective_separation(speed, human.speed) + spread
+        expected = (speed >= AT_REST_SPEED) & (gap < s_p)
+        np.testing.assert_array_equal(unsafe, expected.reshape(2, 8))
+        before = after.copy()
+        before[1, 3] = state  # one rollout put back where it started
+    assert 0 < unsafe.sum() < unsafe.size  # the check is not vacuous
+    # prepare: 1 row; each step the 16 ``after`` rows, and from the second step on the
+    # one ``before`` row that was put back
+    assert rows_asked == [1, 16, 1, 16, 1, 16]
+
+
 def test_with_every_option_unsafe_the_planner_chooses_none_so_the_controller_holds():
     # S_p(0.5 m/s) + spread = 0.2 m, S_p(0.1 m/s) + spread = 0.12 m; the hand at 0.45 m:
     # the fast option is 5 cm from it after one step, the slow one after four

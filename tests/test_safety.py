@@ -212,6 +212,17 @@ def test_gear_evaluate_on_unseen_behaviours_reports_the_safety_columns(quick_gea
     episodes = json.loads((out / "episodes.json").read_text())
     assert {e["task_metrics"]["human_mode"] for e in episodes["dynoplan"]} <= set(
         UNSEEN_BEHAVIOURS)
+    # gear episode replays one of them, with the same behaviours and monitor
+    replay_out = tmp_path / "episode"
+    result = CliRunner().invoke(app, [
+        "gear", "episode", "--index", "1", "--models", str(quick_gear_run / "models"),
+        "--out", str(replay_out), "--human", "unseen", "--shield", "--horizon", "6",
+        "--samples", "32"])
+    assert result.exit_code == 0, result.output
+    replay = json.loads((replay_out / "summary.json").read_text())
+    for key in ("env_seed", "success", "env_steps", "no_admissible", "options",
+                "task_metrics"):
+        assert replay[key] == episodes["dynoplan"][1][key], key
 
 
 def test_arm_points_are_the_arms_joints_as_mujoco_places_them():

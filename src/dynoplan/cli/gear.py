@@ -31,6 +31,31 @@ def _samples_option() -> Any:
                         "--quick: 32).")
 
 
+def _epistemic_option() -> Any:
+    return typer.Option(None, min=0.0, max=1e6, help="Weight of the dynamics ensemble's "
+                        "disagreement in the planner's score (default 0).")
+
+
+def _end_inside_option() -> Any:
+    return typer.Option(False, "--end-inside", help="The planner's rollouts that leave an "
+                        "option's continuation set end at their last state inside it "
+                        "(scored where the dynamics had data).")
+
+
+def _human_option() -> Any:
+    return typer.Option(
+        None, "--human", help="Human behaviours the episodes draw from, uniformly: "
+        "comma-separated of away, cross, block (the demonstrations' mix, the default) and "
+        "reach, linger, fast_cross, two_passes (never demonstrated), or 'unseen' (those "
+        "four) or 'all'.")
+
+
+def _shield_option() -> Any:
+    return typer.Option(False, "--shield", help="Run every episode under the runtime "
+                        "monitor: a protective stop whenever the arm moves closer to the "
+                        "hand than ISO/TS 15066's S_p.")
+
+
 gear_app = typer.Typer(
     help="The simulated PR2 gear assembly: scripted expert, demonstrations, renders.",
     no_args_is_help=True,
@@ -445,25 +470,13 @@ def evaluate(
                              help="Episodes are gear run's for the same seed."),
     horizon: int | None = _horizon_option(),
     samples: int | None = _samples_option(),
-    epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
-                                           help="Weight of the dynamics ensemble's "
-                                           "disagreement in the planner's score (default "
-                                           "0)."),
-    end_inside: bool = typer.Option(False, "--end-inside", help="The planner's rollouts "
-                                    "that leave an option's continuation set end at their "
-                                    "last state inside it (scored where the dynamics had "
-                                    "data)."),
+    epistemic: float | None = _epistemic_option(),
+    end_inside: bool = _end_inside_option(),
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
-    human: str | None = typer.Option(
-        None, "--human", help="Human behaviours the episodes draw from, uniformly: "
-        "comma-separated of away, cross, block (the demonstrations' mix, the default) and "
-        "reach, linger, fast_cross, two_passes (never demonstrated), or 'unseen' (those "
-        "four) or 'all'."),
-    shield: bool = typer.Option(False, "--shield", help="Run every episode under the runtime "
-                                "monitor: a protective stop whenever the arm moves closer to "
-                                "the hand than ISO/TS 15066's S_p."),
+    human: str | None = _human_option(),
+    shield: bool = _shield_option(),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -523,19 +536,16 @@ def episode(
                                "to OUT/episode.mp4."),
     horizon: int | None = _horizon_option(),
     samples: int | None = _samples_option(),
-    epistemic: float | None = typer.Option(None, min=0.0, max=1e6,
-                                           help="Weight of the dynamics ensemble's "
-                                           "disagreement in the planner's score (as gear "
-                                           "evaluate's)."),
-    end_inside: bool = typer.Option(False, "--end-inside", help="The planner's rollouts "
-                                    "that leave an option's continuation set end at their "
-                                    "last state inside it (scored where the dynamics had "
-                                    "data)."),
+    epistemic: float | None = _epistemic_option(),
+    end_inside: bool = _end_inside_option(),
+    human: str | None = _human_option(),
+    shield: bool = _shield_option(),
 ) -> None:
     """Replay one evaluation episode; write its decisions (OUT/trace.csv) and metrics."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
+    from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.io import staged_folder, write_csv, write_json
     from dynoplan.reports.gear_episode import episode_summary, inspect_episode, save_video
     from dynoplan.reports.gear_results import seconds
@@ -544,9 +554,10 @@ def episode(
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
     planner = _planner_settings(horizon, samples, epistemic, end_inside)
-    metrics, rows, human = inspect_episode(models, controller, index, seed, planner,
-                                           frames=frames)
-    summary = episode_summary(metrics, controller, index, seed, human)
+    task = GearTask(human=_behaviours(human), shield=shield)
+    metrics, rows, schedule = inspect_episode(models, controller, index, seed, planner,
+                                              frames=frames, task=task)
+    summary = episode_summary(metrics, controller, index, seed, schedule)
     with staged_folder(out) as folder:
         write_csv(folder / "trace.csv", rows)
         if frames is not None:
@@ -554,7 +565,7 @@ def episode(
                               [o for o in metrics.options if o != "hold"])
             summary["video"] = save_video(clip, metrics, index, folder / "episode.mp4")
         write_json(folder / "summary.json", summary)
-    events = ", ".join(human["events"]) or "away"
+    events = ", ".join(schedule["events"]) or "away"
     measured = metrics.task_metrics
     typer.echo(f"episode {index} ({events}): {controller} "
                f"{'succeeded' if metrics.success else 'failed'} in {seconds(metrics):.2f} s, "

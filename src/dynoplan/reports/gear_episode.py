@@ -10,7 +10,7 @@ planner scored them, where the tool, the gear and the human's hand were, and the
 robot-human contacts and distance while it ran.
 """
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,11 +39,14 @@ TRACE_COLUMNS = (
 
 
 def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
-                    planner: ControllerSettings = GEAR_CONTROL, frames: list[Any] | None = None
+                    planner: ControllerSettings = GEAR_CONTROL, frames: list[Any] | None = None,
+                    task: GearTask = GearTask()
                     ) -> tuple[EpisodeRecord, list[dict[str, Any]], dict[str, Any]]:
     """Replay evaluation episode ``index`` (0-based, as in ``episodes.json``) of
     ``controller`` on the models in ``models``; with ``frames``, render it offscreen and
-    append one frame per step (for :func:`~dynoplan.reports.video.video_clip`).
+    append one frame per step (for :func:`~dynoplan.reports.video.video_clip`). ``task``:
+    the gear as the evaluation saw it (its human behaviours and runtime monitor; the
+    ``render`` flag is set from ``frames``).
 
     Returns:
         The episode's metrics (the same as the evaluation's for the same models, seed
@@ -57,7 +60,7 @@ def inspect_episode(models: Path, controller: str, index: int, seed: int = 0,
         raise DynoplanError(f"unknown controller {controller!r}; expected one of "
                             f"{', '.join(VARIANTS)} (flat_ppo has no decisions)")
     episode = evaluation_episode(index, seed)
-    runner, trace = replay(models, controller, episode, planner, frames)
+    runner, trace = replay(models, controller, episode, planner, frames, task)
     metrics = runner.record(trace, episode)
     names = tuple(o.name for o in runner.controller.options)
     gear_env = runner.env.unwrapped
@@ -77,13 +80,15 @@ def evaluation_episode(index: int, seed: int = 0) -> EpisodeSeed:
 
 
 def replay(models: Path, controller: str, episode: EpisodeSeed, planner: ControllerSettings,
-           frames: list[Any] | None = None) -> tuple[ControllerRunner, EpisodeTrace]:
+           frames: list[Any] | None = None, task: GearTask = GearTask()
+           ) -> tuple[ControllerRunner, EpisodeTrace]:
     """Controller ``controller``'s episode ``episode`` on the models in ``models``, built
-    and run as the evaluation builds and runs it
+    and run as the evaluation builds and runs it on ``task``
     (:meth:`~dynoplan.envs.gear.pipeline_task.GearTask.make_runner`): the runner (its env
     closed) and the trace. With ``frames``, rendered offscreen, one captioned frame per
     step (:func:`caption_gear_frames`)."""
-    runner = GearTask(render=frames is not None).make_runner(controller, models, planner)
+    task = replace(task, render=frames is not None)
+    runner = task.make_runner(controller, models, planner)
     assert isinstance(runner, ControllerRunner)
     try:
         trace = runner.run(episode, frames)

@@ -90,7 +90,9 @@ class SeparationConstraint:
 
     Args:
         robot_points: ``robot_points(states (N, d)) -> (N, P, 3)``: points on the robot
-            (the arm, not the tool point alone) in a planner state.
+            (the arm, not the tool point alone) in a planner state; row by row (a
+            state's points do not depend on the other states of the batch), so the
+            constraint reuses the points of states it has seen.
         human: where the person will be.
         step_seconds: seconds per model step.
         params: the constants of ``S_p``.
@@ -112,23 +114,54 @@ class SeparationConstraint:
         self.robot_points, self.human = robot_points, human
         self.step_seconds, self.params, self.spreads = step_seconds, params, spreads
         self.lookahead = lookahead
+        # the robot's points of the decision's state (1, P, 3) and of the last ``after``
+        # asked about: a rollout's next ``before`` is its last ``after``, and its first
+        # ``before`` is the decision's state repeated
+        self._state: tuple[FloatArray, FloatArray] | None = None
+        self._last: tuple[FloatArray, FloatArray] | None = None
 
     def prepare(self, state: FloatArray) -> None:
         self.human.prepare(state)
+        s = np.asarray(state, dtype=np.float64).reshape(-1)
+        self._state = (s, self.robot_points(s[None, :]))
+        self._last = None
 
     def unsafe(self, before: FloatArray, after: FloatArray, step: int) -> BoolArray:
         shape = after.shape[:-1]
         if (step - 1) * self.step_seconds >= self.lookahead:
             return np.zeros(shape, dtype=bool)
         d = after.shape[-1]
-        p0 = self.robot_points(before.reshape(-1, d))
+        p0 = self._points(before.reshape(-1, d))
         p1 = self.robot_points(after.reshape(-1, d))
+        self._last = (after.reshape(-1, d).copy(), p1)
         speed = np.linalg.norm(p1 - p0, axis=-1).max(axis=-1) / self.step_seconds  # (N,)
         hand, spread = self.human.predict(step * self.step_seconds)
         gap = np.linalg.norm(p1 - hand, axis=-1).min(axis=-1)  # (N,)
         human_speed = getattr(self.human, "speed", None)
         s_p = protective_separation(speed, human_speed, self.params) + self.spreads * spread
         out: BoolArray = ((speed >= AT_REST_SPEED) & (gap < s_p)).reshape(shape)
+        return out
+
+    def _points(self, states: FloatArray) -> FloatArray:
+        """``robot_points(states)`` (N, d), reusing the points of the last ``after`` (or
+        of the decision's state) for the rows equal to it; only the other rows (for
+        example rollouts put back inside their continuation set) are computed. The points
+        of a state do not depend on the other rows, so the answer is the same to the
+        bit."""
+        if self._last is not None and self._last[0].shape == states.shape:
+            known, points = self._last
+        elif self._state is not None:
+            known = np.broadcast_to(self._state[0], states.shape)
+            points = np.broadcast_to(self._state[1], (len(states), *self._state[1].shape[1:]))
+        else:
+            return self.robot_points(states)
+        changed = (known != states).any(axis=1)  # NaN counts as changed
+        if not changed.any():
+            return points
+        if changed.all():
+            return self.robot_points(states)
+        out = np.array(points)
+        out[changed] = self.robot_points(states[changed])
         return out
 
 

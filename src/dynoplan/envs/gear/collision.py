@@ -78,9 +78,12 @@ def min_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms_a: IntArray,
 
 def _min_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms_a: IntArray,
                   geoms_b: IntArray, bound_a: FloatArray, bound_b: FloatArray,
-                  distmax: float) -> float:
+                  distmax: float, stop_below: float = -np.inf) -> float:
     """:func:`min_distance` with the bounding radii given, ``(A, 1)`` and ``(1, B)`` (a
-    caller asking often about the same geoms keeps them)."""
+    caller asking often about the same geoms keeps them). With ``stop_below``, the
+    search ends at the first pair found closer than it and returns that pair's distance
+    (for a caller that asks only whether the distance is below ``stop_below``: the
+    answer is the full search's, since the pairs before are visited as it visits them)."""
     xpos = data.geom_xpos
     diff = xpos[geoms_a][:, None, :] - xpos[geoms_b][None, :, :]
     # np.linalg.norm(diff, axis=-1) computes exactly this (for real arrays), with more
@@ -98,6 +101,8 @@ def _min_distance(model: mujoco.MjModel, data: mujoco.MjData, geoms_a: IntArray,
         i, j = divmod(int(flat), nb)
         d = mujoco.mj_geomDistance(model, data, int(geoms_a[i]), int(geoms_b[j]), best, None)
         best = min(best, d)
+        if best < stop_below:
+            break
     return float(best)
 
 
@@ -221,11 +226,14 @@ class CollisionChecker:
         counts = self._counts_no_gear if ignore_gear else self._counts
         return bool((counts[g[:, 0], g[:, 1]] & (contact.dist[:n] < -margin)).any())
 
-    def human_distance(self, q: FloatArray, distmax: float = _DISTMAX) -> float:
-        """Smallest robot-human distance (m) with the arms at ``q`` (12,), capped."""
+    def human_distance(self, q: FloatArray, distmax: float = _DISTMAX,
+                       stop_below: float = -np.inf) -> float:
+        """Smallest robot-human distance (m) with the arms at ``q`` (12,), capped at
+        ``distmax``; with ``stop_below``, some distance below it as soon as one is found
+        (whether the smallest distance is below ``stop_below`` is answered exactly)."""
         self.set_arm(q)
         return _min_distance(self.model, self.data, self.geoms.human, self.geoms.robot,
-                             self._bound_human, self._bound_robot, distmax)
+                             self._bound_human, self._bound_robot, distmax, stop_below)
 
     def human_distance_along(self, qs: FloatArray, hand_positions: FloatArray,
                              hand_quaternions: FloatArray, cap: float = _DISTMAX) -> float:

@@ -422,6 +422,14 @@ class CautiousMovePolicy(_CarryMove):
         pos = self._hand[None, :] + taus[:, None] * self._hand_vel[None, :]
         return pos, np.repeat(self._hand_quat[None, :], len(taus), axis=0)
 
+    def _hand_times(self) -> FloatArray:
+        """The times ahead (s) at which the hand is an obstacle: now and ``predict_time``
+        ahead, or now alone when it is predicted where it is (at rest: the same pose
+        twice gives the same answers)."""
+        ahead = self._hand + self.cfg.predict_time * self._hand_vel
+        return np.array([0.0] if np.array_equal(ahead, self._hand)
+                        else [0.0, self.cfg.predict_time])
+
     def _clearance(self, qs: FloatArray, taus: FloatArray | None = None) -> float:
         """Smallest predicted robot-human distance with the arms at ``qs`` (T, 12) at
         times ``taus`` (default: the monitoring horizon), capped at 0.5 m."""
@@ -448,7 +456,7 @@ class CautiousMovePolicy(_CarryMove):
         assert self.path is not None
         s = np.linspace(self.path.s, 1.0, 12)
         qs = np.array([self.path.at(float(v)) for v in s])
-        for tau in (0.0, self.cfg.predict_time):
+        for tau in self._hand_times():
             taus = np.full(len(qs), tau)
             if self._clearance(qs, taus) < self.cfg.block_clearance:
                 return True
@@ -460,7 +468,7 @@ class CautiousMovePolicy(_CarryMove):
         cfg = self.cfg
         self._last_plan_time = self.time
         self._last_plan_hand = self._hand.copy()
-        poses = self._hands(np.array([0.0, cfg.predict_time]))
+        poses = self._hands(self._hand_times())
         checker = self.checker
         start_clear = min(self._static_clearance(self.q_cmd, poses), cfg.plan_clearance)
         # Near the hand already: accept states no closer than the start (moving away).
@@ -471,7 +479,8 @@ class CautiousMovePolicy(_CarryMove):
         def clear(q12: FloatArray) -> bool:
             for p, quat in zip(*poses, strict=True):
                 checker.set_human(p, quat)
-                if checker.human_distance(q12, distmax=needed + 0.01) < needed:
+                d = checker.human_distance(q12, distmax=needed + 0.01, stop_below=needed)
+                if d < needed:
                     return False
             return True
 
