@@ -30,7 +30,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
 from dynoplan.pipeline.evaluate import EpisodeRecord
-from dynoplan.reports.gear_results import RESULT_COLUMNS
+from dynoplan.reports.gear_results import RESULT_COLUMNS, failure_table, summarise
 
 REQUIRED = ("controller", "success_rate", "contacts", "min_human_distance",
             "out_of_region_starts", "switches", "decision_ms_p50", "decision_ms_p99")
@@ -164,6 +164,26 @@ def test_the_video_shows_the_shortest_successful_switch_to_the_cautious_move():
     assert video_episode(episodes) == 3
     assert video_episode([episode(fast, "away"), episode(fast), episode(fast)]) == 1
     assert video_episode([episode(fast, "away", seconds=3.0)]) == 0
+
+
+def test_failed_episodes_are_counted_by_how_they_ended():
+    def episode(success, steps, holds, option_steps):
+        return EpisodeRecord(0, success, steps, 0.0, 1, 0, 0, holds, (),
+                             tuple(option_steps), (),
+                             {"human_mode": "cross", "contacts": 0, "min_human_distance": 1.0})
+
+    episodes = [episode(True, 300, 0, [("pick", 300)]),
+                episode(False, 225, 94, [("pick", 131)]),  # the gear fell: ended early
+                episode(False, 800, 710, [("pick", 90)]),  # held to the limit
+                episode(False, 800, 400, [("pick", 400)]),  # half held: held
+                episode(False, 800, 56, [("insert", 50), ("pick", 694)]),
+                episode(False, 800, 74, [("insert", 614), ("pick", 112)]),
+                episode(False, 800, 0, [])]  # no options (a flat policy)
+    row = summarise("dynoplan_safe", episodes)
+    assert row["failures"] == {"held": 2, "dropped": 1, "insert": 1, "pick": 1, "ran": 1}
+    assert "| dynoplan_safe | 6 | held 2, dropped 1, insert 1, pick 1, ran 1 |" in (
+        failure_table([row]))
+    assert summarise("x", episodes[:1])["failures"] == {}
 
 
 def test_gear_run_rejects_bad_episode_counts(tmp_path: Path):

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from dynoplan.envs.gear.env import CONTROL_DT
+from dynoplan.envs.gear.env import CONTROL_DT, MAX_EPISODE_STEPS
 from dynoplan.envs.gear.pipeline_task import FLAT_POLICY
 from dynoplan.io import write_csv, write_json
 from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
@@ -50,8 +50,24 @@ def human_mode(record: EpisodeRecord) -> str:
     return str(record.task_metrics["human_mode"])
 
 
+def failure_kind(record: EpisodeRecord) -> str:
+    """How a failed episode ended: ``dropped`` (before the step limit: the env ends an
+    episode early only when the gear falls off the table), ``held`` (to the limit, half of
+    its steps or more with no option run: nothing admissible, or every option unsafe),
+    or, to the limit, the option that ran the most steps (``ran`` for a controller
+    without options)."""
+    if record.env_steps < MAX_EPISODE_STEPS:
+        return "dropped"
+    if 2 * record.no_admissible >= record.env_steps:
+        return "held"
+    if not record.option_steps:
+        return "ran"
+    return max(record.option_steps, key=lambda pair: pair[1])[0]
+
+
 def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
-    """One row of ``results.csv`` (see :data:`RESULT_COLUMNS`) plus per-mode success."""
+    """One row of ``results.csv`` (see :data:`RESULT_COLUMNS`) plus per-mode success and
+    the failed episodes by :func:`failure_kind` (``failures``: kind -> count)."""
     ms = [m for e in episodes for m in e.decision_ms]
     ok = [e for e in episodes if e.success]
     contacts = [int(e.task_metrics["contacts"]) for e in episodes]
@@ -80,6 +96,9 @@ def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
                          "success_rate": float(np.mean([e.success for e in sub])),
                          "contacts": int(sum(int(e.task_metrics["contacts"]) for e in sub))}
     row["by_human_mode"] = by_mode
+    kinds = [failure_kind(e) for e in episodes if not e.success]
+    row["failures"] = {k: kinds.count(k)
+                       for k in sorted(set(kinds), key=lambda k: (-kinds.count(k), k))}
     return row
 
 
@@ -112,6 +131,22 @@ def behaviour_table(rows: Sequence[dict[str, Any]]) -> str:
                                            for m in modes}} for r in rows])
 
 
+def failure_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown: per controller (row of :func:`summarise`), its failed episodes by how
+    they ended (:func:`failure_kind`)."""
+    return markdown_table([
+        {"controller": r["controller"],
+         "failed": sum(r["failures"].values()),
+         "how they ended": ", ".join(f"{k} {n}" for k, n in r["failures"].items()) or "–"}
+        for r in rows])
+
+
+FAILURE_NOTE = ("How failed episodes ended: `dropped`, the gear fell off the table; "
+                "`held`, to the 40 s limit with no option run on half of the steps or more "
+                "(nothing admissible, or every option unsafe); an option's name, to the "
+                "limit with that option running the most steps.")
+
+
 def results_markdown(summary: dict[str, Any]) -> str:
     """``results.md``: the controllers' table, the faults, the models and the stages."""
     lines = ["# Gear assembly: DynoPlan and baselines", ""]
@@ -121,7 +156,8 @@ def results_markdown(summary: dict[str, Any]) -> str:
                  f"{s['planner']['horizon']}, samples {s['planner']['samples']}; flat PPO "
                  f"{s['ppo_steps']} env steps.")
     lines += ["", markdown_table(summary["results"], RESULT_COLUMNS), "",
-              "Success by human mode:", "", behaviour_table(summary["results"])]
+              "Success by human mode:", "", behaviour_table(summary["results"]), "",
+              FAILURE_NOTE, "", failure_table(summary["results"])]
     if summary.get("ablation"):
         lines += ["", "## Ablation: what each learned part does", "",
                   f"The same first {s['ablation_episodes']} episodes for every row. "
@@ -163,7 +199,7 @@ def evaluation_markdown(summary: dict[str, Any]) -> str:
         f"{', '.join(human or ('away, cross, block (the demonstrations mix)',))}; "
         f"runtime monitor {'on' if summary['shield'] else 'off'}.",
         "", markdown_table(rows, RESULT_COLUMNS), "", "Success by human behaviour:", "",
-        behaviour_table(rows)])
+        behaviour_table(rows), "", FAILURE_NOTE, "", failure_table(rows)])
 
 
 def _mode_cell(entry: dict[str, Any] | None) -> str:
@@ -172,5 +208,6 @@ def _mode_cell(entry: dict[str, Any] | None) -> str:
     return f"{entry['success_rate']:.0%} of {entry['episodes']}, contacts {entry['contacts']}"
 
 
-__all__ = ["RESULT_COLUMNS", "behaviour_table", "evaluation_markdown", "human_mode",
+__all__ = ["FAILURE_NOTE", "RESULT_COLUMNS", "behaviour_table", "evaluation_markdown",
+           "failure_kind", "failure_table", "human_mode",
            "results_markdown", "results_rows", "seconds", "summarise", "write_results"]

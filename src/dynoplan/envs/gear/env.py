@@ -37,6 +37,8 @@ from dynoplan.types import FloatArray
 CONTROL_HZ = 20
 SUBSTEPS = round(1.0 / (CONTROL_HZ * TIMESTEP))  # physics steps per env step (25)
 CONTROL_DT = SUBSTEPS * TIMESTEP  # s
+MAX_EPISODE_STEPS = 800
+"""An episode's default step limit (40 s)."""
 
 HOME_LEFT = np.array([0.6879, -0.3073, 1.55, -1.8537, 1.2697, -1.5054])
 """Left arm at rest: tool point at (0.5, 0.2, 0.95), pointing down, elbow out."""
@@ -117,7 +119,8 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}  # noqa: RUF012
 
-    def __init__(self, render_mode: str | None = None, max_episode_steps: int = 800,
+    def __init__(self, render_mode: str | None = None,
+                 max_episode_steps: int = MAX_EPISODE_STEPS,
                  width: int = 640, height: int = 480, camera: str = "overview",
                  human_behaviours: tuple[str, ...] | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
