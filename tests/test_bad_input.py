@@ -387,6 +387,14 @@ def test_flat_policy_of_another_architecture_is_one_line(tmp_path):
         env.close()
 
 
+def test_gear_evaluation_of_flat_ppo_without_its_folder_is_one_error(tmp_path):
+    from dynoplan.experiments.gear_evaluate import run_gear_evaluation
+
+    with pytest.raises(DynoplanError, match="flat_ppo needs the flat policy's folder"):
+        run_gear_evaluation(tmp_path / "models", tmp_path / "out", ["flat_ppo"], 1)
+    assert not (tmp_path / "out").exists()
+
+
 # --- datasets ---------------------------------------------------------------------------
 
 

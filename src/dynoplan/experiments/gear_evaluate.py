@@ -33,7 +33,8 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     from (``results.md`` has the success by behaviour) and the runtime monitor.
 
     Raises:
-        DynoplanError: an unknown controller, ``episodes < 1``, unreadable models.
+        DynoplanError: an unknown controller, ``episodes < 1``, unreadable models, or
+            ``flat_ppo`` without ``flat_folder``.
     """
     from dynoplan.baselines.flat_policy import read_flat_policy
     from dynoplan.envs.gear.learning.files import load_gear_models
@@ -43,6 +44,8 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
     if unknown or not controllers:
         raise DynoplanError(f"unknown controller(s) {', '.join(unknown) or '(none given)'}; "
                             f"expected some of {', '.join(known)}")
+    if FLAT_POLICY in controllers and flat_folder is None:
+        raise DynoplanError(f"{FLAT_POLICY} needs the flat policy's folder")
     if episodes < 1:
         raise DynoplanError(f"--episodes must be >= 1, got {episodes}")
     planner.validate()  # horizon, samples, ...
