@@ -225,9 +225,9 @@ def test_the_separation_constraint_reuses_the_robot_points_it_has_seen():
         before = after.copy()
         before[1, 3] = state  # one rollout put back where it started
     assert 0 < unsafe.sum() < unsafe.size  # the check is not vacuous
-    # prepare: 1 row; each step the 16 ``after`` rows, and from the second step on the
-    # one ``before`` row that was put back
-    assert rows_asked == [1, 16, 1, 16, 1, 16]
+    # prepare: 1 row; each step one call: the 16 ``after`` rows, and from the second
+    # step on the one ``before`` row that was put back
+    assert rows_asked == [1, 16, 17, 17]
 
 
 def test_with_every_option_unsafe_the_planner_chooses_none_so_the_controller_holds():

@@ -131,9 +131,7 @@ class SeparationConstraint:
         if (step - 1) * self.step_seconds >= self.lookahead:
             return np.zeros(shape, dtype=bool)
         d = after.shape[-1]
-        p0 = self._points(before.reshape(-1, d))
-        p1 = self.robot_points(after.reshape(-1, d))
-        self._last = (after.reshape(-1, d).copy(), p1)
+        p0, p1 = self._points(before.reshape(-1, d), after.reshape(-1, d))
         speed = np.linalg.norm(p1 - p0, axis=-1).max(axis=-1) / self.step_seconds  # (N,)
         hand, spread = self.human.predict(step * self.step_seconds)
         gap = np.linalg.norm(p1 - hand, axis=-1).min(axis=-1)  # (N,)
@@ -142,27 +140,36 @@ class SeparationConstraint:
         out: BoolArray = ((speed >= AT_REST_SPEED) & (gap < s_p)).reshape(shape)
         return out
 
-    def _points(self, states: FloatArray) -> FloatArray:
-        """``robot_points(states)`` (N, d), reusing the points of the last ``after`` (or
-        of the decision's state) for the rows equal to it; only the other rows (for
-        example rollouts put back inside their continuation set) are computed. The points
-        of a state do not depend on the other rows, so the answer is the same to the
-        bit."""
-        if self._last is not None and self._last[0].shape == states.shape:
+    def _points(self, before: FloatArray, after: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``robot_points`` of ``before`` and ``after`` (N, d) in one call: the rows of
+        ``before`` equal to the last ``after`` (or to the decision's state) reuse its
+        points, so only the others (for example rollouts put back inside their
+        continuation set) are computed. The points of a state do not depend on the other
+        rows, so the answer is the same to the bit."""
+        n = len(before)
+        known: FloatArray | None
+        points: FloatArray | None
+        if self._last is not None and self._last[0].shape == before.shape:
             known, points = self._last
         elif self._state is not None:
-            known = np.broadcast_to(self._state[0], states.shape)
-            points = np.broadcast_to(self._state[1], (len(states), *self._state[1].shape[1:]))
+            known = np.broadcast_to(self._state[0], before.shape)
+            points = np.broadcast_to(self._state[1], (n, *self._state[1].shape[1:]))
         else:
-            return self.robot_points(states)
-        changed = (known != states).any(axis=1)  # NaN counts as changed
-        if not changed.any():
-            return points
-        if changed.all():
-            return self.robot_points(states)
-        out = np.array(points)
-        out[changed] = self.robot_points(states[changed])
-        return out
+            known = points = None
+        changed = (np.ones(n, dtype=bool) if known is None
+                   else (known != before).any(axis=1))  # NaN counts as changed
+        k = int(changed.sum())
+        fresh = self.robot_points(np.concatenate([before[changed], after]))
+        p1 = fresh[k:]
+        self._last = (after.copy(), p1)
+        if k == n:
+            return fresh[:k], p1
+        assert points is not None
+        if k == 0:
+            return points, p1
+        p0 = np.array(points)
+        p0[changed] = fresh[:k]
+        return p0, p1
 
 
 __all__ = ["ConstantVelocityHuman", "HumanMotionModel", "SafetyConstraint",

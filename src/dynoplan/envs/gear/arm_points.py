@@ -46,9 +46,17 @@ AXES = (2, 1, 0, 1, 0, 1)
 def arm_joints(q: FloatArray, side: str) -> FloatArray:
     """(N, 4, 3) world positions of the shoulder pan, lift, elbow and wrist of arm
     ``side`` (``"l"`` or ``"r"``) at joint angles ``q`` (N, 6)."""
-    n = len(q)
     y = SHOULDER_Y if side == "l" else -SHOULDER_Y
-    pan = np.broadcast_to(np.array([0.0, y, SHOULDER_Z]), (n, 3))
+    return _chain(np.asarray(q, dtype=np.float64), np.full(len(q), y))
+
+
+def _chain(q: FloatArray, y: FloatArray) -> FloatArray:
+    """:func:`arm_joints` of rows that may belong to either arm: joint angles ``q``
+    (M, 6), each row's shoulder at ``(0, y, SHOULDER_Z)`` (``y`` (M,)). Every row is
+    computed on its own (one batched product per joint), so a row's joints do not depend
+    on the other rows."""
+    n = len(q)
+    pan = np.stack([np.zeros(n), y, np.full(n, SHOULDER_Z)], axis=1)
     rot = np.broadcast_to(np.eye(3), (n, 3, 3))
     frames = []
     for k, axis in enumerate(AXES):
@@ -62,18 +70,20 @@ def arm_joints(q: FloatArray, side: str) -> FloatArray:
 
 def arm_points(states: FloatArray) -> FloatArray:
     """Planner states (N, 22) -> (N, 2 * POINTS_PER_ARM + 1, 3) points on both arms and
-    the left tool point (m, world frame)."""
+    the left tool point (m, world frame): the left arm's points, the right arm's, the
+    tool point. Row by row: a state's points do not depend on the other states."""
     s = np.atleast_2d(np.asarray(states, dtype=np.float64))
+    n = len(s)
     q = s[:, STATE_SLICES["arm_qpos"]]
+    # both arms in one chain: rows 0..n-1 the left arm, n..2n-1 the right
+    j = _chain(np.concatenate([q[:, 0:6], q[:, 6:12]]),
+               np.repeat([SHOULDER_Y, -SHOULDER_Y], n))
     fractions = np.arange(1, SEGMENT_POINTS + 1) / (SEGMENT_POINTS + 1)
-    out = []
-    for side, cols in (("l", slice(0, 6)), ("r", slice(6, 12))):
-        j = arm_joints(q[:, cols], side)
-        upper = j[:, 1:2] + fractions[None, :, None] * (j[:, 2:3] - j[:, 1:2])
-        fore = j[:, 2:3] + fractions[None, :, None] * (j[:, 3:4] - j[:, 2:3])
-        out += [j, upper, fore]
-    out.append(s[:, None, STATE_SLICES["tool_pos"]])
-    points: FloatArray = np.concatenate(out, axis=1)
+    upper = j[:, 1:2] + fractions[None, :, None] * (j[:, 2:3] - j[:, 1:2])
+    fore = j[:, 2:3] + fractions[None, :, None] * (j[:, 3:4] - j[:, 2:3])
+    per_arm = np.concatenate([j, upper, fore], axis=1)  # (2n, POINTS_PER_ARM, 3)
+    points: FloatArray = np.concatenate(
+        [per_arm[:n], per_arm[n:], s[:, None, STATE_SLICES["tool_pos"]]], axis=1)
     return points
 
 
