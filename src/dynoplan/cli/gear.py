@@ -18,6 +18,7 @@ from dynoplan.limits import (
 )
 
 if TYPE_CHECKING:
+    from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.pipeline.evaluate import ControllerSettings
 
 def _horizon_option() -> Any:
@@ -482,20 +483,19 @@ def evaluate(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Evaluate controllers on trained models only; writes results and the wall time."""
-    from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.experiments.gear_evaluate import run_gear_evaluation
     from dynoplan.io import staged_folder
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
     planner = _planner_settings(horizon, samples, epistemic, end_inside)
-    behaviours = _behaviours(human)
+    task = _gear_task(human, shield)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
         summary = run_gear_evaluation(models, folder, names, episodes, seed, planner,
                                       flat or models.parent / "flat_ppo", pool,
                                       progress=not quiet,
-                                      task=GearTask(human=behaviours, shield=shield))
+                                      task=task)
     _echo_results(summary["results"])
     typer.echo(f"{summary['wall_s']:.1f} s on {pool.count} worker(s) -> {out}/results.md, "
                "results.csv, episodes.json, summary.json")
@@ -545,7 +545,6 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.io import staged_folder, write_csv, write_json
     from dynoplan.reports.gear_episode import episode_summary, inspect_episode, save_video
     from dynoplan.reports.gear_results import seconds
@@ -554,7 +553,7 @@ def episode(
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
     planner = _planner_settings(horizon, samples, epistemic, end_inside)
-    task = GearTask(human=_behaviours(human), shield=shield)
+    task = _gear_task(human, shield)
     metrics, rows, schedule = inspect_episode(models, controller, index, seed, planner,
                                               frames=frames, task=task)
     summary = episode_summary(metrics, controller, index, seed, schedule)
@@ -589,17 +588,19 @@ def _echo_results(rows: list[dict[str, Any]]) -> None:
                    f"{'-' if ms is None else f'{ms:.2f} ms'}")
 
 
-def _behaviours(human: str | None) -> tuple[str, ...] | None:
-    """``--human``: None, or the behaviours it names (``unseen``, ``all`` or a list)."""
+def _gear_task(human: str | None, shield: bool) -> "GearTask":
+    """The gear as ``--human`` and ``--shield`` ask: ``--human`` None (the
+    demonstrations' mix), or the behaviours it names (``unseen``, ``all`` or a list)."""
     from dynoplan.envs.gear.human import BEHAVIOURS, UNSEEN_BEHAVIOURS
+    from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.errors import DynoplanError
 
     if human is None:
-        return None
+        return GearTask(shield=shield)
     names = {"all": BEHAVIOURS, "unseen": UNSEEN_BEHAVIOURS}.get(
         human.strip(), tuple(h.strip() for h in human.split(",") if h.strip()))
     unknown = [n for n in names if n not in BEHAVIOURS]
     if unknown or not names:
         raise DynoplanError(f"--human: unknown behaviour(s) {', '.join(unknown) or '(none)'}; "
                             f"expected some of {', '.join(BEHAVIOURS)}, 'unseen' or 'all'")
-    return tuple(names)
+    return GearTask(human=tuple(names), shield=shield)
