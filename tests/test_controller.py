@@ -6,6 +6,7 @@ import pytest
 from gymnasium import spaces
 
 from dynoplan.control import Controller, FixedChoice
+from dynoplan.errors import DynoplanError
 from dynoplan.options import (
     AllOf,
     AnyOf,
@@ -233,3 +234,60 @@ def test_the_simulator_oracle_judges_options_by_the_planners_sets():
     assert not oracle.choose(np.array([3.0]), rng).admissible[0]
     plan = oracle.choose(np.array([3.0]), rng, running=0)
     assert plan.admissible[0] and plan.end_states[0, 0, 0] == 6.0
+
+
+class _Shift(_Identity):
+    """A (wrong) dynamics model: every step moves x by ``by``."""
+
+    def __init__(self, by):
+        self.by = by
+
+    def sample(self, states, rng):
+        return states + self.by
+
+
+def test_an_option_that_ends_where_it_started_is_not_chosen_there_again():
+    # "stay" ends at once without moving, but its model promises +5 a step: Eq. 1 prefers
+    # it to "up", whose learned initiation rules it out (only its fallback region holds)
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.planning import OptionPlanner
+
+    nowhere = InitiationFromCallable(lambda s: np.zeros(len(s), bool))
+    region = InitiationFromCallable(lambda s: s[:, 0] < 20)
+    up = Option("up", FunctionPolicy(lambda o, r: np.array([1.0])), _Identity(),
+                ConstantTermination(0.0), initiation=AllOf(region, nowhere),
+                continuation=region, fallback=region)
+    stay = Option("stay", FunctionPolicy(lambda o, r: np.array([0.0])), _Shift(5.0),
+                  ConstantTermination(1.0))
+    options = [up, stay]
+
+    def run(tolerance):
+        planner = OptionPlanner(options, NoisyWalkGoal(0.0), horizon=2, samples=4)
+        return Controller(options, planner, max_decisions=30, replan_every=3,
+                          no_effect_tolerance=tolerance).run(Line(), np.random.default_rng(0))
+
+    looping = run(None)
+    assert not looping.success
+    assert {d.option for d in looping.decisions} == {"stay"}
+    assert looping.env_steps == 30  # one step each time, to the decision limit
+    trace = run(1e-6)
+    assert trace.success
+    assert [d.option for d in trace.decisions[:2]] == ["stay", "up"]
+    assert trace.out_of_region_starts == 0
+    # a new episode forgets the last one's runs
+    again = run(1e-6)
+    assert [d.option for d in again.decisions[:2]] == ["stay", "up"]
+
+
+def test_an_option_that_ended_without_effect_may_start_again_once_the_state_moves():
+    from dynoplan.options import admissible
+
+    stay = _option("stay", 0.0)
+    stay.ended_without_effect(np.array([3.0]), 0.1)
+    assert admissible([stay], np.array([3.05])).tolist() == [False]
+    assert admissible([stay], np.array([3.2])).tolist() == [True]
+    assert admissible([stay], np.array([3.0]), running=0).tolist() == [True]  # going on
+    stay.forget_runs()
+    assert admissible([stay], np.array([3.0])).tolist() == [True]
+    with pytest.raises(DynoplanError, match="no_effect_tolerance"):
+        Controller([stay], FixedChoice([stay], "stay"), no_effect_tolerance=-1.0)

@@ -43,6 +43,12 @@ def _end_inside_option() -> Any:
                         "(scored where the dynamics had data).")
 
 
+def _repeat_option() -> Any:
+    return typer.Option(False, "--repeat-no-effect", help="Let an option that ended where "
+                        "it started (within 1 mm and 1 mrad) start there again (the "
+                        "controller without the no-effect rule, an ablation).")
+
+
 def _human_option() -> Any:
     return typer.Option(
         None, "--human", help="Human behaviours the episodes draw from, uniformly: "
@@ -473,6 +479,7 @@ def evaluate(
     samples: int | None = _samples_option(),
     epistemic: float | None = _epistemic_option(),
     end_inside: bool = _end_inside_option(),
+    repeat_no_effect: bool = _repeat_option(),
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
                                      "(default: MODELS/../flat_ppo)."),
@@ -488,7 +495,7 @@ def evaluate(
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
-    planner = _planner_settings(horizon, samples, epistemic, end_inside)
+    planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect)
     task = _gear_task(human, shield)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
@@ -502,7 +509,7 @@ def evaluate(
 
 
 def _planner_settings(horizon: int | None, samples: int | None, epistemic: float | None,
-                      end_inside: bool) -> "ControllerSettings":
+                      end_inside: bool, repeat_no_effect: bool = False) -> "ControllerSettings":
     """The gear's default controller settings with what the command line changed."""
     from dataclasses import replace
 
@@ -517,6 +524,8 @@ def _planner_settings(horizon: int | None, samples: int | None, epistemic: float
         planner = replace(planner, epistemic=epistemic)
     if end_inside:
         planner = replace(planner, end_inside=True)
+    if repeat_no_effect:
+        planner = replace(planner, no_effect_tolerance=None)
     return planner
 
 
@@ -538,6 +547,7 @@ def episode(
     samples: int | None = _samples_option(),
     epistemic: float | None = _epistemic_option(),
     end_inside: bool = _end_inside_option(),
+    repeat_no_effect: bool = _repeat_option(),
     human: str | None = _human_option(),
     shield: bool = _shield_option(),
 ) -> None:
@@ -552,7 +562,7 @@ def episode(
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
-    planner = _planner_settings(horizon, samples, epistemic, end_inside)
+    planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect)
     task = _gear_task(human, shield)
     metrics, rows, schedule = inspect_episode(models, controller, index, seed, planner,
                                               frames=frames, task=task)

@@ -15,6 +15,11 @@ After an interruption by ``replan_every`` the chooser is told which option runs:
 option competes where it may go on (its continuation set), the others where they may
 start; it is kept unless another option's score beats it by more than ``margin`` (keeps
 the choice from flapping).
+
+An option that terminates where it started (no coordinate of the state moved more than
+``no_effect_tolerance``) is not started again until the state leaves that spot
+(:meth:`~dynoplan.options.Option.ended_without_effect`): choosing it there again would
+end there again, for as long as the chooser's models promise progress from it.
 """
 
 import itertools
@@ -119,6 +124,9 @@ class Controller:
         termination_every: draw the running option's ``beta`` every this many env steps
             (the dynamics models' time step, so the real option stops at the rate its
             imagined rollouts do); a policy that reports it is finished stops at once.
+        no_effect_tolerance: an option that terminates with no coordinate of the state
+            more than this from where it started may not start again while the state
+            stays that close (``None``: it may).
     """
 
     def __init__(
@@ -134,6 +142,7 @@ class Controller:
         success_fn: Callable[[bool, dict[str, Any]], bool] = default_success,
         record_infos: bool = False,
         termination_every: int = 1,
+        no_effect_tolerance: float | None = None,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
@@ -141,6 +150,8 @@ class Controller:
         if max_decisions < 1 or max_option_steps < 1 or termination_every < 1:
             raise DynoplanError("max_decisions, max_option_steps and termination_every "
                                 "must be >= 1")
+        if no_effect_tolerance is not None and not no_effect_tolerance >= 0.0:
+            raise DynoplanError(f"no_effect_tolerance must be >= 0, got {no_effect_tolerance}")
         self.chooser = chooser
         self.state_fn = state_fn
         self.max_decisions = max_decisions
@@ -151,6 +162,7 @@ class Controller:
         self.success_fn = success_fn
         self.record_infos = record_infos
         self.termination_every = termination_every
+        self.no_effect_tolerance = no_effect_tolerance
 
     def run(self, env: gym.Env[Any, Any], rng: Generator, seed: int | None = None,
             reset_options: dict[str, Any] | None = None) -> EpisodeTrace:
@@ -158,6 +170,8 @@ class Controller:
         reset = getattr(self.chooser, "reset", None)
         if callable(reset):
             reset()
+        for o in self.options:
+            o.forget_runs()
         obs, info = env.reset(seed=seed, options=reset_options)
         trace = EpisodeTrace()
         state = self.state_fn(obs)
@@ -211,6 +225,9 @@ class Controller:
                     reason = "replan"
                     break
             running = chosen if reason == "replan" else None
+            if (reason == "terminated" and self.no_effect_tolerance is not None
+                    and np.max(np.abs(state - start_state)) <= self.no_effect_tolerance):
+                option.ended_without_effect(state, self.no_effect_tolerance)
             trace.decisions.append(Decision(k, start_step, start_state, plan, option.name,
                                             steps, reason, state, latency, outside))
             if terminated or truncated:

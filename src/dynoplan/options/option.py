@@ -80,6 +80,13 @@ class Option:
             safety region by a learned judgement (an initiation learned from outcomes),
             the region: where the judgement rules out every option, the regions decide
             rather than the robot holding still for good (:func:`admissible`).
+
+    A controller may tell the option that its last run ended without effect
+    (:meth:`ended_without_effect`): the option then does not start again, under its
+    initiation set or its fallback, while the state stays where that run ended. Started
+    again there, it would end there again (a move already at its goal, a pick that
+    gives up on a gear it cannot grasp), and a chooser whose models promise progress from
+    it would choose it for good.
     """
 
     name: str
@@ -89,6 +96,8 @@ class Option:
     initiation: Initiation = field(default_factory=Everywhere)
     continuation: Initiation | None = None
     fallback: Initiation | None = None
+    _no_effect: tuple[np.ndarray, float] | None = field(default=None, init=False, repr=False,
+                                                         compare=False)
 
     @property
     def continuation_set(self) -> Initiation:
@@ -112,8 +121,38 @@ class Option:
 
     def may_run(self, state: np.ndarray, running: bool) -> bool:
         """Whether the option may run at ``state``: start there (``running=False``: its
-        initiation set) or go on there (``running=True``: its continuation set)."""
-        return self.can_continue(state) if running else self.can_start(state)
+        initiation set, not where its last run ended without effect) or go on there
+        (``running=True``: its continuation set)."""
+        if running:
+            return self.can_continue(state)
+        return not self.without_effect_at(state) and self.can_start(state)
+
+    def may_fall_back(self, state: np.ndarray) -> bool:
+        """Whether the option may start at ``state`` (shape ``(state_dim,)``) when no
+        option may under its own sets: its ``fallback`` holds there, and its last run
+        did not end there without effect."""
+        if self.fallback is None or self.without_effect_at(state):
+            return False
+        return bool(self.fallback.contains(np.asarray(state, dtype=np.float64)[None])[0])
+
+    def ended_without_effect(self, state: np.ndarray, tolerance: float) -> None:
+        """Record that a run of this option ended at ``state`` (shape ``(state_dim,)``)
+        where it started, within ``tolerance`` in every coordinate: the option may not
+        start again while the state stays that close to ``state``."""
+        self._no_effect = (np.array(state, dtype=np.float64).reshape(-1), float(tolerance))
+
+    def forget_runs(self) -> None:
+        """Forget :meth:`ended_without_effect` (a controller calls it at every reset)."""
+        self._no_effect = None
+
+    def without_effect_at(self, state: np.ndarray) -> bool:
+        """Whether ``state`` is within the tolerance of where the option's last run
+        ended without effect."""
+        if self._no_effect is None:
+            return False
+        where, tolerance = self._no_effect
+        s = np.asarray(state, dtype=np.float64).reshape(-1)
+        return bool(s.shape == where.shape and np.max(np.abs(s - where)) <= tolerance)
 
     def should_stop(self, state: np.ndarray, rng: Generator) -> bool:
         """Draw termination after a step: ``beta_w(state)``, or the policy is finished."""
@@ -136,6 +175,4 @@ def admissible(options: Sequence[Option], state: np.ndarray,
                        dtype=bool)
     if may_run.any() or all(o.fallback is None for o in options):
         return may_run
-    s = np.asarray(state, dtype=np.float64)[None]
-    return np.array([o.fallback is not None and bool(o.fallback.contains(s)[0])
-                     for o in options], dtype=bool)
+    return np.array([o.may_fall_back(state) for o in options], dtype=bool)

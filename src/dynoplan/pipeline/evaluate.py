@@ -68,6 +68,9 @@ class ControllerSettings:
             constraint).
         end_inside: the planner's rollouts that leave an option's continuation set end
             at their last state inside it (:class:`~dynoplan.planning.OptionPlanner`).
+        no_effect_tolerance: an option that terminates with no state coordinate moved
+            more than this is not started again there
+            (:class:`~dynoplan.control.Controller`; ``None``: it may be).
     """
 
     horizon: int = 20
@@ -85,6 +88,7 @@ class ControllerSettings:
     epistemic: float = 0.0
     risk_level: float = 0.05
     end_inside: bool = False
+    no_effect_tolerance: float | None = None
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -104,6 +108,9 @@ class ControllerSettings:
             raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
         if self.max_decisions < 1 or self.max_option_steps < 1:
             raise DynoplanError("max_decisions and max_option_steps must be >= 1")
+        if self.no_effect_tolerance is not None and not self.no_effect_tolerance >= 0.0:
+            raise DynoplanError(
+                f"no_effect_tolerance must be >= 0 or None, got {self.no_effect_tolerance}")
 
 
 def run_episodes(env: gym.Env[Any, Any], controller: Controller, seeds: Sequence[EpisodeSeed],
@@ -199,7 +206,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
     return Controller(options, chooser, max_decisions=settings.max_decisions,
                       max_option_steps=settings.max_option_steps,
                       replan_every=None if alone else settings.replan_every,
-                      margin=settings.margin, hold_action=hold_action(settings, action_space))
+                      margin=settings.margin, hold_action=hold_action(settings, action_space),
+                      no_effect_tolerance=settings.no_effect_tolerance)
 
 
 def hold_action(settings: ControllerSettings, action_space: gym.Space[Any] | None) -> Any:

@@ -145,7 +145,7 @@ MAX_EPISODE_STEPS = round(MAX_EPISODE_SECONDS / CONTROL_DT)
 GEAR_CONTROL = ControllerSettings(
     horizon=10, samples=64, margin=0.1, replan_every=DECISION_STEPS,
     max_decisions=MAX_EPISODE_STEPS, max_option_steps=MAX_EPISODE_STEPS, oracle_horizon=10,
-    oracle_samples=1, epistemic=0.0)
+    oracle_samples=1, epistemic=0.0, no_effect_tolerance=1e-3)
 """How the gear's controllers plan and run (``gear run``'s defaults):
 
 - ``horizon``, ``samples``: Eq. 1's ``n`` (decisions of 0.5 s) and ``S``;
@@ -161,7 +161,12 @@ GEAR_CONTROL = ControllerSettings(
   most on the insertion, the option that must win near the goal (0.25-0.4 on its own
   trajectories, against 0.02-0.1 for the pick), so the penalty hands those decisions to a
   pick that lifts the gear back off the peg;
-- an episode and an option may run as long as the environment's limit."""
+- an episode and an option may run as long as the environment's limit;
+- ``no_effect_tolerance`` 1e-3 (1 mm, 1 mrad): an option that ends where it started is
+  not started there again (:class:`~dynoplan.control.Controller`). Without it, a move
+  already at its goal (done after two steps) was chosen again and again, while the
+  insertion it should give way to was ruled out by its learned initiation (measured in
+  ``docs/safety.md``)."""
 
 
 def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
@@ -280,7 +285,8 @@ def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
                       max_option_steps=settings.max_option_steps,
                       replan_every=None if scripted else settings.replan_every,
                       margin=settings.margin, hold_action=hold, record_infos=True,
-                      termination_every=1 if scripted else DECISION_STEPS)
+                      termination_every=1 if scripted else DECISION_STEPS,
+                      no_effect_tolerance=settings.no_effect_tolerance)
 
 
 SAFETY_LOOKAHEAD = 2.5
