@@ -208,6 +208,10 @@ def pipeline(
         None, "--end-inside/--no-end-inside",
         help="Rollouts that leave an option's continuation set end at their last state "
              "inside it [off]."),
+    no_effect_tolerance: float | None = typer.Option(
+        None, "--no-effect-tolerance", **_bounds("control.no_effect_tolerance"),
+        help="An option that ends with no state coordinate moved more than this is not "
+             "started again there, in state units [off]."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),

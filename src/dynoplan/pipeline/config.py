@@ -80,7 +80,7 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "control.risk": (-1e6, 1e6), "control.replan_every": (0, STEPS_MAX),
     "control.margin": (0.0, math.inf), "control.max_decisions": (1, STEPS_MAX),
     "control.max_option_steps": (1, STEPS_MAX), "control.dynamics_noise": (0.0, math.inf),
-    "control.epistemic": (0.0, 1e6),
+    "control.epistemic": (0.0, 1e6), "control.no_effect_tolerance": (0.0, math.inf),
 }
 """Smallest and largest value of every numeric setting (the command line's flags have
 the same bounds)."""
