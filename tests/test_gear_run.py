@@ -15,6 +15,7 @@ from dynoplan.cli.main import app
 from dynoplan.control import Controller, FixedChoice
 from dynoplan.envs.gear.controllers import (
     CARRIED_GEAR_HEIGHT,
+    GEAR_CONTROL,
     VARIANTS,
     holding_gear,
     not_carried,
@@ -264,3 +265,15 @@ def test_gear_episode_rejects_an_unknown_controller_without_writing(tmp_path: Pa
         "dynoplan: error: unknown controller 'flat_ppo'; expected one of "
         f"{', '.join(VARIANTS)} (flat_ppo has no decisions)"]
     assert not out.exists()
+
+
+def test_the_gear_controllers_do_not_repeat_an_option_without_effect_unless_told_to():
+    from dynoplan.cli.gear import _planner_settings
+
+    assert GEAR_CONTROL.no_effect_tolerance == pytest.approx(1e-3)  # 1 mm, 1 mrad
+    assert _planner_settings(None, None, None, False).no_effect_tolerance == pytest.approx(1e-3)
+    ablation = _planner_settings(None, None, None, False, repeat_no_effect=True)
+    assert ablation.no_effect_tolerance is None
+    for command in ("evaluate", "episode"):
+        shown = CliRunner().invoke(app, ["gear", command, "--help"], terminal_width=200)
+        assert "--repeat-no-effect" in shown.output
