@@ -291,3 +291,18 @@ def test_an_option_that_ended_without_effect_may_start_again_once_the_state_move
     assert admissible([stay], np.array([3.0])).tolist() == [True]
     with pytest.raises(DynoplanError, match="no_effect_tolerance"):
         Controller([stay], FixedChoice([stay], "stay"), no_effect_tolerance=-1.0)
+
+
+def test_a_planners_copy_of_an_option_sees_where_its_run_ended_without_effect():
+    # the planner may hold copies of the controller's options (noisy dynamics, other
+    # feature maps): what the controller records must reach them
+    from dataclasses import replace
+
+    from dynoplan.options import admissible
+
+    stay = _option("stay", 0.0)
+    copy = replace(stay, dynamics=_Shift(1.0))
+    stay.ended_without_effect(np.array([3.0]), 0.1)
+    assert admissible([copy], np.array([3.0])).tolist() == [False]
+    stay.forget_runs()
+    assert admissible([copy], np.array([3.0])).tolist() == [True]

@@ -64,6 +64,15 @@ the environment and policy types: ``PolicyFactory[GearAssemblyEnv, GearOptionPol
 
 
 @dataclass
+class RunMemory:
+    """What a controller told an option about its runs: where the last one ended without
+    effect (``where``, ``(state_dim,)``, or ``None``) and the tolerance it was judged by."""
+
+    where: np.ndarray | None = None
+    tolerance: float = 0.0
+
+
+@dataclass
 class Option:
     """An option with a forward dynamics model (the paper's extension of options).
 
@@ -96,8 +105,9 @@ class Option:
     initiation: Initiation = field(default_factory=Everywhere)
     continuation: Initiation | None = None
     fallback: Initiation | None = None
-    _no_effect: tuple[np.ndarray, float] | None = field(default=None, init=False, repr=False,
-                                                         compare=False)
+    runs: RunMemory = field(default_factory=RunMemory, repr=False, compare=False)
+    """Where the option's last run ended without effect; a copy made with
+    ``dataclasses.replace`` (a planner's option with other dynamics) shares it."""
 
     @property
     def continuation_set(self) -> Initiation:
@@ -139,20 +149,22 @@ class Option:
         """Record that a run of this option ended at ``state`` (shape ``(state_dim,)``)
         where it started, within ``tolerance`` in every coordinate: the option may not
         start again while the state stays that close to ``state``."""
-        self._no_effect = (np.array(state, dtype=np.float64).reshape(-1), float(tolerance))
+        self.runs.where = np.array(state, dtype=np.float64).reshape(-1)
+        self.runs.tolerance = float(tolerance)
 
     def forget_runs(self) -> None:
         """Forget :meth:`ended_without_effect` (a controller calls it at every reset)."""
-        self._no_effect = None
+        self.runs.where = None
 
     def without_effect_at(self, state: np.ndarray) -> bool:
         """Whether ``state`` is within the tolerance of where the option's last run
         ended without effect."""
-        if self._no_effect is None:
+        where = self.runs.where
+        if where is None:
             return False
-        where, tolerance = self._no_effect
         s = np.asarray(state, dtype=np.float64).reshape(-1)
-        return bool(s.shape == where.shape and np.max(np.abs(s - where)) <= tolerance)
+        return bool(s.shape == where.shape
+                    and np.max(np.abs(s - where)) <= self.runs.tolerance)
 
     def should_stop(self, state: np.ndarray, rng: Generator) -> bool:
         """Draw termination after a step: ``beta_w(state)``, or the policy is finished."""
