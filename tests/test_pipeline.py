@@ -80,7 +80,13 @@ def result(tmp_path_factory):
 
 def test_pipeline_learns_to_go_right_and_beats_going_left(result):
     _, res = result
-    assert set(res.evaluation) == {"dynoplan", "option:right", "option:left", "random"}
+    assert set(res.evaluation) == {"demonstrator", "dynoplan", "option:right",
+                                   "option:left", "random"}
+    # the demonstrator is the bar, on the same episodes: it only goes right
+    assert res.evaluation["demonstrator"]["success_rate"] == 1.0
+    assert res.evaluation["demonstrator"]["option_share"] == {"right": 1.0}
+    assert res.evaluation["demonstrator"]["latency_ms_p50"] is None  # it does not plan
+    assert res.summary["composition_ratio"] == 1.0
     assert res.evaluation["dynoplan"]["success_rate"] == 1.0
     assert res.evaluation["option:right"]["success_rate"] == 1.0
     assert res.evaluation["option:left"]["success_rate"] == 0.0
@@ -97,7 +103,10 @@ def test_pipeline_writes_datasets_models_and_summary(result):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["controllers"]["dynoplan"]["success_rate"] == 1.0
     assert summary["options"] == ["right", "left"] and summary["state_dim"] == 1
-    assert (out / "results.md").read_text().count("| option:") == 2
+    results = (out / "results.md").read_text()
+    # the results and which options each controller ran
+    assert results.count("| option:") == 4 and results.count("| demonstrator |") == 2
+    assert "1.00 of the demonstrator's success" in results
     demos = read_dataset(out / "demos")
     assert demos.metadata.option_names == ["right", "left"] and len(demos) == 4
     assert all(np.all(e.options == 0) for e in demos)  # the demonstrator only went right
@@ -305,7 +314,8 @@ def test_cli_runs_the_pipeline_on_a_user_environment(tmp_path):
                 "--out", "out", "--quiet", "--workers", "1", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert set(summary["controllers"]) == {"dynoplan", "option:right", "option:left", "random"}
+    assert set(summary["controllers"]) == {"demonstrator", "dynoplan", "option:right",
+                                           "option:left", "random"}
     assert summary["controllers"]["option:left"]["success_rate"] == 0.0
     assert summary["command"].startswith("dynoplan pipeline --env TestLine-v0")
     assert "| dynoplan |" in done.stdout

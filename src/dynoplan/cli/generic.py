@@ -101,8 +101,8 @@ def pipeline(
     seed: int | None = typer.Option(None, "--seed", **_bounds("seed"),
                                     help="Seed of every random choice [0]."),
     controllers: str | None = typer.Option(
-        None, "--controllers", help="Comma-separated controllers to evaluate: dynoplan, "
-        "option:NAME, random [all]."),
+        None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
+        "dynoplan, option:NAME, random [all]."),
     out: Path = typer.Option(Path("results/pipeline"), "--out", callback=folder,
                              help="Output folder."),
     stride: int | None = typer.Option(None, "--stride", **_bounds("fit.stride"),
@@ -248,11 +248,9 @@ def pipeline(
             raise DynoplanError(f"{config}: {key} must be a string, got {task_refs[key]!r}")
     env_id, options_ref = str(task_refs["env"]), str(task_refs["options"])
     pool = parse_workers(workers, ray_address)
-    task = GymTask(env_id, options_ref, task_refs["success"], task_refs["state_fn"])
-    made = task.make_options()
     dataset = task_refs["demo_dataset"]
     demo_data = read_dataset(Path(dataset)) if dataset is not None else None
-    demo_maker = None
+    demo_maker = reference = None
     if demo_data is None:
         module = options_ref.partition(":")[0]
         reference = task_refs["demonstrator"] or f"{module}:make_demonstrator"
@@ -264,6 +262,9 @@ def pipeline(
                     f"'{module}' defines no make_demonstrator(); give "
                     "--demonstrator MODULE:FUNCTION or --demo-dataset PATH") from None
         demo_maker = call_factory(reference, "demonstrator")
+    task = GymTask(env_id, options_ref, task_refs["success"], task_refs["state_fn"],
+                   reference)
+    made = task.make_options()
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     with staged_folder(out) as staged, warnings_as_lines():
         # nothing of a failed run, the previous run's kept

@@ -321,7 +321,7 @@ class MLPEnsembleDynamics:
         fit_rows, hold_rows = perm[n_holdout:], perm[:n_holdout]
         delta = nxt - s
         self.input_mean, self.input_std = _mean_std(s[fit_rows])
-        self.delta_mean, self.delta_std = _mean_std(delta[fit_rows])
+        self.delta_mean, self.delta_std = _delta_mean_std(delta[fit_rows])
         xn = torch.from_numpy(((s - self.input_mean) / self.input_std).astype(np.float32))
         yn = torch.from_numpy(((delta - self.delta_mean) / self.delta_std).astype(np.float32))
         tr, ho = torch.from_numpy(fit_rows), torch.from_numpy(hold_rows)
@@ -398,10 +398,23 @@ class MLPEnsembleDynamics:
         return model
 
 
+STILL_SPREAD = 1e-9
+"""The normalising spread of a state change that the training data never shows varying:
+the model keeps such a dimension where the data kept it (its constant change, to within
+this), however far a rollout's input lies from the data."""
+
+
 def _mean_std(a: FloatArray) -> tuple[FloatArray, FloatArray]:
     mean = a.mean(axis=0)
     std = a.std(axis=0)
     return mean, np.where(std > 1e-8, std, 1.0)
+
+
+def _delta_mean_std(a: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The normalisation of the changes ``(N, d)``: a constant change keeps a spread of
+    :data:`STILL_SPREAD`, so the network's error in it is scaled down to nothing."""
+    mean = a.mean(axis=0)
+    return mean, np.maximum(a.std(axis=0), STILL_SPREAD)
 
 
 def _meta_int(meta: dict[str, Any], name: str, path: str | os.PathLike[str]) -> int:

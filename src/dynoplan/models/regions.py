@@ -35,6 +35,11 @@ from dynoplan.models.storage import as_states, load_arrays, require, require_fin
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
 _KIND = "safety_regions"
+CONSTANT_SPREAD = 1e-9
+"""A dimension whose standard deviation over the data is at most this (times one plus
+its magnitude) never changes: :meth:`SafetyRegions.fit_heldout` does not test it."""
+UNTESTED_SCALE = 1e6
+"""The scale of an untested dimension, in units of the largest spread of the data."""
 
 
 @dataclass
@@ -189,7 +194,10 @@ class SafetyRegions:
         """Regions whose held-out coverage is ``coverage``, chosen without BIC.
 
         1. Every dimension is standardised by its spread over ``states`` (floored at
-           ``1e-3`` of the largest spread, so a constant dimension does not divide by 0);
+           ``1e-3`` of the largest spread); a dimension that never changes (a spread of
+           at most ``CONSTANT_SPREAD`` times one plus its magnitude: padding, a fixed
+           goal) is scaled by ``UNTESTED_SCALE`` times the largest spread, so that no
+           move in it changes the likelihood: it is not tested;
            ``reg_covar`` is added to every covariance's diagonal in those units (``1e-2``:
            no component is narrower than a tenth of the data's spread in any direction).
         2. Each option gets its own mixture on its own states, so ``J_k`` is that
@@ -234,6 +242,9 @@ class SafetyRegions:
         center = x.mean(axis=0)
         spread = x.std(axis=0)
         scale = np.maximum(spread, 1e-3 * float(spread.max()) + 1e-12)
+        # a dimension with no spread at all is not tested: at this scale no move matters
+        scale[spread <= CONSTANT_SPREAD * (1.0 + np.abs(center))] = UNTESTED_SCALE * (
+            1.0 + float(spread.max()))
         z = (x - center) / scale
         g = None if groups is None else np.asarray(groups)
         if g is not None and g.shape != y.shape:

@@ -1,7 +1,11 @@
-"""Evaluating controllers built from options: DynoPlan, each option alone, random choice.
+"""Evaluating controllers built from options: the demonstrator, DynoPlan, each option
+alone, random choice.
 
 Every controller runs the same seeded episodes (:func:`~dynoplan.seeding.episode_seeds`),
-so the rows of a results table differ only by the controller.
+so the rows of a results table differ only by the controller. The demonstrator (the
+user's scripted chain of the options) is the bar: it shows what the options can do when
+chained right, and DynoPlan's success is reported as a share of its success
+(:func:`composition_ratio`).
 """
 
 from collections.abc import Callable, Hashable, Mapping, Sequence
@@ -12,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from dynoplan.adapters.spec import OptionSpec
+from dynoplan.adapters.spec import OptionSpec, as_spec
 from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
 from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.errors import DynoplanError
@@ -21,6 +25,7 @@ from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import RegionModel
 from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
+from dynoplan.pipeline.collect import Demonstrator, demonstrator_from, record_episode
 from dynoplan.pipeline.task import Task
 from dynoplan.planning.option_planner import OptionPlanner
 from dynoplan.progress import track
@@ -33,6 +38,7 @@ if TYPE_CHECKING:
 
 DYNOPLAN = "dynoplan"
 RANDOM = "random"
+DEMONSTRATOR = "demonstrator"
 OPTION_PREFIX = "option:"
 
 
@@ -148,9 +154,21 @@ def planning_steps_summary(traces: Sequence[EpisodeTrace]) -> dict[str, Any]:
     }
 
 
-def controller_names(options: Sequence[Option] | Sequence[OptionSpec]) -> list[str]:
-    """``dynoplan``, then ``option:<name>`` for every option, then ``random``."""
-    return [DYNOPLAN, *(OPTION_PREFIX + o.name for o in options), RANDOM]
+def controller_names(options: Sequence[Option] | Sequence[OptionSpec],
+                     demonstrator: bool = False) -> list[str]:
+    """``demonstrator`` (when there is one), ``dynoplan``, then ``option:<name>`` for every
+    option, then ``random``."""
+    return [*([DEMONSTRATOR] if demonstrator else []), DYNOPLAN,
+            *(OPTION_PREFIX + o.name for o in options), RANDOM]
+
+
+def composition_ratio(rows: Mapping[str, Mapping[str, Any]]) -> float | None:
+    """DynoPlan's success rate as a share of the demonstrator's on the same episodes
+    (``None`` without both rows, or when the demonstrator never succeeded)."""
+    if DYNOPLAN not in rows or DEMONSTRATOR not in rows:
+        return None
+    bar = float(rows[DEMONSTRATOR]["success_rate"])
+    return float(rows[DYNOPLAN]["success_rate"]) / bar if bar > 0 else None
 
 
 def with_dynamics_noise(options: Sequence[Option], noise: float) -> list[Option]:
@@ -414,6 +432,40 @@ class ControllerRunner:
         return self.record(self.run(seed), seed)
 
 
+@dataclass
+class DemonstratorRunner:
+    """The demonstrator's seeded episodes as :class:`EpisodeRecord` s: the options it
+    chooses before every step, exactly as it demonstrates
+    (:func:`~dynoplan.pipeline.collect.record_episode`), with no initiation set or region
+    in its way. A *decision* is a change of option; it costs no planning (no latencies).
+    Out-of-region starts are counted against ``regions`` (``None``: none).
+    """
+
+    env: gym.Env[Any, Any]
+    options: Sequence[OptionSpec]
+    demonstrator: Demonstrator
+    regions: RegionModel | None = None
+
+    def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
+        recording = record_episode(self.env, self.options, self.demonstrator, seed.env_seed,
+                                   seed.rng())
+        episode = recording.episode
+        names = [o.name for o in self.options]
+        labels = np.asarray(episode.options)
+        starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
+        chosen = tuple(names[int(k)] for k in labels[starts])
+        states = np.asarray(episode.observations, dtype=np.float64).reshape(len(labels) + 1, -1)
+        shown = set(self.regions.option_names) if self.regions is not None else set()
+        outside = sum(1 for t, name in zip(starts, chosen, strict=True) if name in shown
+                      and self.regions is not None
+                      and not bool(self.regions.contains(states[t][None], name)[0]))
+        steps = np.bincount(labels, minlength=len(names))
+        return EpisodeRecord(
+            seed.env_seed, recording.success, len(labels), float(np.sum(episode.rewards)),
+            len(chosen), len(chosen) - 1, outside, 0, (),
+            tuple(sorted((names[k], int(n)) for k, n in enumerate(steps) if n)), chosen)
+
+
 class NoRegions:
     """A region model without regions: no option ever starts outside one (what
     out-of-region starts are counted against when no regions were fitted)."""
@@ -482,20 +534,26 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                          progress: bool = False, workers: Workers = SERIAL,
                          task: Task | None = None,
                          models: Path | None = None,
-                         regions: RegionModel | None = None) -> dict[str, dict[str, Any]]:
+                         regions: RegionModel | None = None,
+                         demonstrator: Any = None) -> dict[str, dict[str, Any]]:
     """Run each controller on the same ``episodes`` seeded episodes; one summary each.
 
-    ``controllers`` defaults to :func:`controller_names` (DynoPlan, every option alone,
-    random choice). On one worker the controllers run here on ``env`` and ``options``; on
-    several, every worker rebuilds them from ``task`` and the models folder ``models``
-    (:class:`ControllerJob`), which must hold the same models, and the table is the same.
+    ``controllers`` defaults to :func:`controller_names` (the demonstrator when one is
+    given, DynoPlan, every option alone, random choice; ``demonstrator``: a
+    :class:`~dynoplan.pipeline.collect.Demonstrator` or ``fn(observation) -> option
+    name``, :class:`DemonstratorRunner`). On one worker the controllers run here on
+    ``env`` and ``options``; on several, every worker rebuilds them from ``task`` and the
+    models folder ``models`` (:class:`ControllerJob`), which must hold the same models, and
+    the table is the same.
     Out-of-region starts are counted against ``regions`` (:class:`ControllerRunner`; a
     task's workers count as :meth:`~dynoplan.pipeline.task.Task.make_runner` says).
     """
     if episodes < 1:
         raise DynoplanError(f"episodes must be >= 1, got {episodes}")
     seeds = episode_seeds(seed, episodes)
-    kinds = list(controllers or controller_names(options))
+    kinds = list(controllers or controller_names(options, demonstrator is not None))
+    if DEMONSTRATOR in kinds and demonstrator is None:
+        raise DynoplanError("the demonstrator row needs a demonstrator")
     if workers.parallel:
         if task is None or models is None:
             raise DynoplanError("evaluating on several workers needs the task and the "
@@ -503,8 +561,12 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
         jobs: list[EpisodeJob] = [ControllerJob(task, models, kind, settings)
                                   for kind in kinds]
     else:
-        jobs = [_LocalJob(env, make_controller(kind, options, goal, settings, planner_options,
-                                               env.action_space), regions)
+        jobs = [_LocalJob(DemonstratorRunner(env, [as_spec(o) for o in options],
+                                             demonstrator_from(demonstrator),
+                                             regions)) if kind == DEMONSTRATOR
+                else _LocalJob(ControllerRunner(env, make_controller(
+                    kind, options, goal, settings, planner_options, env.action_space),
+                    regions=regions))
                 for kind in kinds]
     done = evaluate_many([(job, seeds) for job in jobs], workers,
                          f"evaluate ({len(kinds)} controllers)", progress)
@@ -515,12 +577,10 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
 class _LocalJob:
     """A job whose runner is already built (one worker: this process)."""
 
-    env: gym.Env[Any, Any]
-    controller: Controller
-    regions: RegionModel | None = None
+    runner: EpisodeRunner
 
-    def build(self) -> ControllerRunner:
-        return ControllerRunner(self.env, self.controller, regions=self.regions)
+    def build(self) -> EpisodeRunner:
+        return self.runner
 
 
 _COLUMNS = ["controller", "success_rate", "steps_to_success_mean", "return_mean",
@@ -533,3 +593,13 @@ def results_table(rows: dict[str, dict[str, Any]]) -> str:
     """The evaluation as a markdown table, one row per controller."""
     return markdown_table([{"controller": name, **row} for name, row in rows.items()],
                           _COLUMNS, _HEADERS)
+
+
+def option_share_table(rows: Mapping[str, Mapping[str, Any]]) -> str:
+    """Which options each controller ran: the share of its environment steps per option
+    (``option_share`` of :func:`summarize`), one row per controller, one column per option
+    that any controller ran."""
+    names = sorted({name for row in rows.values() for name in row.get("option_share", {})})
+    table = [{"controller": kind, **{n: row.get("option_share", {}).get(n, 0.0)
+                                     for n in names}} for kind, row in rows.items()]
+    return markdown_table(table, ["controller", *names], ["controller", *names])

@@ -29,6 +29,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from dynoplan.adapters.spec import OptionSpec
 from dynoplan.data.episodes import Episode
 from dynoplan.errors import DynoplanError, DynoplanWarning
@@ -51,6 +53,7 @@ from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
 from dynoplan.pipeline.collect import ObservationFn, flat_state
+from dynoplan.pipeline.diagnostics import constant_dimensions, constant_dimensions_warning
 from dynoplan.pipeline.fit_data import (
     episode_states,
     labelled_states,
@@ -358,8 +361,14 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
         say("outcome initiation")
         learned, outcome_report = fit_outcome_initiation(transitions, names, goal, settings,
                                                          seed, state_fn)
+    constant = constant_dimensions(np.concatenate(
+        [episode_states(e, state_fn) for e in [*transitions, *demos]]))
+    note = constant_dimensions_warning(constant, pairs[names[0]][0].shape[1])
+    if note is not None:
+        warnings.warn(note, DynoplanWarning, stacklevel=2)
     report = {"settings": asdict(settings), "dynamics": dyn_report, "goal": goal_report,
-              "regions": region_report, "outcome_initiation": outcome_report}
+              "regions": region_report, "outcome_initiation": outcome_report,
+              "constant_dimensions": constant, "warnings": [] if note is None else [note]}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
                         settings.regions, task, learned_initiation=learned)
 

@@ -43,11 +43,18 @@ from dynoplan.pipeline.collect import (
     probe_options,
     record_demonstrations,
 )
+from dynoplan.pipeline.diagnostics import (
+    seeded_reset_warning,
+    sole_admissible_warnings,
+    weak_dynamics_warnings,
+)
 from dynoplan.pipeline.evaluate import (
     ControllerSettings,
+    composition_ratio,
     controller_names,
     evaluate_controllers,
     learned_regions,
+    option_share_table,
     results_table,
 )
 from dynoplan.pipeline.fit import (
@@ -319,12 +326,15 @@ def run_pipeline(
     specs = [as_spec(o) for o in options]
     seeds = _seeds(settings.seed)
     state_dim = probe_options(environment, options, flat_state, seeds["demos"])
+    notes = [n for n in [seeded_reset_warning(
+        environment, episode_seeds(seeds["evaluation"], 1)[0].env_seed)] if n is not None]
     folder = ensure_writable_dir(out) if out is not None else None
     names = [s.name for s in specs]
-    unknown = [c for c in settings.controllers or () if c not in controller_names(specs)]
+    known = controller_names(specs, demonstrator is not None)
+    unknown = [c for c in settings.controllers or () if c not in known]
     if unknown:  # before any work
         raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
-                            f"{', '.join(controller_names(specs))})")
+                            f"{', '.join(known)})")
 
     if demos is not None:
         demo_episodes = demos_from_dataset(demos, names)
@@ -344,7 +354,10 @@ def run_pipeline(
     run_options, planner_options = models.build(specs)
     say("admissibility")
     starts = start_states(environment, seeds["evaluation"], settings.episodes)
-    admissible, notes = admissibility(run_options, starts, demo_episodes)
+    admissible, where = admissibility(run_options, starts, demo_episodes)
+    demo_states = np.concatenate([episode_states(e, flat_state)[:-1] for e in demo_episodes])
+    notes += [*where, *weak_dynamics_warnings(models.report["dynamics"]),
+              *sole_admissible_warnings(run_options, demo_states)]
     for note in notes:
         warnings.warn(note, DynoplanWarning, stacklevel=2)
     models_dir = models.save(folder / "models") if folder is not None else None
@@ -352,7 +365,7 @@ def run_pipeline(
     evaluation = evaluate_controllers(environment, run_options, models.goal, settings.control,
                                       settings.episodes, seeds["evaluation"], planner_options,
                                       settings.controllers, progress, workers, task,
-                                      models_dir, learned_regions(models))
+                                      models_dir, learned_regions(models), demonstrator)
     say("")
     region_warnings = (models.report.get("regions") or {}).get("warnings", [])
     summary = {
@@ -369,6 +382,7 @@ def run_pipeline(
         "admissibility": admissible,
         "warnings": [*region_warnings, *notes],
         "controllers": evaluation,
+        "composition_ratio": composition_ratio(evaluation),
         "stage_seconds": clock.rounded(3),
         "seconds": time.perf_counter() - started,
         "command": command,
@@ -411,9 +425,15 @@ def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
     command = summary.get("command")
     head = f"Produced by `{command}`" if command else "Produced by run_pipeline"
     n = settings.episodes
+    ratio = summary.get("composition_ratio")
+    bar = ("" if ratio is None else
+           f"DynoPlan reaches {ratio:.2f} of the demonstrator's success on the same episodes "
+           "(the composition ratio).\n\n")
     write_text(folder / "results.md",
                f"{head} ({n} seeded episodes per controller, seed {settings.seed}).\n\n"
-               f"{results_table(summary['controllers'])}\n\n"
+               f"{results_table(summary['controllers'])}\n\n{bar}"
+               "Which options each controller ran (share of its environment steps):\n\n"
+               f"{option_share_table(summary['controllers'])}\n\n"
                "Where each option may start (share of states inside its initiation set):"
                f"\n\n{admissibility_table(summary['admissibility'])}\n"
                + "".join(f"\n- warning: {w}" for w in summary["warnings"]))

@@ -198,12 +198,15 @@ class GymTask:
             environment's own ``info["is_success"]`` or ``terminated``).
         state_fn: ``MODULE:FUNCTION``, the :data:`StateFn` (``None``: a ``Box``
             observation as it is, a ``Dict`` flattened).
+        demonstrator: ``MODULE:FUNCTION`` returning the demonstrator, for its row of the
+            evaluation on workers (``None``: no such row).
     """
 
     env_id: str
     options: str
     success: str | None = None
     state_fn: str | None = None
+    demonstrator: str | None = None
 
     @property
     def name(self) -> str:
@@ -232,15 +235,28 @@ class GymTask:
                     settings: "ControllerSettings") -> "EpisodeRunner":
         """The options with the learned models of ``models``
         (:meth:`~dynoplan.pipeline.fit.FittedModels.build`), under controller
-        ``controller`` (:func:`~dynoplan.pipeline.evaluate.make_controller`); starts
+        ``controller`` (:func:`~dynoplan.pipeline.evaluate.make_controller`, or the
+        demonstrator's :class:`~dynoplan.pipeline.evaluate.DemonstratorRunner`); starts
         outside the learned regions count as out of region
         (:func:`~dynoplan.pipeline.evaluate.learned_regions`)."""
-        from dynoplan.pipeline.evaluate import ControllerRunner, learned_regions, make_controller
+        from dynoplan.pipeline.collect import demonstrator_from
+        from dynoplan.pipeline.evaluate import (
+            DEMONSTRATOR,
+            ControllerRunner,
+            DemonstratorRunner,
+            learned_regions,
+            make_controller,
+        )
         from dynoplan.pipeline.fit import FittedModels
 
         fitted = FittedModels.load(models)
-        run_options, planner_options = fitted.build(self.make_options())
         env = self.make_env()
+        if controller == DEMONSTRATOR:
+            if self.demonstrator is None:
+                raise DynoplanError(f"task {self.name} has no demonstrator for its row")
+            return DemonstratorRunner(env, self.make_options(), demonstrator_from(
+                call_factory(self.demonstrator, "demonstrator")), learned_regions(fitted))
+        run_options, planner_options = fitted.build(self.make_options())
         return ControllerRunner(env, make_controller(
             controller, run_options, fitted.goal, settings, planner_options, env.action_space),
             regions=learned_regions(fitted))

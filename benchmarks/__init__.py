@@ -1,0 +1,1 @@
+"""Benchmarks and the composition suite (scripts; run from the repository root)."""

@@ -1,0 +1,106 @@
+"""What the pipeline sees in a user's task and data, said as warnings (one line each).
+
+- :func:`seeded_reset_warning`: ``reset(seed=s)`` does not reproduce its episode, so the
+  rows of the evaluation would not be on the same episodes;
+- :func:`constant_dimensions`: state dimensions that never change in the data (padding,
+  a fixed goal); the dynamics keep them still and the regions do not test them
+  (:class:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics`,
+  :meth:`~dynoplan.models.regions.SafetyRegions.fit_heldout`);
+- :func:`weak_dynamics_warnings`: an option's one-step model is no better than
+  predicting no change;
+- :func:`sole_admissible_warnings`: an option is the only admissible one in a share of
+  the demonstration states, so there the planner has no choice to make.
+"""
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan.models.regions import CONSTANT_SPREAD
+from dynoplan.options.option import Option, admissible
+from dynoplan.types import FloatArray
+
+SOLE_SHARE = 0.25
+"""An option that is the only admissible one at this share of the demonstration states
+(or more) is reported."""
+SOLE_STATES = 500
+"""At most this many demonstration states (evenly spaced) are checked."""
+
+
+def seeded_reset_warning(env: gym.Env[Any, Any], seed: int) -> str | None:
+    """Reset ``env`` twice with ``seed``; a warning when the observations differ.
+
+    The pipeline compares controllers on "the same seeded episodes": every row resets
+    with the same seeds. An environment whose ``reset(seed=...)`` ignores the seed (or
+    draws from a global generator) breaks that silently.
+    """
+    a, b = (np.asarray(gym.spaces.flatten(env.observation_space, env.reset(seed=seed)[0]),
+                       dtype=np.float64) for _ in range(2))
+    if a.shape == b.shape and np.array_equal(a, b, equal_nan=True):
+        return None
+    name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+    return (f"environment '{name}': two resets with seed {seed} gave different "
+            "observations, so the controllers are not compared on the same episodes; make "
+            "reset(seed=...) seed everything the episode draws (a wrapper that reseeds "
+            "what the environment ignores)")
+
+
+def constant_dimensions(states: FloatArray) -> list[int]:
+    """Indices of the dimensions of ``states`` ``(N, d)`` that never change."""
+    x = np.asarray(states, dtype=np.float64)
+    if x.ndim != 2 or len(x) == 0:
+        return []
+    spread = x.std(axis=0)
+    return [int(i) for i in np.flatnonzero(
+        spread <= CONSTANT_SPREAD * (1.0 + np.abs(x.mean(axis=0))))]
+
+
+def constant_dimensions_warning(dims: Sequence[int], state_dim: int) -> str | None:
+    """The warning for :func:`constant_dimensions` (``None`` when there are none)."""
+    if not dims:
+        return None
+    shown = ", ".join(str(i) for i in dims[:12]) + (", ..." if len(dims) > 12 else "")
+    return (f"{len(dims)} of the {state_dim} state dimensions never change in the "
+            f"demonstrations and option runs ({shown}): the dynamics keep them still and "
+            "the safety regions do not test them")
+
+
+def weak_dynamics_warnings(report: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """One warning per option whose one-step error (``rmse``) is no lower than that of
+    predicting no change (``no_change_rmse``), from :func:`fit_dynamics`' report."""
+    out = []
+    for name, row in report.items():
+        rmse, still = row.get("rmse"), row.get("no_change_rmse")
+        if rmse is not None and still is not None and rmse >= still:
+            out.append(f"option '{name}': its dynamics model predicts one step worse than "
+                       f"'no change' (RMSE {rmse:.3g} against {still:.3g}): the planner's "
+                       "rollouts of it are guesses; collect more of its runs "
+                       "(exploration_episodes) or give it a larger stride")
+    return out
+
+
+def sole_admissible_warnings(options: Sequence[Option], states: FloatArray,
+                             share: float = SOLE_SHARE) -> list[str]:
+    """One warning per option that is the only admissible one at ``share`` or more of
+    ``states`` ``(N, d)`` (the demonstration states): there the planner only confirms it."""
+    x = np.asarray(states, dtype=np.float64)
+    if len(x) == 0 or len(options) < 2:
+        return []
+    x = x[np.linspace(0, len(x) - 1, min(len(x), SOLE_STATES)).astype(int)]
+    may = np.stack([admissible(options, s) for s in x])
+    sole = (may.sum(axis=1) == 1)
+    out = []
+    for k, option in enumerate(options):
+        at = float(np.mean(sole & may[:, k]))
+        if at >= share:
+            out.append(f"option '{option.name}' is the only admissible option at {at:.0%} of "
+                       "the demonstration states: there the initiation sets choose, not the "
+                       "planner")
+    return out
+
+
+__all__ = ["SOLE_SHARE", "constant_dimensions",
+           "constant_dimensions_warning", "seeded_reset_warning", "sole_admissible_warnings",
+           "weak_dynamics_warnings"]
