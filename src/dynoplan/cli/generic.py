@@ -172,6 +172,10 @@ def pipeline(
     outcome_min_gain: float | None = typer.Option(
         None, "--outcome-min-gain",
         help="A run is good when the goal heuristic rose by more than this [0]."),
+    constant_dimensions_still: bool | None = typer.Option(
+        None, "--constant-dimensions-still/--no-constant-dimensions-still",
+        help="State dimensions that never change in the data are kept still by the "
+             "dynamics and not tested by the regions [on]."),
     horizon: int | None = typer.Option(None, "--horizon", **_bounds("control.horizon"),
                                        help="Planning horizon n, in model steps [20]."),
     samples: int | None = typer.Option(None, "--samples", **_bounds("control.samples"),

@@ -284,7 +284,7 @@ class MLPEnsembleDynamics:
     def fit(self, states: FloatArray, next_states: FloatArray, *, epochs: int = 50,
             batch_size: int = 256, lr: float = 1e-3, weight_decay: float = 5e-5,
             seed: int = 0, holdout_fraction: float = 0.1,
-            keep_best: bool = True) -> TrainingReport:
+            keep_best: bool = True, keep_still: bool = True) -> TrainingReport:
         """Fit the ensemble on transitions ``(s_t, s_{t+1})`` by Gaussian NLL.
 
         A random ``holdout_fraction`` of the rows (chosen with ``seed``) is held out; the
@@ -292,7 +292,9 @@ class MLPEnsembleDynamics:
         bootstrap of them (Adam with ``weight_decay``, ``batch_size`` rows per member and
         step; the bootstrap and the shuffling come from a ``torch.Generator`` seeded with
         ``seed``). With ``keep_best`` the weights of the first epoch with the lowest
-        held-out loss are kept.
+        held-out loss are kept. With ``keep_still`` a dimension whose change never varies
+        in the data keeps that change in every prediction (:data:`STILL_SPREAD`); without
+        it, the network's error moves such a dimension off the data.
 
         The report's losses are the Gaussian negative log-likelihood per target element
         (with the ``0.5 * log(2 pi)`` constant), in the model's normalised target units,
@@ -321,7 +323,8 @@ class MLPEnsembleDynamics:
         fit_rows, hold_rows = perm[n_holdout:], perm[:n_holdout]
         delta = nxt - s
         self.input_mean, self.input_std = _mean_std(s[fit_rows])
-        self.delta_mean, self.delta_std = _delta_mean_std(delta[fit_rows])
+        self.delta_mean, self.delta_std = (_delta_mean_std if keep_still else _mean_std)(
+            delta[fit_rows])
         xn = torch.from_numpy(((s - self.input_mean) / self.input_std).astype(np.float32))
         yn = torch.from_numpy(((delta - self.delta_mean) / self.delta_std).astype(np.float32))
         tr, ho = torch.from_numpy(fit_rows), torch.from_numpy(hold_rows)

@@ -190,6 +190,7 @@ class SafetyRegions:
         reg_covar: float = 1e-2,
         slack: float = 0.0,
         seed: int = 0,
+        test_constant: bool = False,
     ) -> tuple["SafetyRegions", dict[str, Any]]:
         """Regions whose held-out coverage is ``coverage``, chosen without BIC.
 
@@ -197,7 +198,9 @@ class SafetyRegions:
            ``1e-3`` of the largest spread); a dimension that never changes (a spread of
            at most ``CONSTANT_SPREAD`` times one plus its magnitude: padding, a fixed
            goal) is scaled by ``UNTESTED_SCALE`` times the largest spread, so that no
-           move in it changes the likelihood: it is not tested;
+           move in it changes the likelihood: it is not tested (``test_constant``: it is
+           floored as the others, and a move of a thousandth of the largest spread in it
+           leaves the region);
            ``reg_covar`` is added to every covariance's diagonal in those units (``1e-2``:
            no component is narrower than a tenth of the data's spread in any direction).
         2. Each option gets its own mixture on its own states, so ``J_k`` is that
@@ -243,8 +246,9 @@ class SafetyRegions:
         spread = x.std(axis=0)
         scale = np.maximum(spread, 1e-3 * float(spread.max()) + 1e-12)
         # a dimension with no spread at all is not tested: at this scale no move matters
-        scale[spread <= CONSTANT_SPREAD * (1.0 + np.abs(center))] = UNTESTED_SCALE * (
-            1.0 + float(spread.max()))
+        if not test_constant:
+            scale[spread <= CONSTANT_SPREAD * (1.0 + np.abs(center))] = UNTESTED_SCALE * (
+                1.0 + float(spread.max()))
         z = (x - center) / scale
         g = None if groups is None else np.asarray(groups)
         if g is not None and g.shape != y.shape:

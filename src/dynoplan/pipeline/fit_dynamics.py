@@ -35,7 +35,8 @@ def ensemble_fitter(settings: FitSettings) -> DynamicsFitter:
         model = MLPEnsembleDynamics(states.shape[1], settings.dynamics_hidden,
                                     settings.dynamics_members, option=option, seed=seed)
         model.fit(states, next_states, epochs=dynamics_epochs(len(states), settings),
-                  batch_size=DYNAMICS_BATCH, seed=seed)
+                  batch_size=DYNAMICS_BATCH, seed=seed,
+                  keep_still=settings.constant_dimensions_still)
         return model
 
     return fit

@@ -143,7 +143,8 @@ def fit_labelled_regions(states: FloatArray, labels: np.ndarray, groups: np.ndar
                                      n_components=settings.region_components,
                                      max_components=settings.region_max_components,
                                      reg_covar=settings.region_reg_covar,
-                                     slack=settings.region_slack, seed=seed)
+                                     slack=settings.region_slack, seed=seed,
+                                     test_constant=not settings.constant_dimensions_still)
 
 
 def fit_regions_cross_validated(

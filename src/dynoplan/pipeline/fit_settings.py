@@ -50,6 +50,10 @@ class FitSettings:
             and intersect its initiation set with that.
         outcome_min_gain: a run is good when the goal heuristic's mean rose by more than
             this from its start to its end.
+        constant_dimensions_still: a state dimension that never changes in the data
+            (padding, a fixed goal) is kept still by the dynamics and not tested by the
+            held-out regions (``False``: both treat it as any other dimension, so the
+            networks' error moves it and the regions reject the move).
         region_undemonstrated: what an option that no demonstration shows gets:
             ``"runs"``: a region fitted (as above) on the states where it ran while
             collecting transitions, i.e. where its dynamics model has data; ``"none"``:
@@ -80,6 +84,7 @@ class FitSettings:
     region_undemonstrated: str = "runs"
     outcome_initiation: bool = False
     outcome_min_gain: float = 0.0
+    constant_dimensions_still: bool = True
 
     def validate(self) -> None:
         if self.stride < 1:
