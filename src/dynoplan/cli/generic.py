@@ -216,6 +216,10 @@ def pipeline(
         None, "--no-effect-tolerance", **_bounds("control.no_effect_tolerance"),
         help="An option that ends with no state coordinate moved more than this is not "
              "started again there, in state units [off]."),
+    start_where_done: bool | None = typer.Option(
+        None, "--start-where-done/--no-start-where-done",
+        help="An option may start where its termination is certain (it ends at its first "
+             "step) [no]."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),

@@ -90,7 +90,9 @@ class Option:
             the region: where the judgement rules out every option, the regions decide
             rather than the robot holding still for good (:func:`admissible`).
 
-    A controller may tell the option that its last run ended without effect
+    With ``start_where_done`` off, the option does not start where its termination is
+    certain (:meth:`done_at`). A controller may tell the option that its last run ended
+    without effect
     (:meth:`ended_without_effect`): the option then does not start again, under its
     initiation set or its fallback, while the state stays where that run ended. Started
     again there, it would end there again (a move already at its goal, a pick that
@@ -105,6 +107,9 @@ class Option:
     initiation: Initiation = field(default_factory=Everywhere)
     continuation: Initiation | None = None
     fallback: Initiation | None = None
+    start_where_done: bool = True
+    """``False``: the option does not start where its termination is certain
+    (``beta_w(s) >= 1``): it would end there at its first step, having achieved nothing."""
     runs: RunMemory = field(default_factory=RunMemory, repr=False, compare=False)
     """Where the option's last run ended without effect; a copy made with
     ``dataclasses.replace`` (a planner's option with other dynamics) shares it."""
@@ -135,15 +140,24 @@ class Option:
         (``running=True``: its continuation set)."""
         if running:
             return self.can_continue(state)
-        return not self.without_effect_at(state) and self.can_start(state)
+        return (not self.without_effect_at(state) and not self.done_at(state)
+                and self.can_start(state))
 
     def may_fall_back(self, state: np.ndarray) -> bool:
         """Whether the option may start at ``state`` (shape ``(state_dim,)``) when no
         option may under its own sets: its ``fallback`` holds there, and its last run
         did not end there without effect."""
-        if self.fallback is None or self.without_effect_at(state):
+        if self.fallback is None or self.without_effect_at(state) or self.done_at(state):
             return False
         return bool(self.fallback.contains(np.asarray(state, dtype=np.float64)[None])[0])
+
+    def done_at(self, state: np.ndarray) -> bool:
+        """Whether the option may not start at ``state`` because its termination is
+        certain there (only when ``start_where_done`` is off)."""
+        if self.start_where_done:
+            return False
+        s = np.asarray(state, dtype=np.float64).reshape(1, -1)
+        return bool(float(self.termination.probability(s)[0]) >= 1.0)
 
     def ended_without_effect(self, state: np.ndarray, tolerance: float) -> None:
         """Record that a run of this option ended at ``state`` (shape ``(state_dim,)``)

@@ -77,6 +77,9 @@ class ControllerSettings:
         no_effect_tolerance: an option that terminates with no state coordinate moved
             more than this is not started again there
             (:class:`~dynoplan.control.Controller`; ``None``: it may be).
+        start_where_done: an option may start where its termination is certain
+            (``False``, the default: it may not, :meth:`~dynoplan.options.Option.done_at`;
+            every controller but the demonstrator follows the rule).
     """
 
     horizon: int = 20
@@ -95,6 +98,7 @@ class ControllerSettings:
     risk_level: float = 0.05
     end_inside: bool = False
     no_effect_tolerance: float | None = None
+    start_where_done: bool = False
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -206,6 +210,10 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
             ``settings.hold`` is off).
     """
     settings.validate()
+    options = [replace(o, start_where_done=settings.start_where_done) for o in options]
+    if planner_options is not None:
+        planner_options = [replace(o, start_where_done=settings.start_where_done)
+                           for o in planner_options]
     chooser: OptionChooser
     if kind == DYNOPLAN:
         chooser = OptionPlanner(with_dynamics_noise(planner_options or options,
