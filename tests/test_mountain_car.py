@@ -9,8 +9,6 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from examples.mountain_car.options import make_demonstrator, make_options
-
 from dynoplan.pipeline import (
     ControllerSettings,
     FitSettings,
@@ -19,6 +17,7 @@ from dynoplan.pipeline import (
     record_demonstrations,
     run_pipeline,
 )
+from examples.mountain_car.options import make_demonstrator, make_options
 
 ENV = "MountainCarContinuous-v0"
 

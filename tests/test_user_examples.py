@@ -11,8 +11,6 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
-from examples.pendulum import options as pendulum
-
 from dynoplan.pipeline import (
     ControllerSettings,
     FitSettings,
@@ -21,6 +19,7 @@ from dynoplan.pipeline import (
     record_demonstrations,
     run_pipeline,
 )
+from examples.pendulum import options as pendulum
 
 HAS_PANDA = importlib.util.find_spec("panda_gym") is not None
 TINY = PipelineSettings(

@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from benchmarks.suite.registry import SuiteEntry, select
 
+from benchmarks.suite.registry import SuiteEntry, select
 from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.pipeline import evaluate_controllers, run_pipeline

@@ -368,7 +368,8 @@ def _heldout_option(z: FloatArray, groups: IntArray | None, name: str, coverage:
     """One option's region in standardised units (see :meth:`SafetyRegions.fit_heldout`)."""
     n, d = z.shape
     fold = _folds(n, groups, min(folds, n), seed) if n >= 2 else np.zeros(n, np.int64)
-    fold_ids = np.unique(fold)
+    # a fold can be held out only when at least two states are left to fit on
+    fold_ids = np.array([f for f in np.unique(fold) if np.sum(fold != f) >= 2], np.int64)
 
     def mixture(m: int, rows: BoolArray) -> SafetyRegions:
         gmm = GaussianMixture(n_components=m, covariance_type="full", reg_covar=reg_covar,

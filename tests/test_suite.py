@@ -1,0 +1,69 @@
+"""The composition suite: its tasks keep the contract and their demonstrators succeed; a
+task whose package is missing is skipped with one line; a small run writes the table."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+
+from benchmarks.suite import __main__ as suite
+from benchmarks.suite import registry
+from dynoplan.pipeline import probe_options, record_demonstrations
+
+INSTALLED = [e for e in registry.TASKS if e.missing() is None]
+
+
+@pytest.mark.parametrize("entry", INSTALLED, ids=[e.name for e in INSTALLED])
+def test_every_installed_task_keeps_the_contract_and_its_demonstrator_succeeds(entry):
+    task = entry.load()
+    env = task.make_env()
+    options = task.module.make_options()
+    assert len(options) >= 3 and probe_options(env, options) >= 1
+    demos = record_demonstrations(env, options, task.module.make_demonstrator(), episodes=2,
+                                  seed=0, max_attempts=2)  # both attempts succeed
+    used = {int(k) for demo in demos for k in demo.options}
+    assert len(used) >= 2, "the demonstrator chains options"
+    assert len(used) < len(options), "at least one option (a distractor) is never used"
+    disturbed = task.make_env(disturbed=True)
+    assert disturbed.reset(seed=1)[0].shape == env.reset(seed=1)[0].shape
+    assert isinstance(task.module.DISTURBANCE, str) and task.module.DISTURBANCE
+
+
+def test_a_task_whose_package_is_missing_is_skipped_with_one_line(tmp_path, monkeypatch,
+                                                                  capsys):
+    absent = registry.SuiteEntry("absent", "benchmarks.suite.tasks.absent",
+                                 "no_such_package_dynoplan", "absent")
+    monkeypatch.setattr(registry, "TASKS", (absent,))
+    assert suite.main(["--tasks", "absent", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert err == ("skipped absent: needs the 'no_such_package_dynoplan' package "
+                   "(pip install 'dynoplan[absent]')\n")
+    assert json.loads((tmp_path / "suite.json").read_text())["tasks"] == []
+
+
+def test_an_unknown_task_or_setting_is_one_error_line(tmp_path, capsys):
+    assert suite.main(["--tasks", "nope", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("suite: error: unknown suite task(s) nope")
+    assert suite.main(["--set", "control.horizn=3", "--out", str(tmp_path)]) == 2
+    assert "unknown setting 'control.horizn'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(registry.select("minigrid-doorkey")[0].missing() is not None,
+                    reason="needs minigrid (pip install 'dynoplan[minigrid]')")
+def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp_path):
+    assert suite.main(["--tasks", "minigrid-doorkey", "--seeds", "0", "--episodes", "3",
+                       "--set", "demos=3", "--set", "exploration_episodes=4",
+                       "--set", "fit.dynamics_epochs=5", "--set", "fit.goal_epochs=30",
+                       "--set", "control.samples=8", "--out", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "suite.json").read_text())
+    row = result["tasks"][0]
+    assert row["task"] == "minigrid-doorkey" and row["demonstrator"] == [1.0]
+    assert row["best_option"] == [0.0]  # the task needs composition
+    assert len(row["disturbed_dynoplan"]) == 1
+    run = result["runs"][0]
+    assert set(run["controllers"]) >= {"demonstrator", "dynoplan", "random"}
+    assert "| minigrid-doorkey |" in (tmp_path / "suite.md").read_text()
