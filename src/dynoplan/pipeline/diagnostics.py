@@ -57,14 +57,18 @@ def constant_dimensions(states: FloatArray) -> list[int]:
         spread <= CONSTANT_SPREAD * (1.0 + np.abs(x.mean(axis=0))))]
 
 
-def constant_dimensions_warning(dims: Sequence[int], state_dim: int) -> str | None:
-    """The warning for :func:`constant_dimensions` (``None`` when there are none)."""
+def constant_dimensions_warning(dims: Sequence[int], state_dim: int,
+                                handled: bool = True) -> str | None:
+    """The warning for :func:`constant_dimensions` (``None`` when there are none);
+    ``handled``: whether the fit keeps them still and untested
+    (``FitSettings.constant_dimensions_still``)."""
     if not dims:
         return None
     shown = ", ".join(str(i) for i in dims[:12]) + (", ..." if len(dims) > 12 else "")
+    what = ("the dynamics keep them still and the safety regions do not test them" if handled
+            else "the dynamics may move them and the safety regions reject any move in them")
     return (f"{len(dims)} of the {state_dim} state dimensions never change in the "
-            f"demonstrations and option runs ({shown}): the dynamics keep them still and "
-            "the safety regions do not test them")
+            f"demonstrations and option runs ({shown}): {what}")
 
 
 def weak_dynamics_warnings(report: Mapping[str, Mapping[str, Any]]) -> list[str]:

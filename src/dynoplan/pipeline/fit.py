@@ -363,7 +363,8 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                                                          seed, state_fn)
     constant = constant_dimensions(np.concatenate(
         [episode_states(e, state_fn) for e in [*transitions, *demos]]))
-    note = constant_dimensions_warning(constant, pairs[names[0]][0].shape[1])
+    note = constant_dimensions_warning(constant, pairs[names[0]][0].shape[1],
+                                       settings.constant_dimensions_still)
     if note is not None:
         warnings.warn(note, DynoplanWarning, stacklevel=2)
     report = {"settings": asdict(settings), "dynamics": dyn_report, "goal": goal_report,
