@@ -220,6 +220,10 @@ def pipeline(
         None, "--start-where-done/--no-start-where-done",
         help="An option may start where its termination is certain (it ends at its first "
              "step) [no]."),
+    fallback_own_sets: bool | None = typer.Option(
+        None, "--fallback-own-sets/--no-fallback-own-sets",
+        help="Where no option may start under its learned initiation set, the options "
+             "whose own sets hold may (--no-fallback-own-sets: hold or end there) [on]."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),

@@ -77,6 +77,10 @@ class ControllerSettings:
         no_effect_tolerance: an option that terminates with no state coordinate moved
             more than this is not started again there
             (:class:`~dynoplan.control.Controller`; ``None``: it may be).
+        fallback_own_sets: where no option may start under its learned initiation set
+            (region, outcomes), the options whose own initiation sets hold may (the
+            chooser picks among them as always; the options' ``fallback``); ``False``:
+            the controller holds (``hold_action``) or ends the episode there.
         start_where_done: an option may start where its termination is certain
             (``False``, the default: it may not, :meth:`~dynoplan.options.Option.done_at`;
             every controller but the demonstrator follows the rule).
@@ -99,6 +103,7 @@ class ControllerSettings:
     end_inside: bool = False
     no_effect_tolerance: float | None = None
     start_where_done: bool = False
+    fallback_own_sets: bool = True
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -210,10 +215,13 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
             ``settings.hold`` is off).
     """
     settings.validate()
-    options = [replace(o, start_where_done=settings.start_where_done) for o in options]
+    def as_run(o: Option) -> Option:
+        return replace(o, start_where_done=settings.start_where_done,
+                       fallback=o.fallback if settings.fallback_own_sets else None)
+
+    options = [as_run(o) for o in options]
     if planner_options is not None:
-        planner_options = [replace(o, start_where_done=settings.start_where_done)
-                           for o in planner_options]
+        planner_options = [as_run(o) for o in planner_options]
     chooser: OptionChooser
     if kind == DYNOPLAN:
         chooser = OptionPlanner(with_dynamics_noise(planner_options or options,

@@ -25,7 +25,7 @@ the option stops somewhere in those ``k`` steps when ``beta`` hardly changes ove
 import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -170,7 +170,10 @@ class FittedModels:
         """The options the controller runs and the same options as the planner sees them.
 
         Both lists carry the learned dynamics and the initiation sets; the planner's
-        terminations are per model step (:func:`strided`).
+        terminations are per model step (:func:`strided`). Every option's ``fallback`` is
+        its own initiation set (the user's, without the learned region and outcomes): where
+        no option may start under its learned set, a controller may let the options whose
+        own sets hold compete (``ControllerSettings.fallback_own_sets``).
         """
         run, plan = [], []
         for spec in specs:
@@ -179,10 +182,10 @@ class FittedModels:
             initiation, continuation = self.initiation(spec), self.continuation(spec)
             model = self.dynamics[spec.name]
             run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
-                              continuation))
-            plan.append(Option(spec.name, spec.policy, model,
-                               strided(spec.termination, self.stride), initiation,
-                               continuation))
+                              continuation, fallback=spec.initiation))
+            # the planner's option shares where the controller's last run ended without
+            # effect (Option.runs)
+            plan.append(replace(run[-1], termination=strided(spec.termination, self.stride)))
         return run, plan
 
     def save(self, folder: str | os.PathLike[str]) -> Path:
