@@ -6,7 +6,8 @@ must come within 5 cm of the target. The gripper cannot grasp (``block_gripper``
 the cube can only be pushed. An action moves the gripper by up to 5 cm per axis. The
 episode terminates on success (``info["is_success"]``). panda-gym registers it with 50
 steps; re-approaching the cube after it turns away needs more, so this module registers
-``PandaPushSuite-v3``: the same environment, 100 steps.
+``PandaPushSuite-v3``: the same environment, 100 steps, reset as :class:`FreshContacts`
+says.
 
 The observation is a ``Dict``; :func:`state_fn` makes the planner state, 6 values:
 
@@ -34,9 +35,10 @@ The disturbance (:func:`disturb`): once per episode, at a random step between 10
 the cube is moved 5 to 8 cm in a random horizontal direction (away from the gripper),
 as if someone bumped it.
 
-``reset(seed=s)`` reproduces the start state: panda-gym re-seeds its task's generator
-from ``seed`` on every reset (and from fresh entropy on a reset without a seed, rather
-than carrying on the seeded stream).
+``reset(seed=s)`` reproduces the episode: panda-gym re-seeds its task's generator from
+``seed`` on every reset (and from fresh entropy on a reset without a seed, rather than
+carrying on the seeded stream), and :class:`FreshContacts` clears what PyBullet would
+carry over from the previous episode.
 """
 
 from typing import Any
@@ -72,9 +74,37 @@ BETA = 0.1
 BETA_RUNNING = 0.02
 """Termination probability per step of the task's options before their job is done."""
 
+class FreshContacts(gym.Wrapper[Any, Any, Any, Any]):
+    """Makes ``reset(seed=s)`` reproduce the whole episode, not only its first
+    observation: panda-gym moves the cubes back onto the table at reset, and PyBullet
+    keeps their old contacts with it, so the first steps differ by ~1e-5 m with the
+    previous episode and an episode's length by a step now and then. Before each reset,
+    the cubes are lifted far off the table for one simulation step, which drops those
+    contacts."""
+
+    def __init__(self, env: gym.Env[Any, Any], bodies: tuple[str, ...]) -> None:
+        super().__init__(env)
+        self.bodies = bodies
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        sim = self.env.unwrapped.sim  # type: ignore[attr-defined]
+        for i, body in enumerate(self.bodies):
+            sim.set_base_pose(body, np.array([5.0 + i, 5.0, 5.0]),
+                              np.array([0.0, 0.0, 0.0, 1.0]))
+        sim.step()
+        return self.env.reset(**kwargs)
+
+
+def make_env(**kwargs: Any) -> gym.Env[Any, Any]:
+    """``PandaPush-v3``'s environment (no time limit of its own) with
+    :class:`FreshContacts`."""
+    from panda_gym.envs import PandaPushEnv
+
+    return FreshContacts(PandaPushEnv(**kwargs), ("object",))
+
+
 if ENV_ID not in gym.registry:
-    gym.register(ENV_ID, entry_point="panda_gym.envs:PandaPushEnv",
-                 max_episode_steps=MAX_STEPS)
+    gym.register(ENV_ID, entry_point=make_env, max_episode_steps=MAX_STEPS)
 
 
 def state_fn(observation: dict[str, np.ndarray]) -> np.ndarray:

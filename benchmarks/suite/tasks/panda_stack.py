@@ -7,9 +7,10 @@ panda-gym's success is the two cubes' positions, as one 6-vector, within 10 cm o
 targets': cube 2 lying on the table next to cube 1 passes it (4 cm too low and at
 least 4 cm aside is 5.7 cm). This module registers ``PandaStackSuite-v3``, the same
 environment where success (``info["is_success"]``, which terminates the episode) is each
-cube within 3 cm of its own target (:class:`StackedSuccess`), and ``MAX_STEPS`` steps
-(panda-gym gives 100). An action moves the gripper by up to 5 cm per axis and opens or
-closes the fingers (which close along ``y``; the gripper cannot turn).
+cube within 3 cm of its own target (:class:`StackedSuccess`), with ``MAX_STEPS`` steps
+(panda-gym gives 100), reset as :class:`FreshContacts` says. An action moves the gripper
+by up to 5 cm per axis and opens or closes the fingers (which close along ``y``; the
+gripper cannot turn).
 
 The observation is a ``Dict``; :func:`state_fn` makes the planner state, 13 values:
 
@@ -27,10 +28,11 @@ target 1, and before that a spot on the table clear of cube 1 and target 1 (cube
 anywhere, often next to each other, or one on the other: cube 2 may then be in the way
 of the fingers at cube 1 or at target 1, :func:`in_the_way`, and is set aside first).
 
-- ``reach``: open the fingers to 6.5 cm, fly 6 cm above the next cube (cube 2 if cube 1
+- ``reach``: open the fingers to 5.5 cm, fly 6 cm above the next cube (cube 2 if cube 1
   is placed or cube 2 is in the way, else cube 1; chosen when the option starts), go
   down onto it; done with the gripper at a cube and the fingers open.
-- ``grasp``: close the fingers where the gripper is; done when they hold a cube.
+- ``grasp``: close the fingers (towards 2.5 cm, not all the way: see :func:`_squeeze`)
+  where the gripper is; done when they hold a cube.
 - ``carry``: keep the fingers closed, lift the held cube, fly it 6 cm above its
   destination, set it down there; done when it is there (1.5 cm), or has slipped out.
 - ``release``: open the fingers, then rise; done when they are open and the gripper is
@@ -39,17 +41,20 @@ of the fingers at cube 1 or at target 1, :func:`in_the_way`, and is set aside fi
   probability 0.1 per step.
 
 The demonstrator runs each option until its job is done (a grasp that holds nothing
-after 10 steps is given up), then chooses
-from the state: a held cube is carried, or released at its destination; a gripper at a
-cube with open fingers grasps; half-closed fingers near a cube are opened (release);
-otherwise it reaches.
+after 10 steps is given up), then chooses from the state: a held cube is carried, or
+released at its destination; a gripper at a cube with open fingers grasps; half-closed
+fingers near a cube are opened (release); otherwise it reaches. It fails when the two
+cubes start side by side along ``y``, 4 to 6 cm apart: neither can be grasped, the
+fingers land on the other one (2 of 100 episodes).
 
 The disturbance (:func:`disturb`): once per episode, at a random step between 20 and
 60, cube 1 is moved 3 to 5 cm across the table in a random direction, unless the
 gripper holds it (as if someone bumped it, or the tower).
 
-``reset(seed=s)`` reproduces the start state: panda-gym re-seeds its task's generator
-from ``seed`` on every reset (and from fresh entropy on a reset without a seed).
+``reset(seed=s)`` reproduces the episode: panda-gym re-seeds its task's generator from
+``seed`` on every reset (and from fresh entropy on a reset without a seed, rather than
+carrying on the seeded stream), and :class:`FreshContacts` clears what PyBullet would
+carry over from the previous episode.
 """
 
 from typing import Any
@@ -87,7 +92,7 @@ STACKED = 0.03
 """m: success is each cube this close to its target."""
 ON_TARGET = 0.03
 """m: cube 1 this close to target 1 lies on it (opening the fingers may shift it by a
-centimetre or two; success allows 10 cm over both cubes)."""
+centimetre)."""
 WIDE = 0.055
 """m: how wide ``reach`` and ``release`` open the fingers (the cube is 4 cm wide)."""
 GRIP = 0.025
@@ -114,7 +119,6 @@ BETA_RUNNING = 0.02
 """Termination probability per step of the task's options before their job is done."""
 
 
-
 def stacked(observation: dict[str, np.ndarray]) -> bool:
     """Each cube within ``STACKED`` of its own target."""
     cubes, targets = observation["achieved_goal"], observation["desired_goal"]
@@ -137,12 +141,33 @@ class StackedSuccess(gym.Wrapper[Any, Any, Any, Any]):
         return observation, float(done) - 1.0, done, truncated, {**info, "is_success": done}
 
 
+class FreshContacts(gym.Wrapper[Any, Any, Any, Any]):
+    """Makes ``reset(seed=s)`` reproduce the whole episode, not only its first
+    observation: panda-gym moves the cubes back onto the table at reset, and PyBullet
+    keeps their old contacts with it, so the first steps differ by ~1e-5 m with the
+    previous episode and an episode's length by a step now and then. Before each reset,
+    the cubes are lifted far off the table for one simulation step, which drops those
+    contacts."""
+
+    def __init__(self, env: gym.Env[Any, Any], bodies: tuple[str, ...]) -> None:
+        super().__init__(env)
+        self.bodies = bodies
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        sim = self.env.unwrapped.sim  # type: ignore[attr-defined]
+        for i, body in enumerate(self.bodies):
+            sim.set_base_pose(body, np.array([5.0 + i, 5.0, 5.0]),
+                              np.array([0.0, 0.0, 0.0, 1.0]))
+        sim.step()
+        return self.env.reset(**kwargs)
+
+
 def make_env(**kwargs: Any) -> gym.Env[Any, Any]:
     """``PandaStack-v3``'s environment (no time limit of its own) with
-    :class:`StackedSuccess`."""
+    :class:`StackedSuccess` and :class:`FreshContacts`."""
     from panda_gym.envs import PandaStackEnv
 
-    return StackedSuccess(PandaStackEnv(**kwargs))
+    return StackedSuccess(FreshContacts(PandaStackEnv(**kwargs), ("object1", "object2")))
 
 
 if ENV_ID not in gym.registry:
@@ -317,8 +342,8 @@ def grasp(state: np.ndarray) -> np.ndarray:
 
 
 def carry(state: np.ndarray) -> np.ndarray:
-    """Keep the fingers closed and bring the held cube (else the next one) onto its
-    destination, from above."""
+    """Keep the fingers closed (:func:`_squeeze`) and bring the held cube (else the next
+    one) onto its destination, from above, at most ``CARRY_SPEED`` across."""
     states = np.asarray(state, dtype=np.float64)[None]
     cube = int(held_cube(states)[0]) or int(next_cube(states)[0])
     move = _fly(destination(states, cube)[0])
@@ -409,7 +434,7 @@ class StackScript(Demonstrator):
             return "grasp"
         near = min(np.linalg.norm(states[0, CUBE1]), np.linalg.norm(states[0, CUBE2])) < CLEAR
         if near and states[0, FINGERS] < OPEN:
-            return "release"  # a grasp that missed, or a reach that was given up
+            return "release"  # a grasp that missed: open and back off first
         return "reach"
 
 
@@ -422,8 +447,9 @@ def make_demonstrator() -> Demonstrator:
 
 class BumpCube1(gym.Wrapper[Any, Any, Any, Any]):
     """Once per episode, at a random step in ``[20, 60]``, move cube 1 3 to 5 cm in a
-    random horizontal direction (on the table, or with cube 2 if it stands on it), unless
-    the gripper holds it. Seeded from ``reset(seed=...)``."""
+    random horizontal direction (with cube 2 if it stands on it), unless the gripper
+    holds it; the opposite direction if the cube would land on cube 2 or on the gripper,
+    and no move if both would. Seeded from ``reset(seed=...)``."""
 
     def __init__(self, env: gym.Env[Any, Any]) -> None:
         super().__init__(env)
@@ -442,22 +468,32 @@ class BumpCube1(gym.Wrapper[Any, Any, Any, Any]):
         return self.last, info
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
-        if self.steps == self.at and not holds(state_fn(self.last)[None], 1)[0]:
-            self._bump()
+        if self.steps == self.at:
+            self._bump(state_fn(self.last)[None])
         self.steps += 1
         self.last, reward, terminated, truncated, info = self.env.step(action)
         return self.last, reward, terminated, truncated, info
 
-    def _bump(self) -> None:
-        sim = self.env.unwrapped.sim  # type: ignore[attr-defined]
+    def _bump(self, states: np.ndarray) -> None:
         angle = self.rng.uniform(0.0, 2.0 * np.pi)
         shift = self.rng.uniform(0.03, 0.05) * np.array([np.cos(angle), np.sin(angle), 0.0])
-        cube1 = np.asarray(sim.get_base_position("object1"), dtype=np.float64)
-        cube2 = np.asarray(sim.get_base_position("object2"), dtype=np.float64)
-        on_top = bool(np.linalg.norm((cube2 - cube1)[:2]) < 0.02 and cube2[2] > cube1[2])
-        for name, position in (("object1", cube1), ("object2", cube2))[:2 if on_top else 1]:
-            sim.set_base_pose(name, position + shift,
-                              np.asarray(sim.get_base_orientation(name)))
+        if holds(states, 1)[0]:
+            return
+        cube2 = states[0, CUBE2] - states[0, CUBE1]  # from cube 1
+        gripper = -states[0, CUBE1]
+        on_top = bool(np.linalg.norm(cube2[:2]) < 0.02 and 0.0 < cube2[2] < 0.05
+                      and not holds(states, 2)[0])
+        moved = ("object1", "object2") if on_top else ("object1",)
+        for move in (shift, -shift):
+            lands_on_cube2 = not on_top and bool(np.all(np.abs((cube2 - move)[:2]) < 0.045))
+            lands_on_gripper = bool(np.linalg.norm((gripper - move)[:2]) < 0.05
+                                    and gripper[2] < 0.08)
+            if not (lands_on_cube2 or lands_on_gripper):
+                sim = self.env.unwrapped.sim  # type: ignore[attr-defined]
+                for name in moved:
+                    sim.set_base_pose(name, np.asarray(sim.get_base_position(name)) + move,
+                                      np.asarray(sim.get_base_orientation(name)))
+                return
 
 
 def disturb(env: gym.Env[Any, Any]) -> gym.Env[Any, Any]:
