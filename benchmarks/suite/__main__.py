@@ -38,7 +38,13 @@ from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.pipeline import evaluate_controllers, run_pipeline
 from dynoplan.pipeline.config import pipeline_settings
-from dynoplan.pipeline.evaluate import DEMONSTRATOR, DYNOPLAN, RANDOM, learned_regions
+from dynoplan.pipeline.evaluate import (
+    DEMONSTRATOR,
+    DYNOPLAN,
+    RANDOM,
+    learned_regions,
+    planning_settings,
+)
 from dynoplan.reports.tables import markdown_table
 
 
@@ -74,7 +80,8 @@ def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
                               command=f"python -m benchmarks.suite ({entry.name}, seed {seed})")
         disturbed = evaluate_controllers(
             task.make_env(disturbed=True), result.options, result.models.goal,
-            settings.control, settings.episodes, result.summary["seeds"]["evaluation"],
+            planning_settings(settings.control, result.models), settings.episodes,
+            result.summary["seeds"]["evaluation"],
             result.planner_options, [DEMONSTRATOR, DYNOPLAN],
             regions=learned_regions(result.models),
             demonstrator=task.module.make_demonstrator())

@@ -107,6 +107,10 @@ def pipeline(
                              help="Output folder."),
     stride: int | None = typer.Option(None, "--stride", **_bounds("fit.stride"),
                                       help="Environment steps per model step [1]."),
+    option_model: str | None = typer.Option(
+        None, "--option-model",
+        help="What each option's dynamics predict: step (the next model step; rollouts of "
+             "--horizon steps) or end (where the option ends: one step per rollout) [step]."),
     dynamics_hidden: str | None = typer.Option(
         None, "--dynamics-hidden", help="Hidden layer widths of each dynamics ensemble "
         "member, comma-separated [64,64]."),

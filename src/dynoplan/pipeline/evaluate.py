@@ -244,6 +244,13 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                       no_effect_tolerance=settings.no_effect_tolerance)
 
 
+def planning_settings(settings: ControllerSettings, models: "FittedModels"
+                      ) -> ControllerSettings:
+    """The settings a controller on ``models`` plans with: option models (``"end"``)
+    predict where an option ends in one model step, so the horizon is one step."""
+    return replace(settings, horizon=1) if models.option_model == "end" else settings
+
+
 def hold_action(settings: ControllerSettings, action_space: gym.Space[Any] | None) -> Any:
     """The action a generic controller holds with (``None``: it ends the episode)."""
     if not settings.hold:

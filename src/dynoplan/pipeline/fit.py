@@ -57,6 +57,7 @@ from dynoplan.pipeline.diagnostics import constant_dimensions, constant_dimensio
 from dynoplan.pipeline.fit_data import (
     episode_states,
     labelled_states,
+    option_end_pairs,
     option_labels,
     option_runs,
     option_transitions,
@@ -122,6 +123,12 @@ class FittedModels:
     learned_initiation: OutcomeModel | None = None
 
     @property
+    def option_model(self) -> str:
+        """What the dynamics predict: ``"step"`` or ``"end"`` (``FitSettings.option_model``,
+        recorded in the report's settings)."""
+        return str((self.report.get("settings") or {}).get("option_model", "step"))
+
+    @property
     def state_dim(self) -> int:
         """Size of the planner states every model is queried with."""
         return int(self.goal.state_dim)
@@ -184,8 +191,10 @@ class FittedModels:
             run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
                               continuation, fallback=spec.initiation))
             # the planner's option shares where the controller's last run ended without
-            # effect (Option.runs)
-            plan.append(replace(run[-1], termination=strided(spec.termination, self.stride)))
+            # effect (Option.runs); an option model's one step ends the option anyway
+            plan.append(replace(run[-1], termination=spec.termination
+                                if self.option_model == "end"
+                                else strided(spec.termination, self.stride)))
         return run, plan
 
     def save(self, folder: str | os.PathLike[str]) -> Path:
@@ -343,12 +352,15 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     names = [s.name for s in specs]
     say = progress or (lambda _msg: None)
     say("dynamics")
-    pairs = option_transitions([*transitions, *demos], names, state_fn, settings.stride)
+    pairs = (option_end_pairs([*transitions, *demos], names, state_fn)
+             if settings.option_model == "end" else
+             option_transitions([*transitions, *demos], names, state_fn, settings.stride))
     dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
     say("goal heuristic")
     goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map)
     goal_report["end_gap"] = goal_end_gaps(dynamics, goal, [*transitions, *demos], state_fn,
-                                           settings.stride, seed)
+                                           settings.stride, seed,
+                                           to_end=settings.option_model == "end")
     regions = None
     region_report: dict[str, Any] | None = None
     if settings.regions:

@@ -95,6 +95,36 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
     return {n: (np.array(a).reshape(-1, d), np.array(b).reshape(-1, d),
                 np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
 
+def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
+                     state_fn: ObservationFn = flat_state,
+                     ) -> dict[str, tuple[FloatArray, FloatArray]]:
+    """Per option, every state of every run paired with where that run ended: the data of
+    an option model in the sense of Sutton, Precup and Singh (1999), which predicts where
+    an option started in ``s`` ends, not where it is one step later.
+
+    A run is a maximal stretch of steps with the same option label (:func:`option_runs`);
+    it ends where its option terminated, was interrupted or its episode ended, which is
+    where a controller chooses again.
+
+    Returns:
+        ``{name: (states (N, d), end_states (N, d))}``, ``N`` possibly 0.
+    """
+    found: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {
+        n: ([], []) for n in option_names}
+    d = 0
+    for index, episode in enumerate(episodes):
+        labels = option_labels(episode, index, len(option_names))
+        rows = episode_states(episode, state_fn)
+        d = rows.shape[1]
+        cuts = np.flatnonzero(np.diff(labels)) + 1
+        for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
+            name = option_names[int(labels[start])]
+            found[name][0].append(rows[start:end])
+            found[name][1].append(np.repeat(rows[end][None], end - start, axis=0))
+    return {n: (np.concatenate(a) if a else np.zeros((0, d)),
+                np.concatenate(b) if b else np.zeros((0, d))) for n, (a, b) in found.items()}
+
+
 def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
                      ) -> tuple[FloatArray, np.ndarray, np.ndarray]:
     """Every state an option acted in: ``(N, d)`` states, ``(N,)`` labels and episode ids."""
@@ -109,5 +139,5 @@ def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: Obser
     return np.concatenate(states), np.concatenate(labels), np.concatenate(groups)
 
 
-__all__ = ["episode_states", "labelled_states", "option_labels", "option_runs",
-           "option_transitions"]
+__all__ = ["episode_states", "labelled_states", "option_end_pairs", "option_labels",
+           "option_runs", "option_transitions"]

@@ -102,17 +102,20 @@ GAP_ROLLOUTS = 16
 
 def goal_end_gaps(dynamics: Mapping[str, DynamicsModel], goal: GoalHeuristic,
                   episodes: Sequence[Episode], state_fn: ObservationFn, stride: int,
-                  seed: int) -> dict[str, dict[str, Any] | None]:
+                  seed: int, to_end: bool = False) -> dict[str, dict[str, Any] | None]:
     """Per option, how far the goal's score of each recorded run's imagined end is from
     that of its real end (:func:`~dynoplan.models.evaluation.option_end_gap`: what Eq. 1
     relies on), over the runs of ``episodes`` (:func:`option_runs` at the model's
-    ``stride``). ``None`` for an option without runs or whose model has no ``predict``.
+    ``stride``; ``to_end``: option models, one model step to a run's end). ``None`` for
+    an option without runs or whose model has no ``predict``.
     """
     runs = option_runs(episodes, list(dynamics), state_fn, stride)
     rng = np.random.default_rng([seed, 5])
     out: dict[str, dict[str, Any] | None] = {}
     for name, model in dynamics.items():
         starts, ends, steps = runs[name]
+        if to_end:
+            steps = np.minimum(steps, 1)
         out[name] = (option_end_gap(model, starts, ends, steps,  # type: ignore[arg-type]
                                     lambda s: goal.mean_std(s)[0], GAP_ROLLOUTS, rng)
                      if callable(getattr(model, "predict", None)) and len(starts) else None)

@@ -12,6 +12,12 @@ class FitSettings:
 
     Attributes:
         stride: environment steps per dynamics-model step (see the module docstring).
+        option_model: what each option's dynamics predict: ``"step"``, the state
+            ``stride`` steps later (the planner rolls it ``horizon`` model steps, drawing
+            termination at each); ``"end"``, where the option ends from here (Sutton,
+            Precup and Singh 1999: :func:`~dynoplan.pipeline.fit_data.option_end_pairs`),
+            one model step per rollout, so an option that needs longer than any fixed
+            horizon to show its worth is scored by where it ends.
         dynamics_hidden: hidden layer widths of each option's MLP ensemble.
         dynamics_members: ensemble size.
         dynamics_epochs: training epochs of each ensemble.
@@ -62,6 +68,7 @@ class FitSettings:
     """
 
     stride: int = 1
+    option_model: str = "step"
     dynamics_hidden: tuple[int, ...] = (64, 64)
     dynamics_members: int = 5
     dynamics_epochs: int = 30
@@ -104,6 +111,9 @@ class FitSettings:
                                 f"{self.region_cv_coverage}")
         if not 0.0 < self.region_coverage <= 1.0:
             raise DynoplanError(f"region_coverage must be in (0, 1], got {self.region_coverage}")
+        if self.option_model not in OPTION_MODELS:
+            raise DynoplanError(f"option_model must be one of {', '.join(OPTION_MODELS)}, got "
+                                f"'{self.option_model}'")
         if self.region_fit not in REGION_FITS:
             raise DynoplanError(f"region_fit must be one of {', '.join(REGION_FITS)}, got "
                                 f"'{self.region_fit}'")
@@ -120,10 +130,12 @@ class FitSettings:
             raise DynoplanError("region_components and region_max_components must be >= 1")
 
 
+OPTION_MODELS = ("step", "end")
+"""Values of :attr:`FitSettings.option_model`."""
 REGION_FITS = ("heldout", "bic", "cv")
 """Values of :attr:`FitSettings.region_fit`."""
 UNDEMONSTRATED = ("runs", "none", "everywhere")
 """Values of :attr:`FitSettings.region_undemonstrated`."""
 
 
-__all__ = ["REGION_FITS", "UNDEMONSTRATED", "FitSettings"]
+__all__ = ["OPTION_MODELS", "REGION_FITS", "UNDEMONSTRATED", "FitSettings"]

@@ -55,6 +55,7 @@ from dynoplan.pipeline.evaluate import (
     evaluate_controllers,
     learned_regions,
     option_share_table,
+    planning_settings,
     results_table,
 )
 from dynoplan.pipeline.fit import (
@@ -362,7 +363,8 @@ def run_pipeline(
         warnings.warn(note, DynoplanWarning, stacklevel=2)
     models_dir = models.save(folder / "models") if folder is not None else None
     say("evaluation")
-    evaluation = evaluate_controllers(environment, run_options, models.goal, settings.control,
+    evaluation = evaluate_controllers(environment, run_options, models.goal,
+                                      planning_settings(settings.control, models),
                                       settings.episodes, seeds["evaluation"], planner_options,
                                       settings.controllers, progress, workers, task,
                                       models_dir, learned_regions(models), demonstrator)

@@ -246,6 +246,7 @@ class GymTask:
             DemonstratorRunner,
             learned_regions,
             make_controller,
+            planning_settings,
         )
         from dynoplan.pipeline.fit import FittedModels
 
@@ -258,8 +259,8 @@ class GymTask:
                 call_factory(self.demonstrator, "demonstrator")), learned_regions(fitted))
         run_options, planner_options = fitted.build(self.make_options())
         return ControllerRunner(env, make_controller(
-            controller, run_options, fitted.goal, settings, planner_options, env.action_space),
-            regions=learned_regions(fitted))
+            controller, run_options, fitted.goal, planning_settings(settings, fitted),
+            planner_options, env.action_space), regions=learned_regions(fitted))
 
 
 def load_object(reference: str) -> Any:
