@@ -134,6 +134,10 @@ def pipeline(
     goal_ranking: float | None = typer.Option(
         None, "--goal-ranking", **_bounds("fit.goal_ranking"),
         help="Weight of the goal network's ranking loss along demonstrations [0]."),
+    goal_off_demos: bool | None = typer.Option(
+        None, "--goal-off-demos/--no-goal-off-demos",
+        help="The goal heuristic also fits the exploration states, labelled below the "
+             "nearest demonstration state by their distance to it [off]."),
     regions: bool | None = typer.Option(None, "--regions/--no-regions",
                                         help="Fit the safety regions (Eq. 5) and enforce "
                                         "them [on]."),

@@ -7,7 +7,9 @@ One episode:
 3. if no option is admissible, hold still with ``hold_action`` (counted), or end the
    episode when there is no safe hold action;
 4. run the chosen option step by step until its termination fires, it leaves its
-   continuation set (its initiation set unless the option gives another), the state
+   continuation set (its initiation set unless the option gives another; an option
+   started under its fallback set, where no option was admissible, goes on while that
+   set holds), the state
    becomes non-finite, ``replan_every`` steps pass, or ``max_option_steps`` is reached;
 5. repeat until the environment terminates or truncates, or ``max_decisions`` is hit.
 
@@ -200,6 +202,8 @@ class Controller:
                 continue
             option = self.options[chosen]
             outside = not bool(admissible(self.options, state, running)[chosen])
+            # started under its fallback set: it goes on while that set holds
+            fell_back = not outside and not option.may_run(state, chosen == running)
             if chosen != running:
                 option.start(obs, rng)
             start_step, start_state = trace.env_steps, state
@@ -214,7 +218,8 @@ class Controller:
                 if not np.isfinite(state).all():
                     reason = "invalid_state"
                     break
-                if not option.can_continue(state):
+                if not option.can_continue(state) and not (
+                        fell_back and option.in_fallback(state)):
                     reason = "left_region"
                     break
                 if option.policy.finished() or (steps % self.termination_every == 0

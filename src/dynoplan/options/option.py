@@ -159,6 +159,12 @@ class Option:
         s = np.asarray(state, dtype=np.float64).reshape(1, -1)
         return bool(float(self.termination.probability(s)[0]) >= 1.0)
 
+    def in_fallback(self, state: np.ndarray) -> bool:
+        """Whether ``state`` (shape ``(state_dim,)``) lies in the option's fallback set
+        (``False`` without one)."""
+        return self.fallback is not None and bool(
+            self.fallback.contains(np.asarray(state, dtype=np.float64)[None])[0])
+
     def ended_without_effect(self, state: np.ndarray, tolerance: float) -> None:
         """Record that a run of this option ended at ``state`` (shape ``(state_dim,)``)
         where it started, within ``tolerance`` in every coordinate: the option may not

@@ -357,7 +357,7 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
              option_transitions([*transitions, *demos], names, state_fn, settings.stride))
     dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
     say("goal heuristic")
-    goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map)
+    goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map, transitions)
     goal_report["end_gap"] = goal_end_gaps(dynamics, goal, [*transitions, *demos], state_fn,
                                            settings.stride, seed,
                                            to_end=settings.option_model == "end")

@@ -21,20 +21,72 @@ GoalModel = GoalNetwork | GoalOnFeatures
 """A goal heuristic as fitted: on the planner state, or on a named feature map of it."""
 
 
+OFF_DEMO_RADIUS = 5.0
+"""How far from the demonstrations, in steps of a demonstration (the median distance
+between consecutive demonstration states), a state's progress label falls to
+``exp(-1)`` of its nearest demonstration state's (:func:`off_demonstration_progress`)."""
+
+
+def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups: IntArray,
+                               off: FloatArray) -> FloatArray:
+    """Progress labels ``(M,)`` for states ``off`` ``(M, d)`` that no demonstration visited:
+    the progress of the nearest demonstration state, times ``exp(-(r / R)^2)``, where ``r``
+    is the distance to it and ``R`` is :data:`OFF_DEMO_RADIUS` demonstration steps.
+
+    Distances are measured with every dimension scaled by its spread over the
+    demonstration states (a dimension that never changes there is left out). A state on a
+    demonstration keeps its progress; a state the demonstrations never came near is ranked
+    below the demonstrated states it is near, so that the goal heuristic does not promise
+    progress where the demonstrations never went (past a goal, off a path).
+
+    Args:
+        states: ``(N, d)`` demonstration states; progress: ``(N,)``; groups: ``(N,)`` the
+            demonstration of each state (consecutive rows of a group are consecutive
+            steps).
+    """
+    from scipy.spatial import cKDTree
+
+    spread = states.std(axis=0)
+    keep = spread > 1e-9 * (1.0 + np.abs(states.mean(axis=0)))
+    if not keep.any() or len(off) == 0:
+        return np.zeros(len(off))
+    z = states[:, keep] / spread[keep]
+    same = groups[1:] == groups[:-1]
+    steps = np.linalg.norm(np.diff(z, axis=0), axis=1)[same]
+    step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
+    distance, nearest = cKDTree(z).query(off[:, keep] / spread[keep])
+    return progress[nearest] * np.exp(-(distance / (OFF_DEMO_RADIUS * step)) ** 2)
+
+
 def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
              state_fn: ObservationFn = flat_state,
-             features: FeatureMap | None = None) -> tuple[GoalModel, dict[str, Any]]:
+             features: FeatureMap | None = None,
+             off: Sequence[Episode] = ()) -> tuple[GoalModel, dict[str, Any]]:
     """Fit the goal network on the demonstrations (progress ``t / T`` of each state), on
     ``features`` of the states when given (then wrapped to read full states).
 
-    Returns the goal heuristic and ``{"states", "spearman", "mae", "coverage_90"}``
-    measured on the training demonstrations.
+    With ``settings.goal_off_demos``, the states of the episodes ``off`` (the exploration
+    episodes) are fitted too, each labelled by :func:`off_demonstration_progress`.
+
+    Returns the goal heuristic and ``{"states", "off_demo_states", "spearman", "mae",
+    "coverage_90"}``, the last three measured on the training demonstrations.
     """
     states, progress, groups = goal_training_set(
         demos, lambda obs: _batch_states(obs, state_fn))
     x = states if features is None else features(states)
-    network, _ = fit_goal_network(x, progress, groups, settings, seed)
-    report = {"states": len(states), **evaluate_goal(network, x, progress)}
+    x_fit, p_fit, g_fit = x, progress, groups
+    off_states = (np.concatenate([_batch_states(e.observations, state_fn) for e in off])
+                  if settings.goal_off_demos and off else np.zeros((0, states.shape[1])))
+    if len(off_states):
+        x_off = off_states if features is None else features(off_states)
+        x_fit = np.concatenate([x, x_off])
+        p_fit = np.concatenate([progress, off_demonstration_progress(x, progress, groups,
+                                                                     x_off)])
+        # one group per off state: the ranking loss pairs states of one demonstration only
+        g_fit = np.concatenate([groups, groups.max() + 1 + np.arange(len(x_off))])
+    network, _ = fit_goal_network(x_fit, p_fit, g_fit, settings, seed)
+    report = {"states": len(states), "off_demo_states": len(off_states),
+              **evaluate_goal(network, x, progress)}
     return (network if features is None else GoalOnFeatures(network, features)), report
 
 
@@ -53,4 +105,5 @@ def _batch_states(observations: np.ndarray, state_fn: ObservationFn) -> FloatArr
                      for o in observations])
 
 
-__all__ = ["GoalModel", "fit_goal", "fit_goal_network"]
+__all__ = ["OFF_DEMO_RADIUS", "GoalModel", "fit_goal", "fit_goal_network",
+           "off_demonstration_progress"]

@@ -29,6 +29,12 @@ class FitSettings:
         goal_epochs: training epochs of the goal network.
         goal_ranking: weight of the goal network's ranking loss along demonstrations
             (:meth:`~dynoplan.models.goal_network.GoalNetwork.fit`; 0: none).
+        goal_off_demos: the goal heuristic also fits the exploration episodes' states,
+            each labelled with the progress of the nearest demonstration state, lowered
+            with the distance to it
+            (:func:`~dynoplan.pipeline.fit_goal.off_demonstration_progress`), so that it
+            ranks states off the demonstrations below the demonstrated states they are
+            near.
         goal_features, region_features: names of the task's feature maps the goal
             heuristic and the regions read (``None``: the planner state itself).
         regions: fit the safety regions (Eq. 5) and intersect every option's initiation
@@ -77,6 +83,7 @@ class FitSettings:
     goal_members: int = 1
     goal_epochs: int = 150
     goal_ranking: float = 0.0
+    goal_off_demos: bool = False
     goal_features: str | None = None
     region_features: str | None = None
     regions: bool = True
