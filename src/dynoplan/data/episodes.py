@@ -30,6 +30,9 @@ OPTION_KEY = "option"
 """``infos`` key of the option labels, ``(T,)`` ``int64``."""
 PROGRESS_KEY = "progress"
 """``infos`` key of the task progress, ``(T,)`` ``float64`` in ``[0, 1]``."""
+FAILURE_KEY = "failure"
+"""``infos`` key, ``(T,)`` ``bool``: True at the last step of an episode that terminated
+without success (the state it reached is a failure: a fallen pole, a crash)."""
 
 StateFn = Callable[[np.ndarray], np.ndarray]
 """Maps observations ``(M, *obs_shape)`` to planner states ``(M, state_dim)``."""

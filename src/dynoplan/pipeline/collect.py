@@ -27,7 +27,7 @@ import numpy as np
 
 from dynoplan.adapters.spec import OptionSpec, as_spec, check_unique_names
 from dynoplan.control.controller import default_success
-from dynoplan.data.episodes import OPTION_KEY, PROGRESS_KEY, Episode
+from dynoplan.data.episodes import FAILURE_KEY, OPTION_KEY, PROGRESS_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import Option, OptionPolicy
 from dynoplan.options.termination import ConstantTermination
@@ -404,13 +404,22 @@ def collect_transitions(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], epi
                         seed: int, state_fn: ObservationFn = flat_state,
                         max_option_steps: int = 100, max_steps: int | None = None,
                         progress: bool = False) -> list[Episode]:
-    """Episodes of randomly chosen options (see :class:`RandomOptions`), labelled."""
+    """Episodes of randomly chosen options (see :class:`RandomOptions`), labelled with
+    their options and ``infos["failure"]`` (True at the last step of an episode that
+    terminated without success)."""
     if episodes < 1:
         raise DynoplanError(f"the number of exploration episodes must be >= 1, got {episodes}")
     explorer = RandomOptions(specs, state_fn, max_option_steps)
-    return [record_episode(env, specs, explorer, s.env_seed, s.rng(), max_steps).episode
-            for s in track(episode_seeds(seed, episodes), "option transitions",
-                           total=episodes, enabled=progress)]
+    out = []
+    for s in track(episode_seeds(seed, episodes), "option transitions", total=episodes,
+                   enabled=progress):
+        recording = record_episode(env, specs, explorer, s.env_seed, s.rng(), max_steps)
+        episode = recording.episode
+        failure = np.zeros(len(episode), dtype=bool)
+        failure[-1] = bool(episode.terminations[-1]) and not recording.success
+        episode.infos[FAILURE_KEY] = failure
+        out.append(episode)
+    return out
 
 
 # --- option runs -------------------------------------------------------------------------

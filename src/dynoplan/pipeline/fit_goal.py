@@ -5,7 +5,7 @@ from typing import Any
 
 import numpy as np
 
-from dynoplan.data.episodes import Episode
+from dynoplan.data.episodes import FAILURE_KEY, Episode
 from dynoplan.models.features import FeatureMap, GoalOnFeatures
 from dynoplan.models.goal_network import (
     GoalNetwork,
@@ -66,7 +66,8 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
     ``features`` of the states when given (then wrapped to read full states).
 
     With ``settings.goal_off_demos``, the states of the episodes ``off`` (the exploration
-    episodes) are fitted too, each labelled by :func:`off_demonstration_progress`.
+    episodes) are fitted too, each labelled by :func:`off_demonstration_progress`, the
+    last state of an episode that failed (``infos["failure"]``) with 0.
 
     Returns the goal heuristic and ``{"states", "off_demo_states", "spearman", "mae",
     "coverage_90"}``, the last three measured on the training demonstrations.
@@ -79,9 +80,10 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
                   if settings.goal_off_demos and off else np.zeros((0, states.shape[1])))
     if len(off_states):
         x_off = off_states if features is None else features(off_states)
+        labels = off_demonstration_progress(x, progress, groups, x_off)
+        labels[_failed_ends(off)] = 0.0  # where an episode failed, no progress is left
         x_fit = np.concatenate([x, x_off])
-        p_fit = np.concatenate([progress, off_demonstration_progress(x, progress, groups,
-                                                                     x_off)])
+        p_fit = np.concatenate([progress, labels])
         # one group per off state: the ranking loss pairs states of one demonstration only
         g_fit = np.concatenate([groups, groups.max() + 1 + np.arange(len(x_off))])
     network, _ = fit_goal_network(x_fit, p_fit, g_fit, settings, seed)
@@ -98,6 +100,18 @@ def fit_goal_network(states: FloatArray, progress: FloatArray, groups: IntArray,
     return GoalNetwork.fit(states, progress, hidden=settings.goal_hidden,
                            members=settings.goal_members, epochs=settings.goal_epochs,
                            seed=seed, groups=groups, ranking=settings.goal_ranking)
+
+
+def _failed_ends(episodes: Sequence[Episode]) -> IntArray:
+    """Rows (into all observations of ``episodes``, concatenated) of the last state of
+    every episode that terminated without success (``infos["failure"]``)."""
+    rows, at = [], 0
+    for e in episodes:
+        failure = e.infos.get(FAILURE_KEY)
+        if failure is not None and len(failure) and bool(failure[-1]):
+            rows.append(at + len(e))
+        at += len(e) + 1
+    return np.asarray(rows, dtype=np.int64)
 
 
 def _batch_states(observations: np.ndarray, state_fn: ObservationFn) -> FloatArray:
