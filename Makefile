@@ -8,7 +8,7 @@ BIN    := $(VENV)/bin
 CORE   := $(VENV)/.core
 export MUJOCO_GL ?= egl
 
-.PHONY: install demo test test-fast lint bench clean
+.PHONY: install demo test test-fast lint bench suite clean
 
 # The core (pip install dynoplan) on the pinned CPU build of PyTorch.
 $(CORE): pyproject.toml
@@ -44,5 +44,19 @@ test-fast: $(VENV)/.installed-dev
 bench: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/planner.py
 
+# The composition suite (docs/suite.md) in its own environment: Meta-World pins mujoco
+# 3.3.0, which cannot sit beside the gear's MuJoCo.
+SUITE_VENV := .venv-suite
+$(SUITE_VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(SUITE_VENV)
+	$(SUITE_VENV)/bin/pip install --quiet --upgrade pip
+	$(SUITE_VENV)/bin/pip install --quiet torch==2.13.0
+	$(SUITE_VENV)/bin/pip install --quiet -e ".[suite]"
+	touch $@
+
+suite: $(SUITE_VENV)/.installed
+	$(SUITE_VENV)/bin/python -m benchmarks.suite --seeds 0,1,2 --episodes 30 --jobs 2 \
+		--out results/suite
+
 clean:
-	rm -rf $(VENV) results .mypy_cache .ruff_cache .pytest_cache
+	rm -rf $(VENV) $(SUITE_VENV) results .mypy_cache .ruff_cache .pytest_cache
