@@ -79,8 +79,10 @@ class ControllerSettings:
             (:class:`~dynoplan.control.Controller`; ``None``: it may be).
         fallback_own_sets: where no option may start under its learned initiation set
             (region, outcomes), the options whose own initiation sets hold may (the
-            chooser picks among them as always; the options' ``fallback``); ``False``:
-            the controller holds (``hold_action``) or ends the episode there.
+            chooser picks among them as always; the options' ``fallback``); DynoPlan
+            starts one there only if it scores at least the goal heuristic at the present
+            state (``fallback_must_gain``); ``False``: the controller holds
+            (``hold_action``) or ends the episode there.
         start_where_done: an option may start where its termination is certain
             (``False``, the default: it may not, :meth:`~dynoplan.options.Option.done_at`;
             every controller but the demonstrator follows the rule).
@@ -228,7 +230,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                                                     settings.dynamics_noise), goal,
                                 horizon=settings.horizon, samples=settings.samples,
                                 risk=settings.risk, epistemic=settings.epistemic,
-                                end_inside=settings.end_inside)
+                                end_inside=settings.end_inside,
+                                fallback_must_gain=settings.fallback_own_sets)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):

@@ -138,12 +138,17 @@ class OptionPlanner:
             only states where the option's dynamics had data (a model that carries an
             insertion on past the seat, or a move on past its end, into states no
             demonstration showed, cannot win or lose a decision there).
+        fallback_must_gain: where no option may start under its own sets and the options
+            fall back (:func:`admissible`), an option is chosen only if its score is at
+            least the goal heuristic's mean at the present state; else none is (the
+            controller holds): a fallback is a way on, not a way back.
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
                  samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
                  epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
-                 risk_level: float = 0.05, end_inside: bool = False) -> None:
+                 risk_level: float = 0.05, end_inside: bool = False,
+                 fallback_must_gain: bool = False) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -163,6 +168,7 @@ class OptionPlanner:
         self.constraint = constraint
         self.risk_level = float(risk_level)
         self.end_inside = bool(end_inside)
+        self.fallback_must_gain = bool(fallback_must_gain)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
 
     @property
@@ -216,8 +222,16 @@ class OptionPlanner:
             best = int(np.argmax(scores[list(idx)]))
             unsafe_everywhere = shares is not None and scores[idx[best]] == -np.inf
             chosen = None if unsafe_everywhere else idx[best]
+            if chosen is not None and self.fallback_must_gain and self._falls_back(s, running) \
+                    and scores[chosen] < float(self.goal.mean_std(s[None])[0][0]):
+                chosen = None
         return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen,
                     disagreements, shares)
+
+    def _falls_back(self, state: FloatArray, running: int | None) -> bool:
+        """Whether no option may run at ``state`` under its own sets (the admissible ones
+        are fallbacks)."""
+        return not any(o.may_run(state, k == running) for k, o in enumerate(self.options))
 
     def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator) -> Rollouts:
         """Roll the given options forward from ``state``: one batched step per horizon step.
