@@ -132,6 +132,21 @@ def test_where_no_option_is_admissible_the_fallback_sets_decide_not_a_hold_for_g
     assert trace.out_of_region_starts == 0  # a fallback start is a start inside the sets
 
 
+def test_an_option_started_under_its_fallback_goes_on_while_the_fallback_holds():
+    # its own set (x < 2) is left after two steps; without a way to go on, the controller
+    # would stop it and choose again at every step
+    own = InitiationFromCallable(lambda s: s[:, 0] < 2)
+    anywhere = InitiationFromCallable(lambda s: s[:, 0] < 100)
+    up = Option("up", FunctionPolicy(lambda o, r: np.array([1.0])), _Identity(),
+                ConstantTermination(0.0), initiation=AllOf(own, anywhere),
+                fallback=anywhere)
+    trace = Controller([up], FixedChoice([up], "up"), max_decisions=20,
+                       hold_action=np.array([0.0])).run(Line(), np.random.default_rng(0), seed=0)
+    assert trace.success
+    assert [d.steps for d in trace.decisions] == [2, 8]  # in its own set, then falling back
+    assert [d.stop_reason for d in trace.decisions] == ["left_region", "episode_end"]
+
+
 def test_margin_keeps_a_running_option_unless_clearly_beaten():
     options = [_option("a", 0.5), _option("b", 0.5)]
 

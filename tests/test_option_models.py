@@ -92,3 +92,36 @@ def test_option_end_pairs_pair_every_state_of_a_run_with_where_it_ended():
     np.testing.assert_array_equal(pairs["a"][1][:, 0], [3, 3, 3, 6])
     np.testing.assert_array_equal(pairs["b"][0][:, 0], [3, 4])
     np.testing.assert_array_equal(pairs["b"][1][:, 0], [5, 5])
+
+
+class Shift:
+    """s -> s + by, exact."""
+
+    state_dim = 2
+
+    def __init__(self, by):
+        self.by = np.array([by, 0.0])
+
+    def sample(self, states, rng):
+        return states + self.by
+
+
+def test_a_fallback_option_is_started_only_where_it_gains_on_the_present_state():
+    from dynoplan.options import InitiationFromCallable
+
+    nowhere = InitiationFromCallable(lambda s: np.zeros(len(s), dtype=bool))
+    everywhere = InitiationFromCallable(lambda s: np.ones(len(s), dtype=bool))
+
+    def falling_back(by):
+        return Option(f"shift{by:+.0f}", FunctionPolicy(lambda o, r: 0), Shift(by),
+                      ConstantTermination(1.0), initiation=nowhere, fallback=everywhere)
+
+    state, rng = np.array([100.0, 0.0]), np.random.default_rng(0)
+    back = [falling_back(-50.0)]
+    assert OptionPlanner(back, Progress(), horizon=1, samples=4).plan(
+        state, rng).chosen_name == "shift-50"  # the paper's planner takes any way
+    assert OptionPlanner(back, Progress(), horizon=1, samples=4,
+                         fallback_must_gain=True).plan(state, rng).chosen is None
+    on = [falling_back(-50.0), falling_back(20.0)]
+    assert OptionPlanner(on, Progress(), horizon=1, samples=4,
+                         fallback_must_gain=True).plan(state, rng).chosen_name == "shift+20"
