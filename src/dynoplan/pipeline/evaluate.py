@@ -79,10 +79,10 @@ class ControllerSettings:
             (:class:`~dynoplan.control.Controller`; ``None``: it may be).
         fallback_own_sets: where no option may start under its learned initiation set
             (region, outcomes), the options whose own initiation sets hold may (the
-            chooser picks among them as always; the options' ``fallback``); DynoPlan
-            starts one there only if it scores at least the goal heuristic at the present
-            state (``fallback_must_gain``); ``False``: the controller holds
-            (``hold_action``) or ends the episode there.
+            chooser picks among them as always; the options' ``fallback``); where the
+            controller can hold, DynoPlan starts one there only if it scores at least the
+            goal heuristic at the present state (``fallback_must_gain``); ``False``: the
+            controller holds (``hold_action``) or ends the episode there.
         start_where_done: an option may start where its termination is certain
             (``False``, the default: it may not, :meth:`~dynoplan.options.Option.done_at`;
             every controller but the demonstrator follows the rule).
@@ -224,6 +224,7 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
     options = [as_run(o) for o in options]
     if planner_options is not None:
         planner_options = [as_run(o) for o in planner_options]
+    hold = hold_action(settings, action_space)
     chooser: OptionChooser
     if kind == DYNOPLAN:
         chooser = OptionPlanner(with_dynamics_noise(planner_options or options,
@@ -231,7 +232,9 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                                 horizon=settings.horizon, samples=settings.samples,
                                 risk=settings.risk, epistemic=settings.epistemic,
                                 end_inside=settings.end_inside,
-                                fallback_must_gain=settings.fallback_own_sets)
+                                # holding is a way to wait only where there is a hold
+                                fallback_must_gain=settings.fallback_own_sets
+                                and hold is not None)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):
@@ -243,7 +246,7 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
     return Controller(options, chooser, max_decisions=settings.max_decisions,
                       max_option_steps=settings.max_option_steps,
                       replan_every=None if alone else settings.replan_every,
-                      margin=settings.margin, hold_action=hold_action(settings, action_space),
+                      margin=settings.margin, hold_action=hold,
                       no_effect_tolerance=settings.no_effect_tolerance)
 
 
