@@ -84,7 +84,8 @@ def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
             result.summary["seeds"]["evaluation"],
             result.planner_options, [DEMONSTRATOR, DYNOPLAN],
             regions=learned_regions(result.models),
-            demonstrator=task.module.make_demonstrator())
+            demonstrator=task.module.make_demonstrator(),
+            state_scale=result.models.state_scale)
     run = {"task": entry.name, "seed": seed, "wall_s": time.perf_counter() - started,
            "controllers": result.summary["controllers"],
            "composition_ratio": result.summary["composition_ratio"],

@@ -224,6 +224,10 @@ def pipeline(
         None, "--no-effect-tolerance", **_bounds("control.no_effect_tolerance"),
         help="An option that ends with no state coordinate moved more than this is not "
              "started again there, in state units [off]."),
+    no_effect_share: float | None = typer.Option(
+        None, "--no-effect-share", **_bounds("control.no_effect_share"),
+        help="Without --no-effect-tolerance, each coordinate's tolerance is this share of "
+             "its spread over the fitted data (0: no such rule) [0.01]."),
     start_where_done: bool | None = typer.Option(
         None, "--start-where-done/--no-start-where-done",
         help="An option may start where its termination is certain (it ends at its first "

@@ -128,7 +128,8 @@ class Controller:
             imagined rollouts do); a policy that reports it is finished stops at once.
         no_effect_tolerance: an option that terminates with no coordinate of the state
             more than this from where it started may not start again while the state
-            stays that close (``None``: it may).
+            stays that close (``None``: it may); a number, or one per coordinate
+            ``(state_dim,)``.
     """
 
     def __init__(
@@ -144,7 +145,7 @@ class Controller:
         success_fn: Callable[[bool, dict[str, Any]], bool] = default_success,
         record_infos: bool = False,
         termination_every: int = 1,
-        no_effect_tolerance: float | None = None,
+        no_effect_tolerance: float | FloatArray | None = None,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
@@ -152,7 +153,8 @@ class Controller:
         if max_decisions < 1 or max_option_steps < 1 or termination_every < 1:
             raise DynoplanError("max_decisions, max_option_steps and termination_every "
                                 "must be >= 1")
-        if no_effect_tolerance is not None and not no_effect_tolerance >= 0.0:
+        if no_effect_tolerance is not None and not np.all(
+                np.asarray(no_effect_tolerance) >= 0.0):
             raise DynoplanError(f"no_effect_tolerance must be >= 0, got {no_effect_tolerance}")
         self.chooser = chooser
         self.state_fn = state_fn
@@ -231,7 +233,7 @@ class Controller:
                     break
             running = chosen if reason == "replan" else None
             if (reason == "terminated" and self.no_effect_tolerance is not None
-                    and np.max(np.abs(state - start_state)) <= self.no_effect_tolerance):
+                    and np.all(np.abs(state - start_state) <= self.no_effect_tolerance)):
                 option.ended_without_effect(state, self.no_effect_tolerance)
             trace.decisions.append(Decision(k, start_step, start_state, plan, option.name,
                                             steps, reason, state, latency, outside))

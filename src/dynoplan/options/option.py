@@ -69,7 +69,7 @@ class RunMemory:
     effect (``where``, ``(state_dim,)``, or ``None``) and the tolerance it was judged by."""
 
     where: np.ndarray | None = None
-    tolerance: float = 0.0
+    tolerance: float | np.ndarray = 0.0
 
 
 @dataclass
@@ -165,12 +165,12 @@ class Option:
         return self.fallback is not None and bool(
             self.fallback.contains(np.asarray(state, dtype=np.float64)[None])[0])
 
-    def ended_without_effect(self, state: np.ndarray, tolerance: float) -> None:
+    def ended_without_effect(self, state: np.ndarray, tolerance: float | np.ndarray) -> None:
         """Record that a run of this option ended at ``state`` (shape ``(state_dim,)``)
         where it started, within ``tolerance`` in every coordinate: the option may not
         start again while the state stays that close to ``state``."""
         self.runs.where = np.array(state, dtype=np.float64).reshape(-1)
-        self.runs.tolerance = float(tolerance)
+        self.runs.tolerance = np.array(tolerance, dtype=np.float64)
 
     def forget_runs(self) -> None:
         """Forget :meth:`ended_without_effect` (a controller calls it at every reset)."""
@@ -184,7 +184,7 @@ class Option:
             return False
         s = np.asarray(state, dtype=np.float64).reshape(-1)
         return bool(s.shape == where.shape
-                    and np.max(np.abs(s - where)) <= self.runs.tolerance)
+                    and np.all(np.abs(s - where) <= self.runs.tolerance))
 
     def should_stop(self, state: np.ndarray, rng: Generator) -> bool:
         """Draw termination after a step: ``beta_w(state)``, or the policy is finished."""

@@ -76,7 +76,10 @@ class ControllerSettings:
             at their last state inside it (:class:`~dynoplan.planning.OptionPlanner`).
         no_effect_tolerance: an option that terminates with no state coordinate moved
             more than this is not started again there
-            (:class:`~dynoplan.control.Controller`; ``None``: it may be).
+            (:class:`~dynoplan.control.Controller`; ``None``: see ``no_effect_share``).
+        no_effect_share: without ``no_effect_tolerance``, the tolerance of each state
+            coordinate is this share of its spread over the fitted data
+            (``state_scale`` of :func:`make_controller`; ``None``: no such rule).
         fallback_own_sets: where no option may start under its learned initiation set
             (region, outcomes), the options whose own initiation sets hold may (the
             chooser picks among them as always; the options' ``fallback``); where the
@@ -104,6 +107,7 @@ class ControllerSettings:
     risk_level: float = 0.05
     end_inside: bool = False
     no_effect_tolerance: float | None = None
+    no_effect_share: float | None = 0.01
     start_where_done: bool = False
     fallback_own_sets: bool = True
 
@@ -125,6 +129,9 @@ class ControllerSettings:
             raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
         if self.max_decisions < 1 or self.max_option_steps < 1:
             raise DynoplanError("max_decisions and max_option_steps must be >= 1")
+        if self.no_effect_share is not None and not self.no_effect_share >= 0.0:
+            raise DynoplanError(
+                f"no_effect_share must be >= 0 or None, got {self.no_effect_share}")
         if self.no_effect_tolerance is not None and not self.no_effect_tolerance >= 0.0:
             raise DynoplanError(
                 f"no_effect_tolerance must be >= 0 or None, got {self.no_effect_tolerance}")
@@ -203,7 +210,8 @@ def neutral_action(space: gym.Space[Any]) -> FloatArray | None:
 def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                     settings: ControllerSettings,
                     planner_options: Sequence[Option] | None = None,
-                    action_space: gym.Space[Any] | None = None) -> Controller:
+                    action_space: gym.Space[Any] | None = None,
+                    state_scale: FloatArray | None = None) -> Controller:
     """A controller by name: ``dynoplan``, ``random`` or ``option:<name>``.
 
     Args:
@@ -212,6 +220,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
         planner_options: the options as the planner sees them (same names; they may
             carry multi-step dynamics and per-model-step terminations); default
             ``options``.
+        state_scale: ``(state_dim,)`` the spread of every state coordinate over the
+            fitted data (``FittedModels.state_scale``), which ``no_effect_share`` scales.
         action_space: the environment's; where no option is admissible the controller
             holds with ``settings.hold_action``, else :func:`neutral_action` of it (unless
             ``settings.hold`` is off).
@@ -247,7 +257,18 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                       max_option_steps=settings.max_option_steps,
                       replan_every=None if alone else settings.replan_every,
                       margin=settings.margin, hold_action=hold,
-                      no_effect_tolerance=settings.no_effect_tolerance)
+                      no_effect_tolerance=no_effect_tolerance(settings, state_scale))
+
+
+def no_effect_tolerance(settings: ControllerSettings, state_scale: FloatArray | None
+                        ) -> float | FloatArray | None:
+    """The controller's no-effect tolerance: ``settings.no_effect_tolerance``, else
+    ``no_effect_share`` times ``state_scale`` (one per coordinate), else ``None``."""
+    if settings.no_effect_tolerance is not None:
+        return settings.no_effect_tolerance
+    if settings.no_effect_share is None or state_scale is None:
+        return None
+    return settings.no_effect_share * np.asarray(state_scale, dtype=np.float64)
 
 
 def planning_settings(settings: ControllerSettings, models: "FittedModels"
@@ -564,13 +585,15 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                          task: Task | None = None,
                          models: Path | None = None,
                          regions: RegionModel | None = None,
-                         demonstrator: Any = None) -> dict[str, dict[str, Any]]:
+                         demonstrator: Any = None,
+                         state_scale: FloatArray | None = None) -> dict[str, dict[str, Any]]:
     """Run each controller on the same ``episodes`` seeded episodes; one summary each.
 
     ``controllers`` defaults to :func:`controller_names` (the demonstrator when one is
     given, DynoPlan, every option alone, random choice; ``demonstrator``: a
     :class:`~dynoplan.pipeline.collect.Demonstrator` or ``fn(observation) -> option
-    name``, :class:`DemonstratorRunner`). On one worker the controllers run here on
+    name``, :class:`DemonstratorRunner`; ``state_scale``: see :func:`make_controller`).
+    On one worker the controllers run here on
     ``env`` and ``options``; on several, every worker rebuilds them from ``task`` and the
     models folder ``models`` (:class:`ControllerJob`), which must hold the same models, and
     the table is the same.
@@ -594,8 +617,8 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                                              demonstrator_from(demonstrator),
                                              regions)) if kind == DEMONSTRATOR
                 else _LocalJob(ControllerRunner(env, make_controller(
-                    kind, options, goal, settings, planner_options, env.action_space),
-                    regions=regions))
+                    kind, options, goal, settings, planner_options, env.action_space,
+                    state_scale), regions=regions))
                 for kind in kinds]
     done = evaluate_many([(job, seeds) for job in jobs], workers,
                          f"evaluate ({len(kinds)} controllers)", progress)

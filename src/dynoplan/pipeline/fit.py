@@ -87,6 +87,7 @@ from dynoplan.pipeline.fit_regions import (
     fit_regions_cross_validated,
 )
 from dynoplan.pipeline.fit_settings import REGION_FITS, UNDEMONSTRATED, FitSettings
+from dynoplan.types import FloatArray
 
 
 @dataclass
@@ -127,6 +128,13 @@ class FittedModels:
         """What the dynamics predict: ``"step"`` or ``"end"`` (``FitSettings.option_model``,
         recorded in the report's settings)."""
         return str((self.report.get("settings") or {}).get("option_model", "step"))
+
+    @property
+    def state_scale(self) -> FloatArray | None:
+        """``(state_dim,)`` the spread of every state coordinate over the fitted data
+        (``None`` for models fitted before it was recorded)."""
+        scale = self.report.get("state_scale")
+        return None if scale is None else np.asarray(scale, dtype=np.float64)
 
     @property
     def state_dim(self) -> int:
@@ -376,15 +384,16 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
         say("outcome initiation")
         learned, outcome_report = fit_outcome_initiation(transitions, names, goal, settings,
                                                          seed, state_fn)
-    constant = constant_dimensions(np.concatenate(
-        [episode_states(e, state_fn) for e in [*transitions, *demos]]))
+    every_state = np.concatenate([episode_states(e, state_fn) for e in [*transitions, *demos]])
+    constant = constant_dimensions(every_state)
     note = constant_dimensions_warning(constant, pairs[names[0]][0].shape[1],
                                        settings.constant_dimensions_still)
     if note is not None:
         warnings.warn(note, DynoplanWarning, stacklevel=2)
     report = {"settings": asdict(settings), "dynamics": dyn_report, "goal": goal_report,
               "regions": region_report, "outcome_initiation": outcome_report,
-              "constant_dimensions": constant, "warnings": [] if note is None else [note]}
+              "constant_dimensions": constant, "state_scale": every_state.std(axis=0).tolist(),
+              "warnings": [] if note is None else [note]}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
                         settings.regions, task, learned_initiation=learned)
 

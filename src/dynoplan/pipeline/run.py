@@ -367,7 +367,8 @@ def run_pipeline(
                                       planning_settings(settings.control, models),
                                       settings.episodes, seeds["evaluation"], planner_options,
                                       settings.controllers, progress, workers, task,
-                                      models_dir, learned_regions(models), demonstrator)
+                                      models_dir, learned_regions(models), demonstrator,
+                                      models.state_scale)
     say("")
     region_warnings = (models.report.get("regions") or {}).get("warnings", [])
     summary = {

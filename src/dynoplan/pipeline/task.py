@@ -260,7 +260,8 @@ class GymTask:
         run_options, planner_options = fitted.build(self.make_options())
         return ControllerRunner(env, make_controller(
             controller, run_options, fitted.goal, planning_settings(settings, fitted),
-            planner_options, env.action_space), regions=learned_regions(fitted))
+            planner_options, env.action_space, fitted.state_scale),
+            regions=learned_regions(fitted))
 
 
 def load_object(reference: str) -> Any:
