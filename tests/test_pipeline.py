@@ -93,7 +93,7 @@ def test_pipeline_learns_to_go_right_and_beats_going_left(result):
     # 'left' is never demonstrated: its region comes from its own exploration runs
     assert res.models.regions is not None
     assert res.models.regions.option_names == ["right", "left"]
-    assert res.models.report["regions"]["undemonstrated"] == {"left": "runs"}
+    assert res.models.report["regions"]["undemonstrated"] == {"left": "none"}
     assert res.summary["demonstrations"]["episodes"] == 4
     assert "| dynoplan | 1 |" in res.table
 

@@ -1,4 +1,5 @@
-"""Options the demonstrations never show are not admissible everywhere by default."""
+"""Options the demonstrations never show: never admissible under their learned sets by
+default (the paper's Eq. 5: no components, no region), or a region from their own runs."""
 
 import numpy as np
 import pytest
@@ -24,8 +25,15 @@ RUNS = [_episode(_RNG.normal(-5.0, 1.0, 30), 1) for _ in range(5)]
 NAMES = ["right", "left", "idle"]
 
 
-def test_undemonstrated_option_gets_a_region_from_its_own_runs_by_default():
+def test_undemonstrated_option_gets_no_region_by_default():
     regions, report = fit_option_regions(DEMOS, RUNS, NAMES, FitSettings(), seed=0)
+    assert report["undemonstrated"] == {"left": "none", "idle": "none"}
+    assert not regions.contains(np.array([[-5.0], [2.5]]), "left").any()
+
+
+def test_undemonstrated_option_gets_a_region_from_its_own_runs():
+    regions, report = fit_option_regions(DEMOS, RUNS, NAMES,
+                                         FitSettings(region_undemonstrated="runs"), seed=0)
     assert report["undemonstrated"] == {"left": "runs", "idle": "none"}
     assert len(report["warnings"]) == 2
     xs = np.linspace(-20.0, 20.0, 401)[:, None]
@@ -52,7 +60,7 @@ def test_the_fitted_initiation_set_of_an_undemonstrated_option_is_not_everywhere
     specs = [option_spec(n, lambda obs: np.array([0.0], np.float32), termination=0.1)
              for n in NAMES]
     settings = FitSettings(dynamics_hidden=(8,), dynamics_members=1, dynamics_epochs=1,
-                           goal_hidden=8, goal_epochs=1)
+                           goal_hidden=8, goal_epochs=1, region_undemonstrated="runs")
     idle_runs = [_episode(_RNG.normal(11.0, 0.5, 30), 2)]
     with pytest.warns(DynoplanWarning, match="never appear in the demonstrations"):
         models = fit_models(specs, [*RUNS, *idle_runs], DEMOS, settings, seed=0)

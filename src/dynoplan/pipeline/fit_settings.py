@@ -74,7 +74,7 @@ class FitSettings:
     """
 
     stride: int = 1
-    option_model: str = "step"
+    option_model: str = "end"
     dynamics_hidden: tuple[int, ...] = (64, 64)
     dynamics_members: int = 5
     dynamics_epochs: int = 30
@@ -83,7 +83,7 @@ class FitSettings:
     goal_members: int = 1
     goal_epochs: int = 150
     goal_ranking: float = 0.0
-    goal_off_demos: bool = False
+    goal_off_demos: bool = True
     goal_features: str | None = None
     region_features: str | None = None
     regions: bool = True
@@ -95,7 +95,7 @@ class FitSettings:
     region_max_components: int = 6
     region_folds: int = 5
     region_reg_covar: float = 1e-2
-    region_undemonstrated: str = "runs"
+    region_undemonstrated: str = "none"
     outcome_initiation: bool = False
     outcome_min_gain: float = 0.0
     constant_dimensions_still: bool = True

@@ -340,7 +340,8 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     model = MLPEnsembleDynamics(STATE_DIM, cfg.dynamics_hidden, cfg.dynamics_members,
                                 option=name, seed=seed + k)
     epochs = dynamics_epochs(len(s), cfg)
-    report = model.fit(s, nxt, epochs=epochs, batch_size=DYNAMICS_BATCH, seed=seed + k)
+    report = model.fit(s, nxt, epochs=epochs, batch_size=DYNAMICS_BATCH, seed=seed + k,
+                       keep_still=cfg.constant_dimensions_still)
     std_scale = None
     if cal_eps:
         sc, labels_c, nxtc = labelled_transitions(cal_eps, state_fn=planner)
