@@ -110,7 +110,8 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
                f"fewer than {4 * (states.shape[1] + 1)} states of their own runs")
         report["warnings"].append(
             f"option(s) {', '.join(names[k] for k in nowhere)} never appear in the "
-            f"demonstrations and get no region ({why}): they are never started")
+            f"demonstrations and get no region ({why}): they start only where no "
+            "option's learned set holds (control.fallback_own_sets)")
     return _on_features(regions, features), report
 
 
