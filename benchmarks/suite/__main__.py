@@ -151,6 +151,22 @@ def suite_table(rows: list[dict[str, Any]]) -> str:
          "decision p50 (ms)", "decisions / episode", "wall (s)"])
 
 
+def _commit() -> str | None:
+    """The repository's commit, with ``+`` when the work tree has changes (``None``
+    outside a git checkout)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root,
+                              capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=root, capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("+" if dirty.strip() else "")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.suite",
                                      description=__doc__.split("\n\n")[0])
@@ -190,11 +206,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rows = [task_row([r for r in runs if r["task"] == e.name]) for e in available]
     command = "python -m benchmarks.suite " + " ".join(sys.argv[1:] if argv is None else argv)
-    write_json(out / "suite.json", {"command": command, "settings": sets,
+    write_json(out / "suite.json", {"command": command, "commit": _commit(), "settings": sets,
                                     "episodes": args.episodes, "seeds": seeds,
                                     "tasks": rows, "runs": runs})
     table = suite_table(rows) if rows else "no task ran\n"
-    write_text(out / "suite.md", f"Produced by `{command}`.\n\n{table}")
+    write_text(out / "suite.md", f"Produced by `{command}` at {_commit()}.\n\n{table}")
     print(table)
     return 0
 
