@@ -1,7 +1,7 @@
 """The fit's data: planner states, option labels, transitions and runs cut from labelled
 episodes (``infos["option"]``)."""
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -81,19 +81,26 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
     found: dict[str, tuple[list[FloatArray], list[FloatArray], list[int]]] = {
         n: ([], [], []) for n in option_names}
     d = 0
+    for name, rows, start, end in _runs(episodes, option_names, state_fn):
+        d = rows.shape[1]
+        steps = int(end - start) // stride
+        found[name][0].append(rows[start])
+        found[name][1].append(rows[start + steps * stride])
+        found[name][2].append(steps)
+    return {n: (np.array(a).reshape(-1, d), np.array(b).reshape(-1, d),
+                np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
+
+
+def _runs(episodes: Sequence[Episode], option_names: Sequence[str], state_fn: ObservationFn,
+          ) -> Iterator[tuple[str, FloatArray, int, int]]:
+    """Every run (a maximal stretch of steps with one option label) of ``episodes``: its
+    option, its episode's states ``(T+1, d)`` and its steps ``start:end``."""
     for index, episode in enumerate(episodes):
         labels = option_labels(episode, index, len(option_names))
         rows = episode_states(episode, state_fn)
-        d = rows.shape[1]
         cuts = np.flatnonzero(np.diff(labels)) + 1
         for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
-            name = option_names[int(labels[start])]
-            steps = int(end - start) // stride
-            found[name][0].append(rows[start])
-            found[name][1].append(rows[start + steps * stride])
-            found[name][2].append(steps)
-    return {n: (np.array(a).reshape(-1, d), np.array(b).reshape(-1, d),
-                np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
+            yield option_names[int(labels[start])], rows, int(start), int(end)
 
 def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
                      state_fn: ObservationFn = flat_state,
@@ -112,15 +119,10 @@ def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
     found: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {
         n: ([], []) for n in option_names}
     d = 0
-    for index, episode in enumerate(episodes):
-        labels = option_labels(episode, index, len(option_names))
-        rows = episode_states(episode, state_fn)
+    for name, rows, start, end in _runs(episodes, option_names, state_fn):
         d = rows.shape[1]
-        cuts = np.flatnonzero(np.diff(labels)) + 1
-        for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
-            name = option_names[int(labels[start])]
-            found[name][0].append(rows[start:end])
-            found[name][1].append(np.repeat(rows[end][None], end - start, axis=0))
+        found[name][0].append(rows[start:end])
+        found[name][1].append(np.repeat(rows[end][None], end - start, axis=0))
     return {n: (np.concatenate(a) if a else np.zeros((0, d)),
                 np.concatenate(b) if b else np.zeros((0, d))) for n, (a, b) in found.items()}
 
