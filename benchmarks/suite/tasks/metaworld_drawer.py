@@ -35,7 +35,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from benchmarks.suite.tasks.metaworld_pick_place import done_when, make_metaworld_env
+from benchmarks.suite.tasks.metaworld_pick_place import (
+    OnceAtStep,
+    done_when,
+    make_metaworld_env,
+)
 from dynoplan.adapters import OptionSpec, option_spec
 from dynoplan.pipeline import Demonstrator
 
@@ -195,36 +199,19 @@ DISTURBANCE = ("the hand is shoved 4-6 cm in a random horizontal direction once,
                "drawn from 15-45")
 
 
-class ShoveHand(gym.Wrapper[Any, Any, Any, Any]):
+class ShoveHand(OnceAtStep):
     """At one step drawn from ``steps``, move the hand's target (Meta-World drives the
     hand through a MuJoCo mocap body) by ``distance`` (m) in a random horizontal
     direction: the hand follows within a few steps. Seeded from the seed of ``reset``."""
 
     def __init__(self, env: gym.Env[Any, Any], steps: tuple[int, int] = (15, 45),
                  distance: tuple[float, float] = (0.04, 0.06)) -> None:
-        super().__init__(env)
-        self.steps, self.distance = steps, distance
-        self._rng = np.random.default_rng()
-        self._t = 0
-        self._at = -1
+        super().__init__(env, steps, distance)
 
-    def reset(self, *, seed: int | None = None,
-              options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
-        self._t = 0
-        self._at = int(self._rng.integers(self.steps[0], self.steps[1] + 1))
-        return self.env.reset(seed=seed, options=options)
-
-    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
-        if self._t == self._at:
-            base: Any = self.env.unwrapped
-            angle = self._rng.uniform(0.0, 2 * np.pi)
-            length = self._rng.uniform(*self.distance)
-            shoved = base.data.mocap_pos[0] + length * np.array([np.cos(angle), np.sin(angle), 0])
-            base.data.mocap_pos[0] = np.clip(shoved, base.mocap_low, base.mocap_high)
-        self._t += 1
-        return self.env.step(action)
+    def disturb(self) -> None:
+        base: Any = self.env.unwrapped
+        shoved = base.data.mocap_pos[0] + np.r_[self.horizontal(), 0.0]
+        base.data.mocap_pos[0] = np.clip(shoved, base.mocap_low, base.mocap_high)
 
 
 def disturb(env: gym.Env[Any, Any]) -> gym.Env[Any, Any]:

@@ -253,43 +253,61 @@ DISTURBANCE = ("the puck is knocked 4-6 cm sideways (random direction) once, at 
                "from 10-30, if it is still on the table")
 
 
-class KnockPuck(gym.Wrapper[Any, Any, Any, Any]):
-    """At one step drawn from ``steps``, move the puck by ``distance`` (m) in a random
-    horizontal direction, at rest, if it is still on the table (below 3 cm). Seeded from
-    the seed of ``reset``."""
+class OnceAtStep(gym.Wrapper[Any, Any, Any, Any]):
+    """A disturbance that happens once per episode, at a step drawn from ``steps`` with a
+    generator seeded from the seed of ``reset``; :meth:`disturb` says what it does (and
+    draws the rest of it from ``self.rng``)."""
 
-    def __init__(self, env: gym.Env[Any, Any], steps: tuple[int, int] = (10, 30),
+    def __init__(self, env: gym.Env[Any, Any], steps: tuple[int, int],
                  distance: tuple[float, float] = (0.04, 0.06)) -> None:
         super().__init__(env)
         self.steps, self.distance = steps, distance
-        self._rng = np.random.default_rng()
+        self.rng = np.random.default_rng()
         self._t = 0
         self._at = -1
 
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
+            self.rng = np.random.default_rng(seed)
         self._t = 0
-        self._at = int(self._rng.integers(self.steps[0], self.steps[1] + 1))
+        self._at = int(self.rng.integers(self.steps[0], self.steps[1] + 1))
         return self.env.reset(seed=seed, options=options)
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         if self._t == self._at:
-            self._knock()
+            self.disturb()
         self._t += 1
         return self.env.step(action)
 
-    def _knock(self) -> None:
+    def disturb(self) -> None:
+        raise NotImplementedError
+
+    def horizontal(self) -> np.ndarray:
+        """A horizontal move ``(2,)`` of a length drawn from ``distance`` in a random
+        direction."""
+        angle = self.rng.uniform(0.0, 2 * np.pi)
+        length = self.rng.uniform(*self.distance)
+        return length * np.array([np.cos(angle), np.sin(angle)])
+
+
+class KnockPuck(OnceAtStep):
+    """At one step drawn from ``steps``, move the puck by ``distance`` (m) in a random
+    horizontal direction, at rest, if it is still on the table (below 3 cm). Seeded from
+    the seed of ``reset``."""
+
+    def __init__(self, env: gym.Env[Any, Any], steps: tuple[int, int] = (10, 30),
+                 distance: tuple[float, float] = (0.04, 0.06)) -> None:
+        super().__init__(env, steps, distance)
+
+    def disturb(self) -> None:
         import mujoco
 
         base = self.env.unwrapped
         joint = base.data.joint("objjoint")  # type: ignore[attr-defined]
         if joint.qpos[2] > 0.03:
             return
-        angle = self._rng.uniform(0.0, 2 * np.pi)
-        length = self._rng.uniform(*self.distance)
-        joint.qpos[0:2] += length * np.array([np.cos(angle), np.sin(angle)])
+        joint.qpos[0:2] += self.horizontal()
         joint.qvel[:] = 0.0
         mujoco.mj_forward(base.model, base.data)  # type: ignore[attr-defined]
 

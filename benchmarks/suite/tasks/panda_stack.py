@@ -62,6 +62,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from benchmarks.suite.tasks.panda_push import FreshContacts
 from dynoplan.adapters import OptionSpec, option_spec
 from dynoplan.options import OptionPolicy
 from dynoplan.pipeline import Demonstrator
@@ -139,27 +140,6 @@ class StackedSuccess(gym.Wrapper[Any, Any, Any, Any]):
         observation, _, _, truncated, info = self.env.step(action)
         done = stacked(observation)
         return observation, float(done) - 1.0, done, truncated, {**info, "is_success": done}
-
-
-class FreshContacts(gym.Wrapper[Any, Any, Any, Any]):
-    """Makes ``reset(seed=s)`` reproduce the whole episode, not only its first
-    observation: panda-gym moves the cubes back onto the table at reset, and PyBullet
-    keeps their old contacts with it, so the first steps differ by ~1e-5 m with the
-    previous episode and an episode's length by a step now and then. Before each reset,
-    the cubes are lifted far off the table for one simulation step, which drops those
-    contacts."""
-
-    def __init__(self, env: gym.Env[Any, Any], bodies: tuple[str, ...]) -> None:
-        super().__init__(env)
-        self.bodies = bodies
-
-    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
-        sim = self.env.unwrapped.sim  # type: ignore[attr-defined]
-        for i, body in enumerate(self.bodies):
-            sim.set_base_pose(body, np.array([5.0 + i, 5.0, 5.0]),
-                              np.array([0.0, 0.0, 0.0, 1.0]))
-        sim.step()
-        return self.env.reset(**kwargs)
 
 
 def make_env(**kwargs: Any) -> gym.Env[Any, Any]:
