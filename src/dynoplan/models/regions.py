@@ -38,6 +38,13 @@ _KIND = "safety_regions"
 CONSTANT_SPREAD = 1e-9
 """A dimension whose standard deviation over the data is at most this (times one plus
 its magnitude) never changes: :meth:`SafetyRegions.fit_heldout` does not test it."""
+def constant_mask(states: FloatArray) -> BoolArray:
+    """``(d,)`` which dimensions of ``states`` ``(N, d)`` never change: a spread of at most
+    :data:`CONSTANT_SPREAD` times one plus their magnitude."""
+    x = np.asarray(states, dtype=np.float64)
+    return np.asarray(x.std(axis=0) <= CONSTANT_SPREAD * (1.0 + np.abs(x.mean(axis=0))))
+
+
 UNTESTED_SCALE = 1e6
 """The scale of an untested dimension, in units of the largest spread of the data."""
 
@@ -247,8 +254,7 @@ class SafetyRegions:
         scale = np.maximum(spread, 1e-3 * float(spread.max()) + 1e-12)
         # a dimension with no spread at all is not tested: at this scale no move matters
         if not test_constant:
-            scale[spread <= CONSTANT_SPREAD * (1.0 + np.abs(center))] = UNTESTED_SCALE * (
-                1.0 + float(spread.max()))
+            scale[constant_mask(x)] = UNTESTED_SCALE * (1.0 + float(spread.max()))
         z = (x - center) / scale
         g = None if groups is None else np.asarray(groups)
         if g is not None and g.shape != y.shape:

@@ -18,7 +18,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from dynoplan.models.regions import CONSTANT_SPREAD
+from dynoplan.models.regions import constant_mask
 from dynoplan.options.option import Option, admissible
 from dynoplan.types import FloatArray
 
@@ -52,9 +52,7 @@ def constant_dimensions(states: FloatArray) -> list[int]:
     x = np.asarray(states, dtype=np.float64)
     if x.ndim != 2 or len(x) == 0:
         return []
-    spread = x.std(axis=0)
-    return [int(i) for i in np.flatnonzero(
-        spread <= CONSTANT_SPREAD * (1.0 + np.abs(x.mean(axis=0))))]
+    return [int(i) for i in np.flatnonzero(constant_mask(x))]
 
 
 def constant_dimensions_warning(dims: Sequence[int], state_dim: int,

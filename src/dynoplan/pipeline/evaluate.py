@@ -8,7 +8,7 @@ chained right, and DynoPlan's success is reported as a share of its success
 (:func:`composition_ratio`).
 """
 
-from collections.abc import Callable, Hashable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -505,10 +505,8 @@ class DemonstratorRunner:
         starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
         chosen = tuple(names[int(k)] for k in labels[starts])
         states = np.asarray(episode.observations, dtype=np.float64).reshape(len(labels) + 1, -1)
-        shown = set(self.regions.option_names) if self.regions is not None else set()
-        outside = sum(1 for t, name in zip(starts, chosen, strict=True) if name in shown
-                      and self.regions is not None
-                      and not bool(self.regions.contains(states[t][None], name)[0]))
+        outside = (0 if self.regions is None else
+                   count_outside(self.regions, zip(states[starts], chosen, strict=True)))
         steps = np.bincount(labels, minlength=len(names))
         return EpisodeRecord(
             seed.env_seed, recording.success, len(labels), float(np.sum(episode.rewards)),
@@ -543,10 +541,16 @@ def learned_regions(models: "FittedModels") -> RegionModel:
 def starts_outside(trace: EpisodeTrace, regions: RegionModel) -> int:
     """Options of ``trace`` started outside their learned region in ``regions`` (an
     option without a region, one the demonstrations do not show, never is)."""
+    return count_outside(regions, ((d.state, d.option) for d in trace.decisions
+                                    if d.option is not None))
+
+
+def count_outside(regions: RegionModel, starts: Iterable[tuple[FloatArray, str]]) -> int:
+    """How many of the option starts ``(state (d,), option name)`` lie outside the
+    option's learned region in ``regions`` (an option without a region never does)."""
     shown = set(regions.option_names)
-    return sum(1 for d in trace.decisions
-               if d.option is not None and d.option in shown
-               and not bool(regions.contains(d.state[None], d.option)[0]))
+    return sum(1 for state, name in starts
+               if name in shown and not bool(regions.contains(state[None], name)[0]))
 
 
 class _FrameRecorder(gym.Wrapper[Any, Any, Any, Any]):

@@ -13,6 +13,7 @@ from dynoplan.models.goal_network import (
     evaluate_goal,
     goal_training_set,
 )
+from dynoplan.models.regions import constant_mask
 from dynoplan.pipeline.collect import ObservationFn, flat_state
 from dynoplan.pipeline.fit_settings import FitSettings
 from dynoplan.types import FloatArray, IntArray
@@ -47,7 +48,7 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
     from scipy.spatial import cKDTree
 
     spread = states.std(axis=0)
-    keep = spread > 1e-9 * (1.0 + np.abs(states.mean(axis=0)))
+    keep = ~constant_mask(states)
     if not keep.any() or len(off) == 0:
         return np.zeros(len(off))
     z = states[:, keep] / spread[keep]
