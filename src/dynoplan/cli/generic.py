@@ -100,6 +100,13 @@ def pipeline(
                                         help="Evaluation episodes per controller [100]."),
     seed: int | None = typer.Option(None, "--seed", **_bounds("seed"),
                                     help="Seed of every random choice [0]."),
+    improve: int | None = typer.Option(
+        None, "--improve", **_bounds("improve"),
+        help="Rounds of learning from DynoPlan's own episodes before the evaluation: "
+             "refit on them, their successes as demonstrations [0]."),
+    improve_episodes: int | None = typer.Option(
+        None, "--improve-episodes", **_bounds("improve_episodes"),
+        help="DynoPlan's episodes per improvement round [30]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),
@@ -110,7 +117,7 @@ def pipeline(
     option_model: str | None = typer.Option(
         None, "--option-model",
         help="What each option's dynamics predict: step (the next model step; rollouts of "
-             "--horizon steps) or end (where the option ends: one step per rollout) [step]."),
+             "--horizon steps) or end (where the option ends: one step per rollout) [end]."),
     dynamics_hidden: str | None = typer.Option(
         None, "--dynamics-hidden", help="Hidden layer widths of each dynamics ensemble "
         "member, comma-separated [64,64]."),

@@ -49,11 +49,13 @@ from dynoplan.pipeline.diagnostics import (
     weak_dynamics_warnings,
 )
 from dynoplan.pipeline.evaluate import (
+    DYNOPLAN,
     ControllerSettings,
     composition_ratio,
     controller_names,
     evaluate_controllers,
     learned_regions,
+    make_controller,
     option_share_table,
     planning_settings,
     results_table,
@@ -65,6 +67,7 @@ from dynoplan.pipeline.fit import (
     episode_states,
     fit_models,
 )
+from dynoplan.pipeline.improve import own_episodes
 from dynoplan.pipeline.task import StateFn, SuccessFn, Task, task_env
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
@@ -92,6 +95,9 @@ class PipelineSettings:
         control: how DynoPlan plans and every controller runs.
         controllers: which controllers to evaluate (default: DynoPlan, each option
             alone, random choice).
+        improve: rounds of learning from DynoPlan's own episodes before the evaluation
+            (:mod:`~dynoplan.pipeline.improve`; 0: none, the paper's pipeline).
+        improve_episodes: DynoPlan's episodes per improvement round.
     """
 
     demos: int = 5
@@ -102,11 +108,16 @@ class PipelineSettings:
     fit: FitSettings = field(default_factory=FitSettings)
     control: ControllerSettings = field(default_factory=ControllerSettings)
     controllers: tuple[str, ...] | None = None
+    improve: int = 0
+    improve_episodes: int = 30
 
     def validate(self) -> None:
-        for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes"):
+        for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes",
+                     "improve_episodes"):
             if getattr(self, name) < 1:
                 raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.improve < 0:
+            raise DynoplanError(f"improve must be >= 0, got {self.improve}")
         self.fit.validate()
         self.control.validate()
 
@@ -144,9 +155,11 @@ class PipelineResult:
         return admissibility_table(self.summary["admissibility"])
 
 
-def _seeds(seed: int) -> dict[str, int]:
-    children = np.random.SeedSequence(seed).spawn(4)
-    names = ("demos", "exploration", "fit", "evaluation")
+def _seeds(seed: int, improve: bool = False) -> dict[str, int]:
+    """The run's seed streams; ``improve`` adds the improvement rounds' (the others are
+    the same with or without it)."""
+    names = ("demos", "exploration", "fit", "evaluation", *(("improve",) if improve else ()))
+    children = np.random.SeedSequence(seed).spawn(len(names))
     return {n: int(c.generate_state(1)[0] % 2**31) for n, c in zip(names, children, strict=True)}
 
 
@@ -325,7 +338,7 @@ def run_pipeline(
     started = time.perf_counter()
     environment = task_env(make_env(env) if isinstance(env, str) else env, success, state_fn)
     specs = [as_spec(o) for o in options]
-    seeds = _seeds(settings.seed)
+    seeds = _seeds(settings.seed, settings.improve > 0)
     state_dim = probe_options(environment, options, flat_state, seeds["demos"])
     notes = [n for n in [seeded_reset_warning(
         environment, episode_seeds(seeds["evaluation"], 1)[0].env_seed)] if n is not None]
@@ -349,10 +362,31 @@ def run_pipeline(
     transitions = collect_transitions(environment, specs, settings.exploration_episodes,
                                       seeds["exploration"], flat_state,
                                       settings.exploration_option_steps, progress=progress)
+    name = task.name if task is not None else _env_id(environment) or ""
     models = fit_models(specs, transitions, demo_episodes, settings.fit, seeds["fit"],
-                        flat_state, fitter, say, task.name if task is not None else
-                        _env_id(environment) or "")
+                        flat_state, fitter, say, name)
     run_options, planner_options = models.build(specs)
+    fit_demos, fit_transitions = list(demo_episodes), list(transitions)
+    own_seeds = (episode_seeds(seeds["improve"], settings.improve * settings.improve_episodes)
+                 if settings.improve else [])
+    curve: list[dict[str, Any]] = []
+    for r in range(settings.improve):
+        say(f"improvement round {r + 1}")
+        controller = make_controller(DYNOPLAN, run_options, models.goal,
+                                     planning_settings(settings.control, models),
+                                     planner_options, environment.action_space,
+                                     models.state_scale)
+        n = settings.improve_episodes
+        own = own_episodes(environment, controller, own_seeds[r * n:(r + 1) * n])
+        added = [e.demonstration for e in own if e.demonstration is not None]
+        fit_demos += added
+        fit_transitions += [piece for e in own for piece in e.pieces]
+        curve.append({"round": r + 1, "episodes": n,
+                      "success_rate": float(np.mean([e.success for e in own])),
+                      "demonstrations_added": len(added)})
+        models = fit_models(specs, fit_transitions, fit_demos, settings.fit, seeds["fit"],
+                            flat_state, fitter, say, name)
+        run_options, planner_options = models.build(specs)
     say("admissibility")
     starts = start_states(environment, seeds["evaluation"], settings.episodes)
     admissible, where = admissibility(run_options, starts, demo_episodes)
@@ -386,6 +420,7 @@ def run_pipeline(
         "warnings": [*region_warnings, *notes],
         "controllers": evaluation,
         "composition_ratio": composition_ratio(evaluation),
+        **({"improvement": curve} if settings.improve else {}),
         "stage_seconds": clock.rounded(3),
         "seconds": time.perf_counter() - started,
         "command": command,
@@ -432,6 +467,12 @@ def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
     bar = ("" if ratio is None else
            f"DynoPlan reaches {ratio:.2f} of the demonstrator's success on the same episodes "
            "(the composition ratio).\n\n")
+    curve = summary.get("improvement") or []
+    if curve:
+        bar += ("DynoPlan's success on its own episodes in each improvement round (refit "
+                "on them after each): " + ", ".join(
+                    f"round {c['round']}: {c['success_rate']:.2f} (+{c['demonstrations_added']}"
+                    " demonstrations)" for c in curve) + ".\n\n")
     write_text(folder / "results.md",
                f"{head} ({n} seeded episodes per controller, seed {settings.seed}).\n\n"
                f"{results_table(summary['controllers'])}\n\n{bar}"

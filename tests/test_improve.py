@@ -1,0 +1,97 @@
+"""Learning from DynoPlan's own episodes (``PipelineSettings.improve``): how its episodes
+are cut for the fit, and the improvement rounds of a pipeline run."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dynoplan.control.controller import Decision, EpisodeTrace
+from dynoplan.data.episodes import FAILURE_KEY, OPTION_KEY, PROGRESS_KEY
+from dynoplan.pipeline import run_pipeline
+from dynoplan.pipeline.improve import HOLD, StepRecorder, own_episode, step_labels
+from test_pipeline import SMALL, line_env, line_options
+
+
+def _trace(steps, success):
+    """A trace of decisions ``(option or None, steps)`` run one after the other."""
+    trace, at = EpisodeTrace(success=success), 0
+    for k, (option, n) in enumerate(steps):
+        trace.decisions.append(Decision(k, at, np.zeros(1), None, option, n,  # type: ignore[arg-type]
+                                        "terminated" if option else "hold", np.zeros(1), 0.0))
+        at += n
+    trace.env_steps = at
+    return trace
+
+
+def _recorder(steps):
+    """A recorder that holds an episode of ``steps`` steps along a line."""
+    env = line_env()
+    recorder = StepRecorder(env)
+    recorder.reset(seed=0)
+    for _ in range(steps):
+        recorder.step(np.array([0.5], np.float32))
+    return recorder
+
+
+def test_steps_are_labelled_with_the_option_that_ran_them_and_holds_apart():
+    trace = _trace([("right", 2), (None, 1), ("left", 3)], success=False)
+    assert step_labels(trace, ["right", "left"]).tolist() == [0, 0, HOLD, 1, 1, 1]
+
+
+def test_a_failed_episode_is_cut_at_its_holds_and_its_end_is_a_failure():
+    trace = _trace([("right", 2), (None, 1), ("left", 3)], success=False)
+    own = own_episode(_recorder(6), trace, ["right", "left"], env_seed=0)
+    assert own.demonstration is None  # it failed
+    assert [len(p) for p in own.pieces] == [2, 3]
+    assert [p.infos[OPTION_KEY].tolist() for p in own.pieces] == [[0, 0], [1, 1, 1]]
+    # only the state the episode ended in is a failure
+    assert [p.infos[FAILURE_KEY].tolist() for p in own.pieces] == [
+        [False, False], [False, False, True]]
+    # the pieces keep the states as they were: the second starts where the hold ended
+    recorded = np.asarray(_recorder(6).observations)
+    np.testing.assert_array_equal(own.pieces[1].observations, recorded[3:7])
+
+
+def test_a_success_without_holds_becomes_a_demonstration_and_one_with_holds_does_not():
+    names = ["right", "left"]
+    clean = own_episode(_recorder(4), _trace([("right", 3), ("left", 1)], True), names, 0)
+    assert clean.demonstration is not None
+    assert clean.demonstration.infos[PROGRESS_KEY].tolist() == [0.25, 0.5, 0.75, 1.0]
+    assert not any(p.infos[FAILURE_KEY].any() for p in clean.pieces)
+    held = own_episode(_recorder(4), _trace([("right", 3), (None, 1)], True), names, 0)
+    assert held.demonstration is None
+    assert [len(p) for p in held.pieces] == [3]
+
+
+@pytest.fixture(scope="module")
+def improved(tmp_path_factory):
+    out = tmp_path_factory.mktemp("improve")
+    settings = replace(SMALL, improve=2, improve_episodes=3)
+    return out, run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                             settings=settings, out=out)
+
+
+def test_improvement_rounds_report_a_learning_curve_and_refit_on_more_data(improved):
+    out, res = improved
+    curve = res.summary["improvement"]
+    assert [c["round"] for c in curve] == [1, 2]
+    assert all(c["episodes"] == 3 and 0.0 <= c["success_rate"] <= 1.0 for c in curve)
+    added = sum(c["demonstrations_added"] for c in curve)
+    assert added >= 1  # DynoPlan reaches the goal on the line
+    # the goal was refitted on the demonstrator's 4 and DynoPlan's successes
+    without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                           settings=SMALL)
+    assert res.models.report["goal"]["states"] > without.models.report["goal"]["states"]
+    assert res.summary["demonstrations"]["episodes"] == 4  # the demonstrator's, as before
+    # the other seed streams do not move: the same demonstrations and exploration
+    assert {k: v for k, v in res.summary["seeds"].items() if k != "improve"} == \
+        without.summary["seeds"]
+    assert "improvement round" in (out / "results.md").read_text()
+
+
+def test_improvement_is_off_by_default_and_the_run_unchanged(improved):
+    without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                           settings=SMALL)
+    assert "improvement" not in without.summary
+    assert "improve" not in without.summary["seeds"]
