@@ -308,6 +308,36 @@ def test_an_option_that_ended_without_effect_may_start_again_once_the_state_move
         Controller([stay], FixedChoice([stay], "stay"), no_effect_tolerance=-1.0)
 
 
+def test_two_options_that_undo_each_other_are_not_chosen_again_where_the_loop_closes():
+    # "forward" (x < 0.5) and "back" (x > 0.5) each move one step and promise much more;
+    # "up" promises nothing but gets there: Eq. 1 alternates forward and back for ever
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.planning import OptionPlanner
+
+    def one_step(name, by, promise, where):
+        return Option(name, FunctionPolicy(lambda o, r: np.array([by])), _Shift(promise),
+                      ConstantTermination(1.0), initiation=InitiationFromCallable(where))
+
+    options = [one_step("forward", 1.0, 5.0, lambda s: s[:, 0] < 0.5),
+               one_step("back", -1.0, 4.0, lambda s: s[:, 0] > 0.5),
+               _option("up", 1.0)]
+
+    def run(tolerance):
+        planner = OptionPlanner(options, NoisyWalkGoal(0.0), horizon=2, samples=4)
+        return Controller(options, planner, max_decisions=30, loop_tolerance=tolerance,
+                          no_effect_tolerance=1e-6).run(Line(), np.random.default_rng(0))
+
+    looping = run(None)
+    assert not looping.success
+    assert [d.option for d in looping.decisions[:4]] == ["forward", "back"] * 2
+    trace = run(0.5)
+    assert trace.success
+    # back at x = 0, where "forward" started the loop: "up" instead
+    assert [d.option for d in trace.decisions] == ["forward", "back", "up"]
+    with pytest.raises(DynoplanError, match="loop_tolerance"):
+        Controller(options, FixedChoice(options, "up"), loop_tolerance=-1.0)
+
+
 def test_a_planners_copy_of_an_option_sees_where_its_run_ended_without_effect():
     # the planner may hold copies of the controller's options (noisy dynamics, other
     # feature maps): what the controller records must reach them

@@ -235,6 +235,11 @@ def pipeline(
         None, "--no-effect-share", **_bounds("control.no_effect_share"),
         help="Without --no-effect-tolerance, each coordinate's tolerance is this share of "
              "its spread over the fitted data (0: no such rule) [0.01]."),
+    loop_share: float | None = typer.Option(
+        None, "--loop-share", **_bounds("control.loop_share"),
+        help="Where the state comes back to where an earlier decision started an option "
+             "(each coordinate within this share of its spread over the fitted data), "
+             "that option does not start there again (0: no such rule) [0]."),
     start_where_done: bool | None = typer.Option(
         None, "--start-where-done/--no-start-where-done",
         help="An option may start where its termination is certain (it ends at its first "

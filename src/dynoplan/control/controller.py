@@ -22,6 +22,12 @@ An option that terminates where it started (no coordinate of the state moved mor
 ``no_effect_tolerance``) is not started again until the state leaves that spot
 (:meth:`~dynoplan.options.Option.ended_without_effect`): choosing it there again would
 end there again, for as long as the chooser's models promise progress from it.
+
+The same holds for a loop of two or more options (``loop_tolerance``): where the episode
+comes back to a state at which it made an earlier decision (every coordinate within the
+tolerance), the options chosen there did not get it anywhere, and none of them starts there again
+until the state leaves that spot (two options that undo each other: go behind a cube and
+retreat, reach and grasp at one spot).
 """
 
 import itertools
@@ -130,6 +136,10 @@ class Controller:
             more than this from where it started may not start again while the state
             stays that close (``None``: it may); a number, or one per coordinate
             ``(state_dim,)``.
+        loop_tolerance: where the state comes back within this (every coordinate) of a
+            state at which an earlier decision of the episode started an option, that
+            option may not start again while the state stays that close (``None``: no
+            such rule); a number, or one per coordinate ``(state_dim,)``.
     """
 
     def __init__(
@@ -146,6 +156,7 @@ class Controller:
         record_infos: bool = False,
         termination_every: int = 1,
         no_effect_tolerance: float | FloatArray | None = None,
+        loop_tolerance: float | FloatArray | None = None,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
@@ -156,6 +167,8 @@ class Controller:
         if no_effect_tolerance is not None and not np.all(
                 np.asarray(no_effect_tolerance) >= 0.0):
             raise DynoplanError(f"no_effect_tolerance must be >= 0, got {no_effect_tolerance}")
+        if loop_tolerance is not None and not np.all(np.asarray(loop_tolerance) >= 0.0):
+            raise DynoplanError(f"loop_tolerance must be >= 0, got {loop_tolerance}")
         self.chooser = chooser
         self.state_fn = state_fn
         self.max_decisions = max_decisions
@@ -167,6 +180,7 @@ class Controller:
         self.record_infos = record_infos
         self.termination_every = termination_every
         self.no_effect_tolerance = no_effect_tolerance
+        self.loop_tolerance = loop_tolerance
 
     def run(self, env: gym.Env[Any, Any], rng: Generator, seed: int | None = None,
             reset_options: dict[str, Any] | None = None) -> EpisodeTrace:
@@ -182,6 +196,8 @@ class Controller:
         terminated = truncated = False
         running: int | None = None  # an option interrupted by ``replan_every``
         for k in range(self.max_decisions):
+            if self.loop_tolerance is not None:
+                self._close_loops(trace, state)
             t0 = time.perf_counter()
             plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
@@ -241,6 +257,16 @@ class Controller:
                 break
         trace.success = self.success_fn(terminated, info)
         return trace
+
+    def _close_loops(self, trace: EpisodeTrace, state: FloatArray) -> None:
+        """Every option started at an earlier decision whose state ``state`` is back at
+        (within ``loop_tolerance``) may not start again while the state stays there. The
+        last decision is left to the no-effect rule: a loop takes two or more."""
+        assert self.loop_tolerance is not None
+        for d in trace.decisions[:-1]:
+            if d.option is not None and np.all(np.abs(state - d.state) <= self.loop_tolerance):
+                next(o for o in self.options if o.name == d.option).ended_without_effect(
+                    state, self.loop_tolerance)
 
     def _keep_running(self, plan: Plan, running: int | None) -> int | None:
         """The margin rule: keep an interrupted option unless beaten by ``margin``.

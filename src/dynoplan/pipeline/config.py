@@ -22,9 +22,9 @@ Every key is a field of :class:`~dynoplan.pipeline.PipelineSettings`, of
 :class:`~dynoplan.pipeline.ControllerSettings` (``[control]``), or one of
 :data:`TASK_KEYS`; paths and references are read from the current folder, as on the
 command line. A key left out keeps its default; ``replan_every = 0`` means "only when
-the option stops", ``no_effect_share = 0`` "no such rule". Any mistake (an unknown key,
-a value of the wrong kind or out of range) is one :class:`~dynoplan.errors.DynoplanError`
-naming the file and the key.
+the option stops", ``no_effect_share = 0`` and ``loop_share = 0`` "no such rule". Any
+mistake (an unknown key, a value of the wrong kind or out of range) is one
+:class:`~dynoplan.errors.DynoplanError` naming the file and the key.
 """
 
 import difflib
@@ -82,7 +82,7 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "control.margin": (0.0, math.inf), "control.max_decisions": (1, STEPS_MAX),
     "control.max_option_steps": (1, STEPS_MAX), "control.dynamics_noise": (0.0, math.inf),
     "control.epistemic": (0.0, 1e6), "control.no_effect_tolerance": (0.0, math.inf),
-    "control.no_effect_share": (0.0, math.inf),
+    "control.no_effect_share": (0.0, math.inf), "control.loop_share": (0.0, math.inf),
 }
 """Smallest and largest value of every numeric setting (the command line's flags have
 the same bounds)."""
@@ -188,7 +188,7 @@ def _convert(key: str, shown: str, hint: Any, value: Any) -> Any:
         value = _numbers(value, bad)
     if key == "control.replan_every":
         return None if _number(key, value, int, bad) == 0 else int(value)
-    if key == "control.no_effect_share":  # 0: no such rule
+    if key in _ZERO_IS_NONE:  # 0: no such rule
         share = _number(key, value, float, bad)
         return None if share == 0 else share
     if key == "control.hold_action":  # a number, or a list of numbers (a Box action)
@@ -223,6 +223,8 @@ def _convert(key: str, shown: str, hint: Any, value: Any) -> Any:
     raise bad(f"a {hint}")  # pragma: no cover - every field's type is handled above
 
 
+_ZERO_IS_NONE = ("control.no_effect_share", "control.loop_share")
+"""Settings whose 0 means "no such rule" (``None``; TOML has no ``None``)."""
 _LISTS = ("fit.dynamics_hidden", "control.hold_action")
 """Settings whose value a command line gives as comma-separated numbers."""
 
@@ -264,7 +266,7 @@ def settings_toml(task: Mapping[str, Any], settings: PipelineSettings) -> str:
             current = section
         owner: Any = getattr(settings, section) if section else settings
         value = getattr(owner, name)
-        if key in ("control.replan_every", "control.no_effect_share") and value is None:
+        if key in ("control.replan_every", *_ZERO_IS_NONE) and value is None:
             value = 0
         if value is None:
             lines.append(f"# {name}: not set (the default)")

@@ -80,6 +80,11 @@ class ControllerSettings:
         no_effect_share: without ``no_effect_tolerance``, the tolerance of each state
             coordinate is this share of its spread over the fitted data
             (``state_scale`` of :func:`make_controller`; ``None``: no such rule).
+        loop_share: where the state comes back to a state at which an earlier decision
+            of the episode was made, every coordinate within this share of its spread
+            over the fitted data, the options started there may not start again while
+            the state stays there (:class:`~dynoplan.control.Controller`'s
+            ``loop_tolerance``; ``None``: no such rule).
         fallback_own_sets: where no option may start under its learned initiation set
             (region, outcomes), the options whose own initiation sets hold may (the
             chooser picks among them as always; the options' ``fallback``); where the
@@ -108,6 +113,7 @@ class ControllerSettings:
     end_inside: bool = False
     no_effect_tolerance: float | None = None
     no_effect_share: float | None = 0.01
+    loop_share: float | None = None
     start_where_done: bool = False
     fallback_own_sets: bool = True
 
@@ -132,6 +138,8 @@ class ControllerSettings:
         if self.no_effect_share is not None and not self.no_effect_share >= 0.0:
             raise DynoplanError(
                 f"no_effect_share must be >= 0 or None, got {self.no_effect_share}")
+        if self.loop_share is not None and not self.loop_share >= 0.0:
+            raise DynoplanError(f"loop_share must be >= 0 or None, got {self.loop_share}")
         if self.no_effect_tolerance is not None and not self.no_effect_tolerance >= 0.0:
             raise DynoplanError(
                 f"no_effect_tolerance must be >= 0 or None, got {self.no_effect_tolerance}")
@@ -257,7 +265,9 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                       max_option_steps=settings.max_option_steps,
                       replan_every=None if alone else settings.replan_every,
                       margin=settings.margin, hold_action=hold,
-                      no_effect_tolerance=no_effect_tolerance(settings, state_scale))
+                      no_effect_tolerance=no_effect_tolerance(settings, state_scale),
+                      loop_tolerance=None if settings.loop_share is None or state_scale is None
+                      else settings.loop_share * np.asarray(state_scale, dtype=np.float64))
 
 
 def no_effect_tolerance(settings: ControllerSettings, state_scale: FloatArray | None
