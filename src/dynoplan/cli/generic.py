@@ -131,6 +131,10 @@ def pipeline(
         None, "--dynamics-max-updates", **_bounds("fit.dynamics_max_updates"),
         help="Fewer epochs when an option has so many transitions that --dynamics-epochs "
              "would take more gradient steps than this [no bound]."),
+    dynamics_min_updates: int | None = typer.Option(
+        None, "--dynamics-min-updates", **_bounds("fit.dynamics_min_updates"),
+        help="More epochs when an option has so few transitions that --dynamics-epochs "
+             "would take fewer gradient steps than this [no bound]."),
     goal_hidden: int | None = typer.Option(None, "--goal-hidden", **_bounds("fit.goal_hidden"),
                                            help="Hidden width of the goal network [64]."),
     goal_members: int | None = typer.Option(

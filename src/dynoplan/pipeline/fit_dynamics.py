@@ -47,13 +47,17 @@ DYNAMICS_BATCH = 256
 
 
 def dynamics_epochs(rows: int, settings: FitSettings) -> int:
-    """Epochs of an option's ensemble on ``rows`` transitions: ``dynamics_epochs``, fewer
-    (at least 5) when that would take more than ``dynamics_max_updates`` gradient steps
-    (the fit holds out 10 % of the rows)."""
+    """Epochs of an option's ensemble on ``rows`` transitions: ``dynamics_epochs``, more
+    when that would take fewer than ``dynamics_min_updates`` gradient steps, fewer (at
+    least 5) when it would take more than ``dynamics_max_updates`` (the fit holds out
+    10 % of the rows)."""
+    batches = max(1, -(-round(0.9 * rows) // DYNAMICS_BATCH))
+    epochs = settings.dynamics_epochs
+    if settings.dynamics_min_updates is not None:
+        epochs = max(epochs, -(-settings.dynamics_min_updates // batches))
     if settings.dynamics_max_updates is None:
-        return settings.dynamics_epochs
-    batches = -(-round(0.9 * rows) // DYNAMICS_BATCH)
-    return max(5, min(settings.dynamics_epochs, settings.dynamics_max_updates // batches))
+        return epochs
+    return max(5, min(epochs, settings.dynamics_max_updates // batches))
 
 def fit_dynamics(transitions: dict[str, tuple[FloatArray, FloatArray]], seed: int,
                  fitter: DynamicsFitter, min_transitions: int = 10,

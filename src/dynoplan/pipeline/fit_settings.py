@@ -24,6 +24,11 @@ class FitSettings:
         dynamics_max_updates: fewer epochs when an option has so many transitions that
             ``dynamics_epochs`` would take more gradient steps than this (at least 5;
             ``None``: no bound), which bounds the training time on large collections.
+        dynamics_min_updates: more epochs when an option has so few transitions that
+            ``dynamics_epochs`` would take fewer gradient steps than this (``None``: no
+            bound): 30 epochs of 264 transitions are 30 steps of 256 rows, and leave an
+            option model no better than "no change" (the hold-out still picks the epoch
+            kept).
         goal_hidden: hidden width of the goal network.
         goal_members: goal ensemble size.
         goal_epochs: training epochs of the goal network.
@@ -79,6 +84,7 @@ class FitSettings:
     dynamics_members: int = 5
     dynamics_epochs: int = 30
     dynamics_max_updates: int | None = None
+    dynamics_min_updates: int | None = None
     goal_hidden: int = 64
     goal_members: int = 1
     goal_epochs: int = 150
@@ -106,6 +112,9 @@ class FitSettings:
         if self.dynamics_members < 1 or self.dynamics_epochs < 1 or not self.dynamics_hidden:
             raise DynoplanError("dynamics_members, dynamics_epochs and dynamics_hidden must "
                                 "be positive")
+        if self.dynamics_min_updates is not None and self.dynamics_min_updates < 1:
+            raise DynoplanError(f"dynamics_min_updates must be >= 1 or None, got "
+                                f"{self.dynamics_min_updates}")
         if self.dynamics_max_updates is not None and self.dynamics_max_updates < 1:
             raise DynoplanError(f"dynamics_max_updates must be >= 1 or None, got "
                                 f"{self.dynamics_max_updates}")
