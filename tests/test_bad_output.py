@@ -1,0 +1,170 @@
+"""Issue 34: output folders that cannot be written, and leftovers of killed runs.
+
+A folder that exists but cannot be written (read-only, immutable, on a shared drive) is
+reported before any work, as one line ``dynoplan: error: cannot write to OUT: permission
+denied`` with exit status 2, and the target and its parent stay as they were (no staging
+folder, no ``.old`` folder). The staging folder of a run killed with SIGKILL is removed by
+the next run into the same target, which says so in one line.
+
+The read-only folders are made with ``chmod 0555``, or, for root (who writes through
+modes), with ``chattr +i``; the tests are skipped when neither can make a folder
+unwritable here.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from test_bad_input import (
+    CLI,
+    COMMANDS,
+    assert_one_line_error,
+    command,
+    invoke,
+    leftovers,
+)
+
+
+def _snapshot(folder: Path) -> dict[str, bytes | None]:
+    """Every entry under ``folder`` (hidden ones too), with a file's bytes."""
+    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(folder.rglob("*"))}
+
+
+def _writable(folder: Path) -> bool:
+    try:
+        (folder / ".probe").write_bytes(b"")
+    except OSError:
+        return False
+    (folder / ".probe").unlink()
+    return True
+
+
+@pytest.fixture
+def read_only() -> Iterator[Callable[[Path], None]]:
+    """``read_only(folder)`` makes ``folder`` unwritable until the test ends."""
+    made: list[tuple[Path, bool]] = []
+
+    def make(folder: Path) -> None:
+        if os.geteuid() != 0:
+            folder.chmod(0o555)
+            made.append((folder, False))
+        elif subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode:
+            pytest.skip("root, and chattr +i does not work here: no folder is read-only")
+        else:
+            made.append((folder, True))
+        if _writable(folder):
+            pytest.skip(f"{folder} stays writable (chmod 0555 / chattr +i had no effect)")
+
+    yield make
+    for folder, immutable in reversed(made):
+        if immutable:
+            subprocess.run(["chattr", "-i", str(folder)], check=True)
+        else:
+            folder.chmod(0o755)
+
+
+WRITERS = {**COMMANDS, "sweep": ["sweep", "CONFIG", "--out", "OUT", "--workers", "1"]}
+
+
+def _args(name: str, tmp_path: Path) -> list[str]:
+    if name != "sweep":
+        return command(name, tmp_path) + (["--index", "0"] if name == "gear episode" else [])
+    config = tmp_path / "grid.toml"
+    config.write_text('models = "m"\n[grid]\nhorizon = [5]\n')
+    return [{"CONFIG": str(config), "OUT": str(tmp_path / "out")}.get(a, a)
+            for a in WRITERS[name]]
+
+
+@pytest.mark.parametrize("name", list(WRITERS))
+def test_read_only_output_folder_is_one_line_before_any_work(tmp_path, monkeypatch, capsys,
+                                                             read_only, name):
+    args = _args(name, tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text('{"previous": true}')
+    read_only(out)
+    before = _snapshot(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    code, stdout, err = invoke(monkeypatch, capsys, *args)
+    assert_one_line_error(code, err)
+    assert err.strip() == f"dynoplan: error: cannot write to {out}: permission denied"
+    assert stdout == ""  # no progress line: nothing ran
+    assert _snapshot(tmp_path) == before and not leftovers(tmp_path)
+
+
+@pytest.mark.parametrize("name", ["random-walk", "gear train", "pipeline", "sweep"])
+def test_read_only_parent_is_one_line_before_any_work(tmp_path, monkeypatch, capsys,
+                                                      read_only, name):
+    """The target does not exist (or does, writable) but its staging folder cannot be
+    made beside it."""
+    args = _args(name, tmp_path)
+    read_only(tmp_path)
+    before = _snapshot(tmp_path)
+    code, _, err = invoke(monkeypatch, capsys, *args)
+    assert err.strip() == f"dynoplan: error: cannot write to {tmp_path}: permission denied"
+    assert_one_line_error(code, err)
+    assert _snapshot(tmp_path) == before
+
+
+def test_staged_folder_checks_before_the_block_runs(tmp_path, read_only):
+    """The library's own staged write: the error comes before the work, nothing made."""
+    from dynoplan.errors import DynoplanError
+    from dynoplan.io import staged_folder
+
+    out = tmp_path / "out"
+    out.mkdir()
+    read_only(out)
+    ran = []
+    with pytest.raises(DynoplanError, match="cannot write to .*out: permission denied"), \
+            staged_folder(out, keep=True):
+        ran.append(True)
+    assert not ran and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_staging_folder_of_a_killed_run_is_removed_by_the_next_run(tmp_path, monkeypatch,
+                                                                   capsys):
+    out = tmp_path / "rw"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen([*CLI, "random-walk", "--episodes", "100000", "--out", str(out),
+                             "--quiet"], stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 120
+    while not (staged := [p for p in tmp_path.iterdir() if p.name.endswith(".staging")]):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr
+        time.sleep(0.05)
+    time.sleep(0.3)  # inside the run
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert [p.exists() for p in staged] == [True]  # SIGKILL: no clean-up ran
+    assert staged[0].name.startswith(f".rw.{proc.pid}.")
+
+    code, stdout, err = invoke(monkeypatch, capsys, "random-walk", "--episodes", "1",
+                               "--out", str(out), "--quiet")
+    assert code == 0, err
+    assert err.strip().splitlines() == [
+        f"dynoplan: warning: removed {staged[0]}, left by process {proc.pid}, which no "
+        "longer runs"]
+    assert not leftovers(tmp_path) and sorted(p.name for p in tmp_path.iterdir()) == ["rw"]
+    assert (out / "notes.txt").read_text() == "the user's" and (out / "summary.json").is_file()
+
+
+def test_staging_folder_of_a_running_writer_is_kept(tmp_path):
+    """Only leftovers of processes that no longer run are removed, and only the target's
+    own (``.rw.5.x.staging`` is not a leftover of ``rw.5``... nor of ``rw``)."""
+    from dynoplan.io import staged_folder
+
+    alive = tmp_path / f".rw.{os.getppid()}.abc_123.staging"
+    other = tmp_path / ".rw.5.999.abcdefgh.staging"  # staging of a target named rw.5
+    for folder in (alive, other):
+        folder.mkdir()
+    with staged_folder(tmp_path / "rw"):
+        pass
+    assert alive.is_dir() and other.is_dir()
