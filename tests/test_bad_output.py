@@ -11,7 +11,9 @@ modes), with ``chattr +i``; the tests are skipped when neither can make a folder
 unwritable here.
 """
 
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -20,14 +22,11 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from test_bad_input import (
-    CLI,
-    COMMANDS,
-    assert_one_line_error,
-    command,
-    invoke,
-    leftovers,
-)
+
+import test_bad_input
+from test_bad_input import CLI, COMMANDS, assert_one_line_error, command, invoke, leftovers
+
+gear_models = test_bad_input.gear_models  # the fixture: a tiny valid gear models folder
 
 
 def _snapshot(folder: Path) -> dict[str, bytes | None]:
@@ -121,7 +120,7 @@ def test_staged_folder_checks_before_the_block_runs(tmp_path, read_only):
     out.mkdir()
     read_only(out)
     ran = []
-    with pytest.raises(DynoplanError, match="cannot write to .*out: permission denied"), \
+    with pytest.raises(DynoplanError, match=r"cannot write to .*out: permission denied"), \
             staged_folder(out, keep=True):
         ran.append(True)
     assert not ran and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
@@ -146,8 +145,8 @@ def test_staging_folder_of_a_killed_run_is_removed_by_the_next_run(tmp_path, mon
     assert [p.exists() for p in staged] == [True]  # SIGKILL: no clean-up ran
     assert staged[0].name.startswith(f".rw.{proc.pid}.")
 
-    code, stdout, err = invoke(monkeypatch, capsys, "random-walk", "--episodes", "1",
-                               "--out", str(out), "--quiet")
+    code, _, err = invoke(monkeypatch, capsys, "random-walk", "--episodes", "1",
+                          "--out", str(out), "--quiet")
     assert code == 0, err
     assert err.strip().splitlines() == [
         f"dynoplan: warning: removed {staged[0]}, left by process {proc.pid}, which no "
@@ -168,3 +167,68 @@ def test_staging_folder_of_a_running_writer_is_kept(tmp_path):
     with staged_folder(tmp_path / "rw"):
         pass
     assert alive.is_dir() and other.is_dir()
+
+
+# --- models folders and dataset targets (issue 34) ----------------------------------------
+
+def _manifest(folder: Path, change) -> None:
+    path = folder / "models.json"
+    path.write_text(json.dumps(change(json.loads(path.read_text()))))
+
+
+NEWER_MODELS_COMMANDS = {
+    "gear evaluate": ["gear", "evaluate", "--controllers", "random", "--episodes", "1",
+                      "--workers", "1", "--quiet", "--out", "OUT"],
+    "gear episode": ["gear", "episode", "--index", "0", "--controller", "random", "--out",
+                     "OUT"],
+    "gear option": ["gear", "option", "pick", "--trials", "1", "--quiet", "--out", "OUT"],
+    "gear demos": ["gear", "demos", "--n", "1", "--workers", "1", "--quiet", "--out", "OUT"],
+    "gear collect": ["gear", "collect", "--runs", "1", "--workers", "1", "--quiet", "--out",
+                     "OUT"],
+    "gear outcomes": ["gear", "outcomes", "--runs", "1", "--workers", "1", "--quiet",
+                      "--out", "OUT"],
+}
+
+
+@pytest.mark.parametrize("name", list(NEWER_MODELS_COMMANDS))
+def test_models_of_a_newer_format_are_refused_before_any_work(tmp_path, monkeypatch, capsys,
+                                                              gear_models, name):
+    from dynoplan.models.folder import FORMAT_VERSION
+
+    folder = tmp_path / "models"
+    shutil.copytree(gear_models, folder)
+    _manifest(folder, lambda m: {**m, "format_version": FORMAT_VERSION + 1})
+    before = _snapshot(tmp_path)
+    args = [str(tmp_path / "out") if a == "OUT" else a for a in NEWER_MODELS_COMMANDS[name]]
+    code, stdout, err = invoke(monkeypatch, capsys, *args, "--models", str(folder))
+    assert_one_line_error(code, err, f"format_version {FORMAT_VERSION + 1}",
+                          f"this dynoplan reads {FORMAT_VERSION}")
+    assert stdout == "" and _snapshot(tmp_path) == before
+
+
+def test_unknown_option_name_in_models_json_names_the_field(tmp_path, monkeypatch, capsys,
+                                                            gear_models):
+    folder = tmp_path / "models"
+    shutil.copytree(gear_models, folder)
+    _manifest(folder, lambda m: {**m, "option_names": [*m["option_names"][:-1], "nosuch"]})
+    code, _, err = invoke(monkeypatch, capsys, "gear", "evaluate", "--controllers", "random",
+                          "--episodes", "1", "--workers", "1", "--quiet", "--models",
+                          str(folder), "--out", str(tmp_path / "out"))
+    assert_one_line_error(code, err, "option_names", "nosuch")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("name", ["gear demos", "gear collect"])
+def test_dataset_out_holding_other_things_is_one_line_before_any_work(
+        tmp_path, monkeypatch, capsys, name):
+    """The option networks missing from MODELS would be trained first (a progress line,
+    minutes): the dataset target is checked before."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    before = _snapshot(tmp_path)
+    extra = ["--n", "1"] if name == "gear demos" else ["--runs", "1"]
+    code, stdout, err = invoke(monkeypatch, capsys, *command(name, tmp_path), *extra,
+                               "--workers", "1", "--quiet")
+    assert_one_line_error(code, err, f"{out}: exists and is not a dataset folder")
+    assert stdout == "" and _snapshot(tmp_path) == before

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from dynoplan.cli.params import folder, human_mode, out_folder, require_gear
+from dynoplan.cli.params import folder, human_mode, models_folder, out_folder, require_gear
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
     EPISODES_MAX,
@@ -123,7 +123,7 @@ def demos(
                                             "an operator chaining the four option "
                                             "policies) or expert (the scripted expert, "
                                             "with privileged state)."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Folder of the neural options' networks "
                                 "for --demonstrator options (trained there first if "
                                 "missing)."),
@@ -184,7 +184,7 @@ def option(
                              help="Trial i uses numpy default_rng([seed, i])."),
     out: Path = typer.Option(Path("results/gear-option"), callback=out_folder,
                              help="Output folder."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
     human: str | None = typer.Option(None, callback=human_mode,
@@ -228,7 +228,7 @@ def collect(
                              help="Run r of option k uses default_rng([seed, k, r])."),
     out: Path = typer.Option(Path("results/gear-transitions"), callback=out_folder,
                              help="Dataset folder."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
     max_decisions: int | None = typer.Option(None, min=1, max=STEPS_MAX,
@@ -261,7 +261,7 @@ def collect(
 
 @gear_app.command("outcomes")
 def outcomes(
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models): the option networks are read from it and "
                                 "the learned initiation is written into it."),
@@ -385,7 +385,7 @@ def train(
 
 @gear_app.command("figures")
 def figures(
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (dynoplan gear train)."),
     demos: Path = typer.Option(Path("results/gear-demos"), callback=folder,
                                help="Demonstrations dataset."),
@@ -465,7 +465,7 @@ def run(
 
 @gear_app.command("evaluate")
 def evaluate(
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
     out: Path = typer.Option(Path("results/gear-eval"), callback=out_folder,
@@ -538,7 +538,7 @@ def _planner_settings(horizon: int | None, samples: int | None, epistemic: float
 def episode(
     index: int = typer.Option(..., min=0, max=EPISODES_MAX - 1,
                               help="Evaluation episode, 0-based (as in episodes.json)."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
     controller: str = typer.Option("dynoplan", help="dynoplan, oracle, fixed_script, random "

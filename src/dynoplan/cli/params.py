@@ -41,6 +41,24 @@ def out_folder(value: Path | None) -> Path | None:
     return value
 
 
+def models_folder(value: Path | None) -> Path | None:
+    """typer callback of a models folder option (``--models``): as :func:`folder`, then
+    :func:`dynoplan.models.folder.check_format_version` (a ``models.json`` of a newer
+    dynoplan is refused before any work, also by commands that read only the option
+    networks of the folder).
+
+    Raises:
+        typer.BadParameter: the path is a file (one line, exit 2).
+        DynoplanError: a newer format version (one line, exit 2).
+    """
+    value = folder(value)
+    if value is not None and (value / "models.json").is_file():
+        from dynoplan.models.folder import check_format_version
+
+        check_format_version(value)
+    return value
+
+
 def human_mode(value: str | None) -> str | None:
     """typer callback of ``--human``: one of the gear's human modes, checked before any
     work (an option's networks are trained before its trials run).
@@ -67,4 +85,4 @@ def require_gear() -> None:
                             "does not have: pip install 'dynoplan[gear]'")
 
 
-__all__ = ["GEAR_MODULES", "folder", "human_mode", "out_folder", "require_gear"]
+__all__ = ["GEAR_MODULES", "folder", "human_mode", "models_folder", "out_folder", "require_gear"]

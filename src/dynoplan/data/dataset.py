@@ -119,7 +119,7 @@ def write_dataset(
         problem = _space_mismatch(episode, obs_space, act_space)
         if problem:
             raise DynoplanError(f"episode {index}: {problem}")
-    _check_replaceable(target)
+    check_dataset_target(target)
 
     with staged_folder(target) as tmp:
         data = tmp / DATA_DIR
@@ -220,8 +220,13 @@ def _fill_row(values: np.ndarray) -> np.ndarray:
     return np.full((1, *values.shape[1:]), fill, dtype=values.dtype)
 
 
-def _check_replaceable(target: Path) -> None:
-    """Only an empty folder or a dataset folder may be replaced: never delete other data."""
+def check_dataset_target(target: Path) -> None:
+    """Check that :func:`write_dataset` may write ``target``: missing, an empty folder or
+    a dataset folder (never delete other data). Commands call it before any work.
+
+    Raises:
+        DynoplanError: one line: ``target`` is a file, or a folder holding other things.
+    """
     if not target.exists():
         return
     if not target.is_dir():
