@@ -38,6 +38,10 @@ EPOCHS_MAX = 100_000
 POINTS_MAX = 100_000
 """States embedded by t-SNE in a figure."""
 
+DATASET_BYTES_MAX = 2**34
+"""Bytes the arrays of one dataset file may declare in all (16 GiB), checked before any
+is read: a chunked HDF5 dataset may declare any shape without storing it."""
+
 CELLS_MAX = 10_000
 """Cells (combinations) of one sweep grid."""
 
@@ -65,6 +69,6 @@ SETTING_BOUNDS: dict[str, tuple[float, float]] = {
 (:mod:`dynoplan.pipeline.config`; ``section.field`` keys); the command line's flags have
 the same bounds."""
 
-__all__ = ["CELLS_MAX", "EPISODES_MAX", "EPOCHS_MAX", "HORIZON_MAX", "POINTS_MAX",
-           "RANDOM_WALK_EPISODES_MAX", "SAMPLES_MAX", "SEED_MAX", "SETTING_BOUNDS",
+__all__ = ["CELLS_MAX", "DATASET_BYTES_MAX", "EPISODES_MAX", "EPOCHS_MAX", "HORIZON_MAX",
+           "POINTS_MAX", "RANDOM_WALK_EPISODES_MAX", "SAMPLES_MAX", "SEED_MAX", "SETTING_BOUNDS",
            "STEPS_MAX", "STRIDE_MAX"]
