@@ -358,7 +358,7 @@ class _Budget:
                 f"{self.file}: {where}: declares shape {shape} of {node.dtype} ({size} "
                 f"bytes), beyond the {DATASET_BYTES_MAX} bytes a dataset may hold")
         self.left -= size
-        return node[()]  # type: ignore[no-any-return]
+        return node[()]
 
 
 def _read_episode(h5: h5py.File, index: int, total: int, file: Path,
