@@ -301,9 +301,10 @@ def outcomes(
         transitions_beyond,
     )
     from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.io import write_json
+    from dynoplan.io import check_writable, write_json
     from dynoplan.parallel import parse_workers, ray_session
 
+    check_writable(models)  # initiation.json goes there, after the runs
     sizes = run_settings(quick).outcomes
     runs = sizes.runs if runs is None else runs
     max_decisions = sizes.max_decisions if max_decisions is None else max_decisions
