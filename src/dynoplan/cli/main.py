@@ -23,6 +23,8 @@ def main() -> None:
     interrupts.install()
     try:
         code = _run()
+    except SystemExit:  # aborted() in _run
+        raise
     except KeyboardInterrupt:
         interrupts.aborted()
     except BaseException:
@@ -31,7 +33,6 @@ def main() -> None:
         raise
     if interrupts.received:
         interrupts.aborted()
-    interrupts.at_shutdown()
     sys.exit(code)
 
 
@@ -59,6 +60,8 @@ def _run() -> int:
     except DynoplanError as exc:
         sys.stderr.write(f"dynoplan: error: {exc}\n")
         return 2
+    finally:  # the command is over: a signal from now on ends the process at once
+        interrupts.at_shutdown()
     return code if isinstance(code, int) else 0
 
 
