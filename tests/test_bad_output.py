@@ -232,3 +232,20 @@ def test_dataset_out_holding_other_things_is_one_line_before_any_work(
                                "--workers", "1", "--quiet")
     assert_one_line_error(code, err, f"{out}: exists and is not a dataset folder")
     assert stdout == "" and _snapshot(tmp_path) == before
+
+
+def test_sweep_of_models_of_a_newer_format_is_refused(tmp_path, monkeypatch, capsys,
+                                                      gear_models):
+    """Refused before any cell (finished cells would be reused without loading models)."""
+    from dynoplan.models.folder import FORMAT_VERSION
+
+    folder = tmp_path / "models"
+    shutil.copytree(gear_models, folder)
+    _manifest(folder, lambda m: {**m, "format_version": FORMAT_VERSION + 1})
+    config = tmp_path / "grid.toml"
+    config.write_text(f'models = "{folder}"\nepisodes = 1\n[grid]\nhorizon = [2]\n')
+    code, _, err = invoke(monkeypatch, capsys, "sweep", str(config), "--out",
+                          str(tmp_path / "out"), "--workers", "1", "--quiet")
+    assert_one_line_error(code, err, f"format_version {FORMAT_VERSION + 1}",
+                          f"this dynoplan reads {FORMAT_VERSION}")
+    assert not (tmp_path / "out").exists()
