@@ -1,6 +1,6 @@
 """``dynoplan pipeline``: DynoPlan on any Gymnasium environment from the command line.
 
-Mounted by ``cli/main.py`` as ``app.add_typer(generic_app, name="pipeline")``::
+Mounted by ``cli/app.py`` as ``app.add_typer(generic_app, name="pipeline")``::
 
     dynoplan pipeline --env MountainCarContinuous-v0 \\
         --options examples.mountain_car.options:make_options --out results/mountain-car
