@@ -570,6 +570,7 @@ LATE_REJECTIONS = {
 def test_rejected_command_leaves_no_output_folder(tmp_path, monkeypatch, capsys, name):
     extra, needle = LATE_REJECTIONS[name]
     monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(Path(__file__).parents[1]))  # examples/, from anywhere
     code, _, err = invoke(monkeypatch, capsys, *command(name, tmp_path), *extra)
     assert_one_line_error(code, err, needle)
     assert sorted(p.name for p in tmp_path.iterdir()) == [], err

@@ -380,6 +380,30 @@ def rewrite(folder: Path, path: str, values: np.ndarray | None) -> None:
             h5.create_dataset(path, data=values)
 
 
+def declare(folder: Path, path: str, shape: tuple[int, ...], dtype: str = "f8") -> None:
+    """Replace ``path`` by a chunked dataset that declares ``shape`` and stores nothing
+    (the file stays small; reading it would allocate all of it)."""
+    with h5py.File(folder / "data" / "main_data.hdf5", "a") as h5:
+        del h5[path]
+        h5.create_dataset(path, shape=shape, dtype=dtype, chunks=(1, *shape[1:2], *[1] * (
+            len(shape) - 2)), maxshape=(None, *shape[1:]))
+
+
+@pytest.mark.parametrize(("path", "shape", "needle"), [
+    ("episode_0/observations", (10**12, 10**9), "declares 1000000000000 rows"),
+    ("episode_1/actions", (3, 10**12), "beyond the"),
+    ("episode_1/infos/human/position", (10, 2**40, 4), "beyond the"),
+    ("episode_0/rewards", (17,), "more than total_steps + 1 = 16"),
+])
+def test_read_bounds_declared_shapes_before_reading(written, path, shape, needle):
+    """A file that declares a huge dataset is refused before any array is allocated."""
+    declare(written, path, shape)
+    assert (written / "data" / "main_data.hdf5").stat().st_size < 10**6
+    with pytest.raises(DynoplanError) as exc:
+        read_dataset(written)
+    assert_one_line_error(exc, "main_data.hdf5", path.partition("/")[2], needle)
+
+
 def test_read_missing_episode_group(written):
     rewrite(written, "episode_1", None)
     with pytest.raises(DynoplanError) as exc:

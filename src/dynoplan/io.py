@@ -2,23 +2,28 @@
 
 A reader never sees a half-written output: either the old file (folder), or the complete
 new one. Temporary names carry the writer's process id, so a leftover of a killed run is
-recognised (its process is gone) and removed by the next write of the same target.
+recognised (its process is gone) and removed by the next write of the same target, with a
+:class:`~dynoplan.errors.DynoplanWarning` naming it. :func:`check_writable` tells, before
+any work and creating nothing, whether a staged write of a folder can complete.
 :func:`read_json_object` reads the JSON documents dynoplan writes back, with one error
 line for a missing, unreadable or malformed file.
 """
 
 import csv
+import errno
 import json
 import os
+import re
 import shutil
 import signal
 import tempfile
+import warnings
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
-from dynoplan.errors import DynoplanError
+from dynoplan.errors import DynoplanError, DynoplanWarning
 
 
 @contextmanager
@@ -47,24 +52,33 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
             tmp.unlink()
 
 
-def remove_stale(folder: Path, prefix: str, suffix: str) -> None:
-    """Remove the entries ``<prefix><pid>.<anything><suffix>`` of ``folder`` whose process
-    ``pid`` no longer runs: temporary files or folders of a killed writer."""
+def remove_stale(folder: Path, prefix: str, suffix: str) -> list[Path]:
+    """Remove the entries ``<prefix><pid>.<random><suffix>`` of ``folder`` whose process
+    ``pid`` no longer runs: temporary files or folders of a killed writer (SIGKILL, a
+    machine that went down). Each removal is announced by one
+    :class:`~dynoplan.errors.DynoplanWarning`; the removed paths are returned. Entries
+    that cannot be removed stay, silently (the write that follows reports the folder)."""
     try:
         names = os.listdir(folder)
     except OSError:
-        return
-    for name in names:
-        if not (name.startswith(prefix) and name.endswith(suffix)):
-            continue
-        pid = name[len(prefix):].partition(".")[0]
-        if not pid.isdigit() or _running(int(pid)):
+        return []
+    pattern = re.compile(re.escape(prefix) + r"(\d+)\.[A-Za-z0-9_]+" + re.escape(suffix))
+    removed = []
+    for name in sorted(names):
+        match = pattern.fullmatch(name)
+        if match is None or _running(int(match.group(1))):
             continue
         stale = folder / name
         if stale.is_dir() and not stale.is_symlink():
             shutil.rmtree(stale, ignore_errors=True)
         else:
-            stale.unlink(missing_ok=True)
+            with suppress(OSError):
+                stale.unlink(missing_ok=True)
+        if not stale.exists() and not stale.is_symlink():
+            removed.append(stale)
+            warnings.warn(f"removed {stale}, left by process {match.group(1)}, which no "
+                          "longer runs", DynoplanWarning, stacklevel=2)
+    return removed
 
 
 def _running(pid: int) -> bool:
@@ -93,14 +107,12 @@ def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[
     until the new one is. The move runs with SIGINT and SIGTERM blocked.
 
     Raises:
-        DynoplanError: ``path`` is a file, or its parent cannot be created or written.
+        DynoplanError: see :func:`check_writable` (checked first: nothing is created then).
     """
     target = Path(path)
-    if target.exists() and not target.is_dir():
-        raise DynoplanError(f"{target}: is a file, expected a folder")
+    check_writable(target)
     created = _make_dirs(target.parent)
     try:
-        ensure_writable_dir(target.parent)
         prefix = f".{target.name}."
         for suffix in (".staging", ".old"):
             remove_stale(target.parent, prefix, suffix)
@@ -175,8 +187,7 @@ def _make_dirs(folder: Path) -> list[Path]:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise DynoplanError(f"output folder {folder} is not writable: "
-                            f"{exc.strerror}") from None
+        raise DynoplanError(f"cannot write to {folder}: {_reason(exc)}") from None
     return missing
 
 
@@ -246,6 +257,41 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[Path], None]) -> 
         writer(tmp)
 
 
+def check_writable(path: str | os.PathLike[str]) -> None:
+    """Check that the folder ``path`` can be written as :func:`staged_folder` writes it,
+    creating nothing that stays: files can be made in ``path`` when it exists (its entries
+    are replaced, or it is renamed aside), and in the nearest existing folder above it
+    (where the staging folder, and the folders missing on the way, are made).
+
+    Commands call it before any work, so that a read-only or immutable output folder
+    costs nothing and leaves nothing beside it.
+
+    Raises:
+        DynoplanError: ``path`` is a file, or ``cannot write to FOLDER: REASON`` (reason
+            ``permission denied`` for a read-only, immutable or foreign folder).
+    """
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise DynoplanError(f"{target}: is a file, expected a folder")
+    above = target.parent
+    while not above.exists() and above != above.parent:
+        above = above.parent
+    for folder in ([target] if target.is_dir() else []) + [above]:
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".write-check.", dir=folder)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            raise DynoplanError(f"cannot write to {folder}: {_reason(exc)}") from None
+
+
+def _reason(exc: OSError) -> str:
+    """What an ``OSError`` of a write means to a user, in lower case."""
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return "permission denied"
+    return (exc.strerror or str(exc)).lower()
+
+
 def ensure_writable_dir(path: str | os.PathLike[str]) -> Path:
     """Create ``path`` if needed and check that files can be created in it.
 
@@ -261,7 +307,7 @@ def ensure_writable_dir(path: str | os.PathLike[str]) -> Path:
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        raise DynoplanError(f"output folder {folder} is not writable: {exc.strerror}") from None
+        raise DynoplanError(f"cannot write to {folder}: {_reason(exc)}") from None
     return folder
 
 

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from dynoplan.cli.params import folder, human_mode, require_gear
+from dynoplan.cli.params import folder, human_mode, models_folder, out_folder, require_gear
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
     EPISODES_MAX,
@@ -82,7 +82,8 @@ def expert(
     episodes: int = typer.Option(100, min=1, max=EPISODES_MAX, help="Seeded episodes to run."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Seed from which every episode's seed is derived."),
-    out: Path = typer.Option(Path("results/gear-expert"), callback=folder, help="Output folder."),
+    out: Path = typer.Option(Path("results/gear-expert"), callback=out_folder,
+                             help="Output folder."),
     human: str | None = typer.Option(None, callback=human_mode,
                                      help="Force the human: away, cross or block."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -111,7 +112,7 @@ def demos(
                                  "run's, 10 as in the paper)."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Seed from which every episode's seed is derived."),
-    out: Path = typer.Option(Path("results/gear-demos"), callback=folder,
+    out: Path = typer.Option(Path("results/gear-demos"), callback=out_folder,
                              help="Dataset folder to write."),
     heldout: bool = typer.Option(False, "--heldout", help="Record the held-out trials "
                                  "instead (gear run's OUT/heldout): episodes of seeds "
@@ -122,7 +123,7 @@ def demos(
                                             "an operator chaining the four option "
                                             "policies) or expert (the scripted expert, "
                                             "with privileged state)."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Folder of the neural options' networks "
                                 "for --demonstrator options (trained there first if "
                                 "missing)."),
@@ -156,7 +157,8 @@ def demos(
 @gear_app.command("render")
 def render(
     seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Episode seed."),
-    out: Path = typer.Option(Path("results/gear-render"), callback=folder, help="Output folder."),
+    out: Path = typer.Option(Path("results/gear-render"), callback=out_folder,
+                             help="Output folder."),
     video: bool = typer.Option(True, "--video/--no-video", help="Also write episode.mp4."),
     human: str | None = typer.Option(None, callback=human_mode,
                                      help="Force the human: away, cross or block."),
@@ -180,8 +182,9 @@ def option(
                                help="Seeded trials from the option's own start region."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Trial i uses numpy default_rng([seed, i])."),
-    out: Path = typer.Option(Path("results/gear-option"), callback=folder, help="Output folder."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    out: Path = typer.Option(Path("results/gear-option"), callback=out_folder,
+                             help="Output folder."),
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
     human: str | None = typer.Option(None, callback=human_mode,
@@ -223,9 +226,9 @@ def collect(
                                     help="Runs per option (default: gear run's)."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Run r of option k uses default_rng([seed, k, r])."),
-    out: Path = typer.Option(Path("results/gear-transitions"), callback=folder,
+    out: Path = typer.Option(Path("results/gear-transitions"), callback=out_folder,
                              help="Dataset folder."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Folder of the neural options' networks "
                                 "(trained there first if missing)."),
     max_decisions: int | None = typer.Option(None, min=1, max=STEPS_MAX,
@@ -258,11 +261,11 @@ def collect(
 
 @gear_app.command("outcomes")
 def outcomes(
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models): the option networks are read from it and "
                                 "the learned initiation is written into it."),
-    out: Path = typer.Option(Path("results/gear-outcomes"), callback=folder,
+    out: Path = typer.Option(Path("results/gear-outcomes"), callback=out_folder,
                              help="Dataset folder of the outcome runs."),
     runs: int | None = typer.Option(None, min=1, max=EPISODES_MAX,
                                     help="Runs per option (default: gear run's, 30; 2 "
@@ -298,9 +301,10 @@ def outcomes(
         transitions_beyond,
     )
     from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.io import write_json
+    from dynoplan.io import check_writable, write_json
     from dynoplan.parallel import parse_workers, ray_session
 
+    check_writable(models)  # initiation.json goes there, after the runs
     sizes = run_settings(quick).outcomes
     runs = sizes.runs if runs is None else runs
     max_decisions = sizes.max_decisions if max_decisions is None else max_decisions
@@ -336,7 +340,7 @@ def train(
                                         help="Held-out trials (gear demos --heldout; "
                                         "default: recorded into OUT/heldout-demos by the "
                                         "demonstrations' demonstrator)."),
-    out: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    out: Path = typer.Option(DEFAULT_MODELS, callback=out_folder,
                              help="Models folder (metrics.json too; the "
                              "option networks too, trained there first if the held-out "
                              "trials need them)."),
@@ -382,13 +386,14 @@ def train(
 
 @gear_app.command("figures")
 def figures(
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (dynoplan gear train)."),
     demos: Path = typer.Option(Path("results/gear-demos"), callback=folder,
                                help="Demonstrations dataset."),
     heldout: Path | None = typer.Option(None, callback=folder, help="Held-out trials (default: "
                                         "MODELS/heldout-demos)."),
-    out: Path = typer.Option(Path("results/gear-figures"), callback=folder, help="Output folder."),
+    out: Path = typer.Option(Path("results/gear-figures"), callback=out_folder,
+                             help="Output folder."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX, help="t-SNE seed."),
     trial: int = typer.Option(0, min=0, max=EPISODES_MAX - 1,
                               help="Held-out trial drawn in Fig. 3(a)."),
@@ -412,7 +417,7 @@ def figures(
 
 @gear_app.command("run")
 def run(
-    out: Path = typer.Option(Path("results/gear"), callback=folder,
+    out: Path = typer.Option(Path("results/gear"), callback=out_folder,
                              help="Output folder (everything goes here)."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of every stage."),
     quick: bool = typer.Option(False, "--quick", help="Small settings of every stage (under "
@@ -461,10 +466,11 @@ def run(
 
 @gear_app.command("evaluate")
 def evaluate(
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
-    out: Path = typer.Option(Path("results/gear-eval"), callback=folder, help="Output folder."),
+    out: Path = typer.Option(Path("results/gear-eval"), callback=out_folder,
+                             help="Output folder."),
     controllers: str = typer.Option("dynoplan", help="Comma-separated controllers (learned "
                                     "parts only): dynoplan, random, oracle, fixed_script, "
                                     "flat_ppo; or a variant: dynoplan+rules, random+rules, "
@@ -533,14 +539,15 @@ def _planner_settings(horizon: int | None, samples: int | None, epistemic: float
 def episode(
     index: int = typer.Option(..., min=0, max=EPISODES_MAX - 1,
                               help="Evaluation episode, 0-based (as in episodes.json)."),
-    models: Path = typer.Option(DEFAULT_MODELS, callback=folder,
+    models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
                                 help="Models folder (gear train, or gear "
                                 "run's OUT/models)."),
     controller: str = typer.Option("dynoplan", help="dynoplan, oracle, fixed_script, random "
                                    "or a variant (see gear evaluate --help)."),
     seed: int = typer.Option(0, min=0, max=SEED_MAX,
                              help="Episodes are gear run's for the same seed."),
-    out: Path = typer.Option(Path("results/gear-episode"), callback=folder, help="Output folder."),
+    out: Path = typer.Option(Path("results/gear-episode"), callback=out_folder,
+                             help="Output folder."),
     video: bool = typer.Option(False, "--video", help="Also render the episode offscreen "
                                "to OUT/episode.mp4."),
     horizon: int | None = _horizon_option(),

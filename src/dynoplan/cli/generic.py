@@ -1,6 +1,6 @@
 """``dynoplan pipeline``: DynoPlan on any Gymnasium environment from the command line.
 
-Mounted by ``cli/main.py`` as ``app.add_typer(generic_app, name="pipeline")``::
+Mounted by ``cli/app.py`` as ``app.add_typer(generic_app, name="pipeline")``::
 
     dynoplan pipeline --env MountainCarContinuous-v0 \\
         --options examples.mountain_car.options:make_options --out results/mountain-car
@@ -12,18 +12,16 @@ overrides the file. The effective settings are written to ``OUT/settings.toml``.
 
 import shlex
 import sys
-import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import typer
 
-from dynoplan.cli.params import folder
+from dynoplan.cli.lines import warnings_as_lines
+from dynoplan.cli.params import folder, out_folder
 from dynoplan.cli.workers import ray_address_option, workers_option
-from dynoplan.errors import DynoplanError, DynoplanWarning
-from dynoplan.pipeline.config import BOUNDS
+from dynoplan.errors import DynoplanError
+from dynoplan.limits import SETTING_BOUNDS
 
 generic_app = typer.Typer(
     help="DynoPlan on any Gymnasium environment (a Box observation, or a Dict with a "
@@ -33,30 +31,9 @@ generic_app = typer.Typer(
 )
 
 
-@contextmanager
-def warnings_as_lines() -> Iterator[None]:
-    """Print every :class:`DynoplanWarning` as one line on stderr, when it is raised."""
-    shown = warnings.showwarning
-
-    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-             file: Any = None, line: str | None = None) -> None:
-        if issubclass(category, DynoplanWarning):
-            typer.echo(f"dynoplan: warning: {message}", err=True)
-        else:
-            shown(message, category, filename, lineno, file, line)
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("always", DynoplanWarning)
-        warnings.showwarning = show
-        try:
-            yield
-        finally:
-            warnings.showwarning = shown
-
-
 def _bounds(key: str) -> dict[str, Any]:
-    """typer's ``min``/``max`` of setting ``key`` (:data:`~dynoplan.pipeline.config.BOUNDS`)."""
-    low, high = BOUNDS[key]
+    """typer's ``min``/``max`` of setting ``key`` (:data:`~dynoplan.limits.SETTING_BOUNDS`)."""
+    low, high = SETTING_BOUNDS[key]
     return {k: v for k, v in (("min", low), ("max", high)) if abs(v) != float("inf")}
 
 
@@ -110,7 +87,7 @@ def pipeline(
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),
-    out: Path = typer.Option(Path("results/pipeline"), "--out", callback=folder,
+    out: Path = typer.Option(Path("results/pipeline"), "--out", callback=out_folder,
                              help="Output folder."),
     stride: int | None = typer.Option(None, "--stride", **_bounds("fit.stride"),
                                       help="Environment steps per model step [1]."),

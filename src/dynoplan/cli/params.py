@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from dynoplan.errors import DynoplanError
+from dynoplan.io import check_writable
 
 GEAR_MODULES = ("mujoco", "ompl", "mink", "daqp", "imageio", "stable_baselines3")
 """What the gear's commands import: the ``gear`` extra (the core install has none)."""
@@ -22,6 +23,39 @@ def folder(value: Path | None) -> Path | None:
     """
     if value is not None and value.exists() and not value.is_dir():
         raise typer.BadParameter(f"{value} is a file, expected a folder")
+    return value
+
+
+def out_folder(value: Path | None) -> Path | None:
+    """typer callback of an output folder option (``--out``): as :func:`folder`, then
+    :func:`dynoplan.io.check_writable`, so that a folder that cannot be written is
+    reported before any work and nothing is left beside it.
+
+    Raises:
+        typer.BadParameter: the path is a file (one line, exit 2).
+        DynoplanError: ``cannot write to FOLDER: permission denied`` (one line, exit 2).
+    """
+    value = folder(value)
+    if value is not None:
+        check_writable(value)
+    return value
+
+
+def models_folder(value: Path | None) -> Path | None:
+    """typer callback of a models folder option (``--models``): as :func:`folder`, then
+    :func:`dynoplan.models.folder.check_format_version` (a ``models.json`` of a newer
+    dynoplan is refused before any work, also by commands that read only the option
+    networks of the folder).
+
+    Raises:
+        typer.BadParameter: the path is a file (one line, exit 2).
+        DynoplanError: a newer format version (one line, exit 2).
+    """
+    value = folder(value)
+    if value is not None and (value / "models.json").is_file():
+        from dynoplan.models.folder import check_format_version
+
+        check_format_version(value)
     return value
 
 
@@ -51,4 +85,4 @@ def require_gear() -> None:
                             "does not have: pip install 'dynoplan[gear]'")
 
 
-__all__ = ["GEAR_MODULES", "folder", "human_mode", "require_gear"]
+__all__ = ["GEAR_MODULES", "folder", "human_mode", "models_folder", "out_folder", "require_gear"]

@@ -18,6 +18,7 @@ reader drops the first row.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ from dynoplan.data.metadata import (
 )
 from dynoplan.errors import DynoplanError
 from dynoplan.io import staged_folder, write_json
+from dynoplan.limits import DATASET_BYTES_MAX
 
 DATA_DIR = "data"
 MAIN_FILE = "main_data.hdf5"
@@ -119,7 +121,7 @@ def write_dataset(
         problem = _space_mismatch(episode, obs_space, act_space)
         if problem:
             raise DynoplanError(f"episode {index}: {problem}")
-    _check_replaceable(target)
+    check_dataset_target(target)
 
     with staged_folder(target) as tmp:
         data = tmp / DATA_DIR
@@ -164,7 +166,7 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
                 f"{DATA_DIR}/{MAIN_FILE} and {DATA_DIR}/{METADATA_FILE})"
             )
     metadata, total_episodes, total_steps = read_metadata(meta_file)
-    episodes = _read_hdf5(main_file, total_episodes)
+    episodes = _read_hdf5(main_file, total_episodes, total_steps)
     for index, episode in enumerate(episodes):
         where = f"{main_file}: episode_{index}"
         problem = _space_mismatch(episode, metadata.observation_space, metadata.action_space)
@@ -220,8 +222,13 @@ def _fill_row(values: np.ndarray) -> np.ndarray:
     return np.full((1, *values.shape[1:]), fill, dtype=values.dtype)
 
 
-def _check_replaceable(target: Path) -> None:
-    """Only an empty folder or a dataset folder may be replaced: never delete other data."""
+def check_dataset_target(target: Path) -> None:
+    """Check that :func:`write_dataset` may write ``target``: missing, an empty folder or
+    a dataset folder (never delete other data). Commands call it before any work.
+
+    Raises:
+        DynoplanError: one line: ``target`` is a file, or a folder holding other things.
+    """
     if not target.exists():
         return
     if not target.is_dir():
@@ -311,10 +318,12 @@ def _space_mismatch(episode: Episode, obs_space: Space | None, act_space: Space 
 # --- reading -----------------------------------------------------------------------
 
 
-def _read_hdf5(file: Path, total_episodes: int) -> list[Episode]:
+def _read_hdf5(file: Path, total_episodes: int, total_steps: int) -> list[Episode]:
+    budget = _Budget(file, total_steps + 1, DATASET_BYTES_MAX)
     try:
         with h5py.File(file, "r") as h5:
-            return [_read_episode(h5, i, total_episodes, file) for i in range(total_episodes)]
+            return [_read_episode(h5, i, total_episodes, file, budget)
+                    for i in range(total_episodes)]
     except (OSError, RuntimeError) as exc:  # h5py's report of a truncated or corrupt file
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise DynoplanError(
@@ -322,7 +331,38 @@ def _read_hdf5(file: Path, total_episodes: int) -> list[Episode]:
         ) from None
 
 
-def _read_episode(h5: h5py.File, index: int, total: int, file: Path) -> Episode:
+class _Budget:
+    """What the arrays of one HDF5 file may declare, checked before each is read (a
+    chunked dataset declares any shape without storing it, and reading it would allocate
+    all of it): at most ``rows`` rows each (``total_steps + 1`` of the metadata) and
+    ``nbytes`` bytes in all."""
+
+    def __init__(self, file: Path, rows: int, nbytes: int) -> None:
+        self.file, self.rows, self.left = file, rows, nbytes
+
+    def read(self, node: h5py.Dataset, where: str) -> np.ndarray:
+        """``node``'s values, once its declared shape fits.
+
+        Raises:
+            DynoplanError: more rows than the metadata's steps allow, or more bytes than
+                :data:`~dynoplan.limits.DATASET_BYTES_MAX` with the arrays read before.
+        """
+        shape = tuple(int(n) for n in node.shape or ())
+        if shape and shape[0] > self.rows:
+            raise DynoplanError(
+                f"{self.file}: {where}: declares {shape[0]} rows, more than total_steps + 1 "
+                f"= {self.rows} of {METADATA_FILE}")
+        size = math.prod(shape) * node.dtype.itemsize
+        if size > self.left:
+            raise DynoplanError(
+                f"{self.file}: {where}: declares shape {shape} of {node.dtype} ({size} "
+                f"bytes), beyond the {DATASET_BYTES_MAX} bytes a dataset may hold")
+        self.left -= size
+        return node[()]
+
+
+def _read_episode(h5: h5py.File, index: int, total: int, file: Path,
+                  budget: _Budget) -> Episode:
     name = f"episode_{index}"
     group = h5.get(name)
     if not isinstance(group, h5py.Group):
@@ -334,7 +374,7 @@ def _read_episode(h5: h5py.File, index: int, total: int, file: Path) -> Episode:
         node = group.get(key)
         if not isinstance(node, h5py.Dataset):
             raise DynoplanError(f"{file}: {name}/{key}: dataset is missing")
-        arrays[key] = node[()]
+        arrays[key] = budget.read(node, f"{name}/{key}")
     if np.ndim(arrays["rewards"]) != 1:
         shape = np.shape(arrays["rewards"])
         raise DynoplanError(f"{file}: {name}/rewards: expected shape (T,), got {shape}")
@@ -342,7 +382,7 @@ def _read_episode(h5: h5py.File, index: int, total: int, file: Path) -> Episode:
     infos: dict[str, np.ndarray] = {}
     node = group.get("infos")
     if isinstance(node, h5py.Group):
-        for key, values in _flatten(node).items():
+        for key, values in _flatten(node, budget, f"{name}/infos/").items():
             if values.ndim < 1 or values.shape[0] != steps + 1:
                 raise DynoplanError(
                     f"{file}: {name}/infos/{key}: expected T+1 = {steps + 1} rows (the reset "
@@ -356,12 +396,13 @@ def _read_episode(h5: h5py.File, index: int, total: int, file: Path) -> Episode:
         raise DynoplanError(f"{file}: {name}/{exc.field}: {exc.detail}") from None
 
 
-def _flatten(group: h5py.Group, prefix: str = "") -> dict[str, np.ndarray]:
+def _flatten(group: h5py.Group, budget: _Budget, where: str,
+             prefix: str = "") -> dict[str, np.ndarray]:
     """Nested info groups become ``"outer/inner"`` keys, as Minari nests dict infos."""
     out: dict[str, np.ndarray] = {}
     for key, node in group.items():
         if isinstance(node, h5py.Group):
-            out.update(_flatten(node, f"{prefix}{key}/"))
+            out.update(_flatten(node, budget, where, f"{prefix}{key}/"))
         elif isinstance(node, h5py.Dataset):
-            out[f"{prefix}{key}"] = node[()]
+            out[f"{prefix}{key}"] = budget.read(node, f"{where}{prefix}{key}")
     return out

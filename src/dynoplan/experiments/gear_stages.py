@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dynoplan.data import read_dataset
+from dynoplan.data.dataset import check_dataset_target
 from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
 from dynoplan.envs.gear.learning.files import HELDOUT_DIR
 from dynoplan.envs.gear.learning.settings import (
@@ -80,6 +81,7 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
     from dynoplan.envs.gear.learning.demos import record_demos
 
     check_request(n, human_mode, demonstrator, count_flag="--n")  # before any training
+    check_dataset_target(out)
     if demonstrator == "options":
         option_networks(models, seed, workers=workers, log=log)
     return record_demos(n, seed + HELDOUT_SEED_OFFSET if heldout else seed, out, progress,
@@ -96,6 +98,7 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
     from dynoplan.envs.gear.learning.transitions import check_collection, collect_gear_transitions
 
     check_collection(runs, max_decisions)
+    check_dataset_target(out)
     option_networks(models, seed, workers=workers, log=log)
     return collect_gear_transitions(models, runs, seed, out, max_decisions=max_decisions,
                                progress=progress, workers=workers)

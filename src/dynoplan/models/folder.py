@@ -151,11 +151,14 @@ def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
 
 
 def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the models again",
-                  with_initiation: bool = True) -> Manifest:
+                  with_initiation: bool = True,
+                  known_options: Sequence[str] | None = None) -> Manifest:
     """Read and check ``folder/models.json`` (module docstring); no model is loaded.
 
     Args:
         retrain: how to make a new folder, said when the folder is missing or old.
+        known_options: the options the task has (``None``: any name); a name of field
+            ``option_names`` not among them is refused.
         with_initiation: ``False`` leaves the learned initiation out (not checked, and
             ``None`` in the result): for replacing it.
 
@@ -171,6 +174,7 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
     if not path.is_file():
         raise DynoplanError(f"{path}: not found, not a models folder ({retrain})")
     doc = read_json_object(path, "models manifest")
+    _refuse_newer(path, doc, retrain)
     kind, version = doc.get("kind"), doc.get("format_version")
     older = kind == "gear_models" or (kind is None and "option_names" in doc)
     if kind != KIND and not older:
@@ -194,6 +198,11 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
     if not names or not all(isinstance(n, str) and n for n in names) or \
             len(set(names)) != len(names):
         raise DynoplanError(f"{path}: field 'option_names' must list distinct names")
+    unknown = [n for n in names if known_options is not None and n not in known_options]
+    if unknown:
+        raise DynoplanError(f"{path}: field 'option_names' names unknown option(s) "
+                            f"{', '.join(map(repr, unknown))}; this task's options are "
+                            f"{', '.join(known_options or ())}")
     use_regions = need("use_regions", bool, "true or false")
 
     def inside(entry: Any, what: str) -> Path:
@@ -221,7 +230,8 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
     regions = None if doc.get("regions") is None else model("regions", "the safety regions")
     entries = doc.get("dynamics")
     if not isinstance(entries, dict) or sorted(entries) != sorted(names):
-        raise DynoplanError(f"{path}: field 'dynamics' must list the options {names}")
+        raise DynoplanError(f"{path}: field 'dynamics' must list the options of field "
+                            f"'option_names', {names}")
     dynamics = {name: None if entries[name] is None else inside(entries[name],
                                                                 f"dynamics of {name}")
                 for name in names}
@@ -230,6 +240,30 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
     return Manifest(root, task, state_dim, [str(n) for n in names], stride, use_regions,
                     goal, regions, dynamics, {k: v for k, v in doc.items() if k not in _CORE},
                     initiation)
+
+
+def check_format_version(folder: str | os.PathLike[str],
+                         retrain: str = "train the models again") -> None:
+    """Refuse a models folder whose ``models.json`` declares a newer format than this
+    dynoplan reads; a folder without one passes (commands that read only some files of
+    it, such as the gear's option networks, call it before any work).
+
+    Raises:
+        DynoplanError: one line naming the version declared and the one this dynoplan
+            reads; an unreadable manifest.
+    """
+    path = Path(folder) / MANIFEST_FILE
+    if path.is_file():
+        _refuse_newer(path, read_json_object(path, "models manifest"), retrain)
+
+
+def _refuse_newer(path: Path, doc: Mapping[str, Any], retrain: str) -> None:
+    version = doc.get("format_version")
+    if isinstance(version, int) and not isinstance(version, bool) and \
+            version > FORMAT_VERSION:
+        raise DynoplanError(f"{path}: format_version {version}: this dynoplan reads "
+                            f"{FORMAT_VERSION} (a newer dynoplan wrote these models: "
+                            f"upgrade dynoplan, or {retrain})")
 
 
 def set_initiation(folder: str | os.PathLike[str], file: str,
@@ -248,5 +282,5 @@ def set_initiation(folder: str | os.PathLike[str], file: str,
 
 
 __all__ = ["FORMAT_VERSION", "GOAL_FILE", "INITIATION_FILE", "KIND", "MANIFEST_FILE",
-           "REGIONS_FILE", "Manifest", "ModelEntry", "dynamics_file", "file_sha256",
-           "read_manifest", "set_initiation", "write_manifest"]
+           "REGIONS_FILE", "Manifest", "ModelEntry", "check_format_version", "dynamics_file",
+           "file_sha256", "read_manifest", "set_initiation", "write_manifest"]

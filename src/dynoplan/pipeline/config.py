@@ -39,15 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.limits import (
-    EPISODES_MAX,
-    EPOCHS_MAX,
-    HORIZON_MAX,
-    SAMPLES_MAX,
-    SEED_MAX,
-    STEPS_MAX,
-    STRIDE_MAX,
-)
+from dynoplan.limits import SETTING_BOUNDS
 from dynoplan.pipeline.evaluate import ControllerSettings
 from dynoplan.pipeline.fit import FitSettings
 from dynoplan.pipeline.run import PipelineSettings
@@ -64,29 +56,9 @@ UNUSED = {"control": UNUSED_CONTROL, "fit": UNUSED_FIT}
 SECTIONS: dict[str, type] = {"": PipelineSettings, "fit": FitSettings,
                              "control": ControllerSettings}
 
-BOUNDS: dict[str, tuple[float, float]] = {
-    "demos": (1, EPISODES_MAX), "exploration_episodes": (1, EPISODES_MAX),
-    "exploration_option_steps": (1, STEPS_MAX), "episodes": (1, EPISODES_MAX),
-    "seed": (0, SEED_MAX), "improve": (0, 100), "improve_episodes": (1, EPISODES_MAX),
-    "fit.stride": (1, STRIDE_MAX), "fit.dynamics_members": (1, 100),
-    "fit.dynamics_epochs": (1, EPOCHS_MAX), "fit.goal_hidden": (1, 100_000),
-    "fit.goal_members": (1, 100), "fit.goal_epochs": (1, EPOCHS_MAX),
-    "fit.region_coverage": (0.0, 1.0), "fit.region_slack": (0.0, math.inf),
-    "fit.region_components": (1, 100), "fit.region_max_components": (1, 100),
-    "fit.region_folds": (2, 1000), "fit.region_reg_covar": (0.0, math.inf),
-    "fit.outcome_min_gain": (-math.inf, math.inf),
-    "fit.dynamics_max_updates": (1, 10**9), "fit.dynamics_min_updates": (1, 10**9),
-    "fit.goal_ranking": (0.0, math.inf),
-    "fit.region_cv_coverage": (0.0, 1.0),
-    "control.horizon": (1, HORIZON_MAX), "control.samples": (1, SAMPLES_MAX),
-    "control.risk": (-1e6, 1e6), "control.replan_every": (0, STEPS_MAX),
-    "control.margin": (0.0, math.inf), "control.max_decisions": (1, STEPS_MAX),
-    "control.max_option_steps": (1, STEPS_MAX), "control.dynamics_noise": (0.0, math.inf),
-    "control.epistemic": (0.0, 1e6), "control.no_effect_tolerance": (0.0, math.inf),
-    "control.no_effect_share": (0.0, math.inf), "control.loop_share": (0.0, math.inf),
-}
-"""Smallest and largest value of every numeric setting (the command line's flags have
-the same bounds)."""
+BOUNDS = SETTING_BOUNDS
+"""Smallest and largest value of every numeric setting (:data:`dynoplan.limits.SETTING_BOUNDS`,
+where the command line's flags read them without importing the pipeline)."""
 
 
 def setting_keys() -> list[str]:

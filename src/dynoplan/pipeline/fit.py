@@ -247,19 +247,22 @@ class FittedModels:
     @classmethod
     def load(cls, folder: str | os.PathLike[str],
              feature_maps: Mapping[str, FeatureMap] | None = None,
-             retrain: str = "train the models again") -> "FittedModels":
+             retrain: str = "train the models again",
+             known_options: Sequence[str] | None = None) -> "FittedModels":
         """Read a models folder (MLP-ensemble dynamics).
 
         Args:
             feature_maps: the task's named feature maps, for models fitted on one.
             retrain: how to make a new folder, said when the folder is missing or old.
+            known_options: the task's options (``None``: any); another name in the
+                manifest's ``option_names`` is refused.
 
         Raises:
             DynoplanError: one line: a missing, old or malformed manifest, a file outside
                 the folder, missing or modified, or a model that does not fit the
                 manifest (another option, state size or feature map).
         """
-        manifest = read_manifest(folder, retrain)
+        manifest = read_manifest(folder, retrain, known_options=known_options)
         index = manifest.folder / MANIFEST_FILE
         maps = dict(feature_maps or {})
 

@@ -27,7 +27,7 @@ from typing import Any
 
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
-from dynoplan.models.folder import MANIFEST_FILE
+from dynoplan.models.folder import MANIFEST_FILE, check_format_version
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.pipeline.evaluate import (
     ControllerJob,
@@ -125,6 +125,7 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
     """
     config = sweep.config(config_path)
     manifest = config.models / MANIFEST_FILE
+    check_format_version(config.models)  # finished cells are reused without loading them
     try:
         models_sha256 = hashlib.sha256(manifest.read_bytes()).hexdigest()
     except OSError:

@@ -31,7 +31,7 @@ from dynoplan.envs.gear.learning.files import HELDOUT_DIR, load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
 from dynoplan.envs.gear.state import PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.io import ensure_writable_dir, write_json, write_with
+from dynoplan.io import check_writable, staged_folder, write_json, write_with
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.pipeline.fit import GoalModel
 from dynoplan.progress import track
@@ -214,7 +214,7 @@ def make_gear_figures(models: Path, demos: Path, heldout: Path | None, out: Path
         raise DynoplanError(f"--trial must be in 0..{len(held_set) - 1}, got {trial}")
     if max_points < 10:
         raise DynoplanError(f"max_points must be >= 10, got {max_points}")
-    out = ensure_writable_dir(out)
+    check_writable(out)  # before the t-SNE
     planner = PlannerState()
     train, held = _trial_arrays(train_set, planner), _trial_arrays(held_set, planner)
     states, truth, labels, interrupted = held[trial]
@@ -227,33 +227,34 @@ def make_gear_figures(models: Path, demos: Path, heldout: Path | None, out: Path
     rng = np.random.default_rng(seed)
     keep = np.sort(rng.choice(len(all_states), size=min(max_points, len(all_states)),
                               replace=False))
-    numbers: dict[str, dict[str, Any]] = {}
+    with staged_folder(out) as stage:  # the figures and figures.json together, or none
+        numbers: dict[str, dict[str, Any]] = {}
 
-    def fig3a() -> None:
-        numbers["fig3a"] = plot_goal_trial(
-            loaded.goal, states, truth, labels, out / GOAL_FIGURE,
-            f"goal heuristic on held-out trial {trial} (env seed {seed_of}, human {mode})",
-            loaded.option_names)
+        def fig3a() -> None:
+            numbers["fig3a"] = plot_goal_trial(
+                loaded.goal, states, truth, labels, stage / GOAL_FIGURE,
+                f"goal heuristic on held-out trial {trial} (env seed {seed_of}, human {mode})",
+                loaded.option_names)
 
-    def fig3b() -> None:
-        numbers["fig3b"] = plot_tsne_regions(
-            all_states[keep], all_labels[keep], all_flags[keep], regions,
-            out / TSNE_FIGURE, seed,
-            f"t-SNE of {len(keep)} planner states from {len(pool)} trials "
-            f"({sum(bool(p[2][0]) for p in pool)} with the human interfering)",
-            loaded.option_names)
+        def fig3b() -> None:
+            numbers["fig3b"] = plot_tsne_regions(
+                all_states[keep], all_labels[keep], all_flags[keep], regions,
+                stage / TSNE_FIGURE, seed,
+                f"t-SNE of {len(keep)} planner states from {len(pool)} trials "
+                f"({sum(bool(p[2][0]) for p in pool)} with the human interfering)",
+                loaded.option_names)
 
-    for draw in track([fig3a, fig3b], "gear figures", total=2, enabled=progress):
-        draw()
-    summary = {
-        "fig3a": {"file": str(out / GOAL_FIGURE), "heldout": str(heldout), "trial": trial,
-                  "env_seed": seed_of, "human_mode": mode, "interrupted": interrupted,
-                  **numbers["fig3a"]},
-        "fig3b": {"file": str(out / TSNE_FIGURE), "trials": len(train) + len(held),
-                  **numbers["fig3b"]},
-        "models": str(models),
-        "seed": seed,
-    }
-    write_json(out / "figures.json", summary)
+        for draw in track([fig3a, fig3b], "gear figures", total=2, enabled=progress):
+            draw()
+        summary = {
+            "fig3a": {"file": str(out / GOAL_FIGURE), "heldout": str(heldout), "trial": trial,
+                      "env_seed": seed_of, "human_mode": mode, "interrupted": interrupted,
+                      **numbers["fig3a"]},
+            "fig3b": {"file": str(out / TSNE_FIGURE), "trials": len(train) + len(held),
+                      **numbers["fig3b"]},
+            "models": str(models),
+            "seed": seed,
+        }
+        write_json(stage / "figures.json", summary)
     return summary
 

@@ -57,11 +57,11 @@ def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
             dimension, option names or decision rate other than this version's gear
             assembly's with the registered options, or no regions.
     """
-    models = FittedModels.load(folder, FEATURE_MAPS, RETRAIN)
+    names = list(gear_option_names())
+    models = FittedModels.load(folder, FEATURE_MAPS, RETRAIN, known_options=names)
     path = Path(folder) / MANIFEST_FILE
     found = {"task": models.task, "state_dim": models.state_dim,
              "option_names": models.option_names, "stride": models.stride}
-    names = list(gear_option_names())
     expected = {"task": TASK_NAME, "state_dim": STATE_DIM, "option_names": names,
                 "stride": DECISION_STEPS}
     for key, value in expected.items():

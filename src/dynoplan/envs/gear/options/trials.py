@@ -23,7 +23,7 @@ from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
 from dynoplan.envs.gear.options.catalog import gear_option
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.errors import DynoplanError
-from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.io import check_writable, staged_folder, write_json
 from dynoplan.options.termination import ConstantTermination
 from dynoplan.pipeline.collect import OptionRun, RunStart, record_episode
 from dynoplan.pipeline.evaluate import quantile_or_none
@@ -117,8 +117,9 @@ def run_option_trials(option: str, factory: GearPolicyFactory, trials: int, seed
                       video: bool = False, progress: bool = True,
                       extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run ``trials`` seeded trials of ``option``; write ``out/summary.json`` and, with
-    ``video``, ``out/{option}.mp4`` of trial 0. Returns the summary; ``option`` must be
-    registered (:mod:`~dynoplan.envs.gear.options.catalog`)."""
+    ``video``, ``out/{option}.mp4`` of trial 0, staged (:func:`~dynoplan.io.staged_folder`:
+    both or neither; ``out`` is checked writable before the trials). Returns the summary;
+    ``option`` must be registered (:mod:`~dynoplan.envs.gear.options.catalog`)."""
     gear_option(option)
     if trials < 1:
         raise DynoplanError(f"--trials must be >= 1, got {trials}")
@@ -127,7 +128,7 @@ def run_option_trials(option: str, factory: GearPolicyFactory, trials: int, seed
     if human_mode is not None and human_mode not in HUMAN_MODES:
         raise DynoplanError(f"--human must be one of {', '.join(HUMAN_MODES)}, "
                             f"got {human_mode!r}")
-    folder = ensure_writable_dir(out)
+    check_writable(out)  # before the trials
     env = GearAssemblyEnv(render_mode="rgb_array" if video else None)
     frames: list[npt.NDArray[np.uint8]] = []
     t0 = time.perf_counter()
@@ -140,10 +141,12 @@ def run_option_trials(option: str, factory: GearPolicyFactory, trials: int, seed
     finally:
         env.close()
     summary = summarise_trials(option, results, seed, time.perf_counter() - t0, extra)
-    if video:
-        summary["video"] = str(write_mp4(folder / f"{option}.mp4", frames,
-                                         fps=int(env.metadata["render_fps"])))
-    write_json(folder / "summary.json", summary)
+    with staged_folder(out) as folder:  # out's files replaced together, or none
+        if video:
+            written = write_mp4(folder / f"{option}.mp4", frames,
+                                fps=int(env.metadata["render_fps"]))
+            summary["video"] = str(out / written.name)
+        write_json(folder / "summary.json", summary)
     return summary
 
 
