@@ -208,3 +208,52 @@ def admissible(options: Sequence[Option], state: np.ndarray,
     if may_run.any() or all(o.fallback is None for o in options):
         return may_run
     return np.array([o.may_fall_back(state) for o in options], dtype=bool)
+
+
+def admissible_batch(options: Sequence[Option], states: np.ndarray,
+                     running: np.ndarray | None = None) -> BoolArray:
+    """:func:`admissible` for many states at once: ``(options, batch)`` booleans.
+
+    Args:
+        options: the options, in order.
+        states: ``(batch, state_dim)`` planner states.
+        running: ``(batch,)`` the index of the option running at each state, ``-1`` where
+            none runs (default: none anywhere).
+
+    Each state is judged exactly as :func:`admissible` judges it alone: the running
+    option by its continuation set, the others by their initiation sets (not where
+    their last run ended without effect, nor where their termination is certain unless
+    they may start there); where that leaves no option, the options' fallback sets.
+    """
+    s = np.asarray(states, dtype=np.float64)
+    n = s.shape[0]
+    run = np.full(n, -1, dtype=np.int64) if running is None else np.asarray(running)
+    blocked = np.stack([_blocked(o, s) for o in options])  # (options, batch)
+    may = np.empty((len(options), n), dtype=bool)
+    for k, o in enumerate(options):
+        may[k] = np.asarray(o.initiation.contains(s), dtype=bool) & ~blocked[k]
+        goes_on = run == k
+        if goes_on.any():
+            may[k, goes_on] = np.asarray(o.continuation_set.contains(s[goes_on]), dtype=bool)
+    stuck = ~may.any(axis=0)
+    if stuck.any() and any(o.fallback is not None for o in options):
+        for k, o in enumerate(options):
+            if o.fallback is None:
+                may[k, stuck] = False
+            else:
+                may[k, stuck] = np.asarray(o.fallback.contains(s[stuck]), dtype=bool) \
+                    & ~blocked[k, stuck]
+    return may
+
+
+def _blocked(option: Option, states: np.ndarray) -> BoolArray:
+    """``(batch,)`` where ``option`` may not start whatever its sets say: its last run
+    ended there without effect, or its termination is certain there (when it may not
+    start where done)."""
+    out = np.zeros(states.shape[0], dtype=bool)
+    where = option.runs.where
+    if where is not None and where.shape == states.shape[1:]:
+        out |= np.all(np.abs(states - where) <= option.runs.tolerance, axis=-1)
+    if not option.start_where_done:
+        out |= np.asarray(option.termination.probability(states), dtype=np.float64) >= 1.0
+    return out

@@ -26,7 +26,7 @@ import numpy as np
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import StackedDynamics, stack_dynamics, trajectory_sampler
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.initiation import Everywhere
+from dynoplan.options.initiation import Everywhere, Initiation
 from dynoplan.options.option import Option, admissible
 from dynoplan.options.termination import StackedTermination, stack_terminations
 from dynoplan.safety.constraint import SafetyConstraint
@@ -75,6 +75,9 @@ class Plan:
         unsafe_shares: ``(options,)``, the share of an option's rollouts with an unsafe
             step (``None`` without a safety constraint). An option above the planner's
             risk level is not admissible now: its score is ``-inf``.
+        sequences: ``(options,)`` the best option sequence each option starts, by name
+            (:class:`SequencePlanner`; an empty tuple for an option not admissible;
+            ``None`` from a planner that looks one option ahead).
     """
 
     option_names: tuple[str, ...]
@@ -86,6 +89,7 @@ class Plan:
     chosen: int | None
     disagreements: FloatArray | None = None
     unsafe_shares: FloatArray | None = None
+    sequences: tuple[tuple[str, ...], ...] | None = None
 
     @property
     def chosen_name(self) -> str | None:
@@ -233,20 +237,31 @@ class OptionPlanner:
         are fallbacks)."""
         return not any(o.may_run(state, k == running) for k, o in enumerate(self.options))
 
-    def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator) -> Rollouts:
-        """Roll the given options forward from ``state``: one batched step per horizon step.
+    def rollout(self, option_indices: Sequence[int], state: FloatArray, rng: Generator,
+                start_alive: BoolArray | None = None, step_offset: int = 0) -> Rollouts:
+        """Roll the given options forward: one batched step per horizon step.
 
-        Returns arrays over ``(len(option_indices), samples, ...)``.
+        Args:
+            option_indices: ``(branches,)`` the option each branch follows; an option may
+                appear more than once (a level of :class:`SequencePlanner`).
+            state: ``(state_dim,)``, one start state for every branch and sample, or
+                ``(branches, samples, state_dim)``, a start state per rollout.
+            start_alive: ``(branches, samples)``, False where a rollout does not run at
+                all (its option may not start there): it stays at its start state with
+                0 steps. Default: every rollout runs.
+            step_offset: model steps already taken before these rollouts (the safety
+                constraint judges step ``step_offset + t``).
+
+        Returns arrays over ``(branches, samples, ...)``.
         """
         idx = tuple(option_indices)
         dynamics, termination = self._stack(idx)
         x = np.broadcast_to(state, (len(idx), self.samples, state.shape[-1])).copy()
-        alive = np.ones(x.shape[:2], dtype=bool)
-        valid = np.ones_like(alive)
+        alive = np.ones(x.shape[:2], dtype=bool) if start_alive is None \
+            else np.array(start_alive, dtype=bool)
+        valid = np.ones(x.shape[:2], dtype=bool)
         steps = np.zeros(x.shape[:2], dtype=np.int64)
-        regions = [(j, self.options[i].continuation_set) for j, i in enumerate(idx)
-                   if self.respect_regions and not isinstance(
-                       self.options[i].continuation_set, Everywhere)]
+        regions = self._region_groups(idx) if self.respect_regions else []
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
         step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
         unsafe = None if self.constraint is None else np.zeros_like(alive)
@@ -261,24 +276,38 @@ class OptionPlanner:
                 moved = alive & finite
             if unsafe is not None and self.constraint is not None:
                 unsafe |= moved & self.constraint.unsafe(x, np.where(moved[..., None], nxt, x),
-                                                         t + 1)
+                                                         step_offset + t + 1)
             before = x.copy() if self.end_inside and regions else None
             np.copyto(x, nxt, where=moved[..., None])
             steps += moved
             alive = moved & (stop_draws[t] >= termination.probability(x))
-            for j, initiation in regions:
-                inside = initiation.contains(x[j])
-                alive[j] &= inside
+            for rows, initiation in regions:  # one call per option, over all its branches
+                inside = initiation.contains(x[rows].reshape(-1, x.shape[-1])).reshape(
+                    len(rows), -1)
+                alive[rows] &= inside
                 if before is not None:  # back to the last state inside the set
-                    left = moved[j] & ~inside
-                    x[j][left] = before[j][left]
-                    steps[j] -= left
+                    left = moved[rows] & ~inside
+                    x[rows] = np.where(left[..., None], before[rows], x[rows])
+                    steps[rows] -= left
         members = getattr(step, "members", None)
         return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
                         unsafe)
 
+    def _region_groups(self, idx: tuple[int, ...]) -> list[tuple[IntArray, Initiation]]:
+        """``(branch rows, continuation set)`` of every option in ``idx`` with a set that
+        is not everywhere: the rows of all branches that follow it."""
+        branches = np.asarray(idx, dtype=np.int64)
+        groups = []
+        for i in dict.fromkeys(idx):
+            region = self.options[i].continuation_set
+            if not isinstance(region, Everywhere):
+                groups.append((np.flatnonzero(branches == i), region))
+        return groups
+
     def _stack(self, idx: tuple[int, ...]) -> tuple[StackedDynamics, StackedTermination]:
         if idx not in self._stacks:
+            if len(self._stacks) >= 256:  # batches over many states: each key is new
+                self._stacks.clear()
             chosen = [self.options[i] for i in idx]
             self._stacks[idx] = (stack_dynamics([o.dynamics for o in chosen]),
                                  stack_terminations([o.termination for o in chosen]))
