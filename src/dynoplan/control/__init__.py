@@ -1,9 +1,11 @@
 """The controller that chooses, runs, monitors and re-chooses options."""
 
+from dynoplan.control.batched import BatchChooser, run_batched
 from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.control.controller import Controller, Decision, EpisodeTrace
 
 __all__ = [
+    "BatchChooser",
     "Controller",
     "Decision",
     "EpisodeTrace",
@@ -11,4 +13,5 @@ __all__ = [
     "OptionChooser",
     "RandomChoice",
     "ScriptedSequence",
+    "run_batched",
 ]

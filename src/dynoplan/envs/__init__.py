@@ -1,6 +1,8 @@
 """Gymnasium environments of the project, registered on import.
 
 - ``dynoplan/RandomWalk19-v0``: the 19-state random walk (paper, Simulated MDP).
+- ``dynoplan/TrapWalk-v0``: a walk with a dead end that only a detour gets around, where
+  one-step hill climbing over options stalls (the look-ahead's known answer).
 - ``dynoplan/GearAssembly-v0``: the two-arm gear assembly in MuJoCo (paper, PR2 task).
 """
 
@@ -8,6 +10,7 @@ import gymnasium as gym
 
 RANDOM_WALK_ID = "dynoplan/RandomWalk19-v0"
 GEAR_ASSEMBLY_ID = "dynoplan/GearAssembly-v0"
+TRAP_WALK_ID = "dynoplan/TrapWalk-v0"
 
 
 def register_envs() -> None:
@@ -16,6 +19,12 @@ def register_envs() -> None:
         gym.register(
             id=RANDOM_WALK_ID,
             entry_point="dynoplan.envs.random_walk.env:RandomWalkEnv",
+            max_episode_steps=1000,
+        )
+    if TRAP_WALK_ID not in gym.registry:
+        gym.register(
+            id=TRAP_WALK_ID,
+            entry_point="dynoplan.envs.trap.env:TrapWalkEnv",
             max_episode_steps=1000,
         )
     if GEAR_ASSEMBLY_ID not in gym.registry:
