@@ -26,6 +26,10 @@ SAMPLES_MAX = 10_000
 """Monte-Carlo rollouts per option (with :data:`HORIZON_MAX`, one decision rolls out at
 most 10^7 states per option)."""
 
+DEPTH_MAX = 6
+"""Options per sequence of the look-ahead planner (a level has up to options^depth
+branches)."""
+
 STEPS_MAX = 100_000
 """Environment steps or decisions per episode or trial, and steps between re-plans."""
 
@@ -60,6 +64,7 @@ SETTING_BOUNDS: dict[str, tuple[float, float]] = {
     "fit.goal_ranking": (0.0, math.inf),
     "fit.region_cv_coverage": (0.0, 1.0),
     "control.horizon": (1, HORIZON_MAX), "control.samples": (1, SAMPLES_MAX),
+    "control.depth": (1, DEPTH_MAX),
     "control.risk": (-1e6, 1e6), "control.replan_every": (0, STEPS_MAX),
     "control.margin": (0.0, math.inf), "control.max_decisions": (1, STEPS_MAX),
     "control.max_option_steps": (1, STEPS_MAX), "control.dynamics_noise": (0.0, math.inf),
@@ -70,6 +75,6 @@ SETTING_BOUNDS: dict[str, tuple[float, float]] = {
 (:mod:`dynoplan.pipeline.config`; ``section.field`` keys); the command line's flags have
 the same bounds."""
 
-__all__ = ["CELLS_MAX", "DATASET_BYTES_MAX", "EPISODES_MAX", "EPOCHS_MAX", "HORIZON_MAX",
-           "POINTS_MAX", "RANDOM_WALK_EPISODES_MAX", "SAMPLES_MAX", "SEED_MAX", "SETTING_BOUNDS",
-           "STEPS_MAX", "STRIDE_MAX"]
+__all__ = ["CELLS_MAX", "DATASET_BYTES_MAX", "DEPTH_MAX", "EPISODES_MAX", "EPOCHS_MAX",
+           "HORIZON_MAX", "POINTS_MAX", "RANDOM_WALK_EPISODES_MAX", "SAMPLES_MAX", "SEED_MAX",
+           "SETTING_BOUNDS", "STEPS_MAX", "STRIDE_MAX"]

@@ -176,6 +176,9 @@ def pipeline(
                                        help="Planning horizon n, in model steps [20]."),
     samples: int | None = typer.Option(None, "--samples", **_bounds("control.samples"),
                                        help="Monte-Carlo rollouts per option [32]."),
+    depth: int | None = typer.Option(
+        None, "--depth", **_bounds("control.depth"),
+        help="Options per imagined sequence (1: Eq. 1; 2: look one option further) [1]."),
     risk: float | None = typer.Option(None, "--risk", **_bounds("control.risk"),
                                       help="k in E[G] - k std[G] of Eq. 1 [0]."),
     replan_every: int | None = typer.Option(

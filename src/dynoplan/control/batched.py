@@ -18,11 +18,12 @@ in; its distribution over episodes is that of :class:`~dynoplan.control.Controll
 
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
 
+from dynoplan.control.choosers import OptionChooser
 from dynoplan.control.controller import (
     Decision,
     EpisodeTrace,
@@ -36,6 +37,7 @@ from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import FloatArray, Generator
 
 
+@runtime_checkable
 class BatchChooser(Protocol):
     """``plan_many(states (episodes, state_dim), rng) -> one Plan per state``."""
 
@@ -47,7 +49,8 @@ class BatchChooser(Protocol):
 
 
 def run_batched(envs: Sequence[gym.Env[Any, Any]], options: Sequence[Option],
-                chooser: BatchChooser, seeds: Sequence[EpisodeSeed], planner_rng: Generator,
+                chooser: BatchChooser | OptionChooser, seeds: Sequence[EpisodeSeed],
+                planner_rng: Generator,
                 max_decisions: int = 50, max_option_steps: int = 1000,
                 state_fn: Callable[[Any], FloatArray] = default_state,
                 success_fn: Callable[[bool, dict[str, Any]], bool] = default_success
@@ -57,7 +60,8 @@ def run_batched(envs: Sequence[gym.Env[Any, Any]], options: Sequence[Option],
     Args:
         envs: one environment per episode (``len(envs) == len(seeds)``).
         options: the options, in the chooser's order.
-        chooser: plans for many states at once.
+        chooser: plans for many states at once (``plan_many``); a chooser without
+            ``plan_many`` (a baseline) is asked for one state after another.
         seeds: per episode, ``env_seed`` for ``env.reset`` and ``rng()`` for the option
             runs (starts, termination draws).
         planner_rng: the generator of every planner call.
@@ -88,7 +92,7 @@ def run_batched(envs: Sequence[gym.Env[Any, Any]], options: Sequence[Option],
         if not active:
             break
         t0 = time.perf_counter()
-        plans = chooser.plan_many(np.stack([states[i] for i in active]), planner_rng)
+        plans = _plans(chooser, np.stack([states[i] for i in active]), planner_rng)
         latency = (time.perf_counter() - t0) / len(active)
         for i, plan in zip(active, plans, strict=True):
             trace, env, rng = traces[i], envs[i], rngs[i]
@@ -127,3 +131,11 @@ def run_batched(envs: Sequence[gym.Env[Any, Any]], options: Sequence[Option],
     for i, trace in enumerate(traces):
         trace.success = success_fn(terminated[i], infos[i])
     return traces
+
+
+def _plans(chooser: BatchChooser | OptionChooser, states: FloatArray,
+           rng: Generator) -> list[Plan]:
+    """One plan per row of ``states`` (``(episodes, state_dim)``)."""
+    if isinstance(chooser, BatchChooser):
+        return chooser.plan_many(states, rng)
+    return [chooser.choose(s, rng) for s in states]

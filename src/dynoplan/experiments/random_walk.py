@@ -12,14 +12,17 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from dynoplan import __version__
-from dynoplan.control.controller import Controller
+from dynoplan.control.batched import run_batched
+from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.envs import RANDOM_WALK_ID
 from dynoplan.envs.random_walk.models import NoisyWalkGoal
 from dynoplan.envs.random_walk.options import make_random_walk_options
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.limits import DEPTH_MAX
 from dynoplan.pipeline.evaluate import (
     ControllerSettings,
     controller_names,
@@ -27,16 +30,23 @@ from dynoplan.pipeline.evaluate import (
     planning_steps_summary,
     run_episodes,
 )
+from dynoplan.planning import OptionPlanner, SequencePlanner
 from dynoplan.reports.random_walk_figures import plot_mdp_solution, plot_robustness
 from dynoplan.reports.random_walk_results import random_walk_markdown, trace_rows
-from dynoplan.seeding import episode_seeds
+from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 ROBUSTNESS_NOISES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
 
 @dataclass(frozen=True)
 class RandomWalkSettings:
-    """Everything that defines a random-walk run (recorded in ``summary.json``)."""
+    """Everything that defines a random-walk run (recorded in ``summary.json``).
+
+    ``depth``: options per imagined sequence of DynoPlan's planner (1: Eq. 1).
+    ``lockstep``: run each controller's episodes side by side, every episode's decision
+    of one step in one planner call (:func:`~dynoplan.control.batched.run_batched`; the
+    same distribution of results, not the same episodes).
+    """
 
     episodes: int = 1000
     noise: float = 0.2
@@ -44,6 +54,8 @@ class RandomWalkSettings:
     horizon: int = 20
     samples: int = 128
     max_decisions: int = 50
+    depth: int = 1
+    lockstep: bool = False
     start_state: int = 0
     goal_state: int = 20
     robustness_noises: tuple[float, ...] = field(default=ROBUSTNESS_NOISES)
@@ -57,6 +69,8 @@ class RandomWalkSettings:
                 raise DynoplanError(f"{name} must be a probability in [0, 1], got {p}")
         if self.horizon < 1 or self.samples < 1 or self.max_decisions < 1:
             raise DynoplanError("--horizon, --samples and --max-decisions must be >= 1")
+        if not 1 <= self.depth <= DEPTH_MAX:
+            raise DynoplanError(f"--depth must be in [1, {DEPTH_MAX}], got {self.depth}")
         if not 0 <= self.start_state < self.goal_state:
             raise DynoplanError(
                 f"--start-state must be in [0, {self.goal_state - 1}], got {self.start_state}")
@@ -68,10 +82,28 @@ def make_walk_controller(kind: str, noise: float, settings: RandomWalkSettings) 
     random walk's options and goal at misprediction probability ``noise``, replanning only
     when an option stops, no hold."""
     control = ControllerSettings(horizon=settings.horizon, samples=settings.samples,
-                                 replan_every=None, max_decisions=settings.max_decisions,
-                                 hold=False)
+                                 depth=settings.depth, replan_every=None,
+                                 max_decisions=settings.max_decisions, hold=False)
     return make_controller(kind, make_random_walk_options(noise, settings.goal_state),
                            NoisyWalkGoal(noise, settings.goal_state), control)
+
+
+def run_lockstep(controller: Controller, noise: float, settings: RandomWalkSettings,
+                 seeds: list[EpisodeSeed]) -> list[EpisodeTrace]:
+    """``controller``'s episodes side by side, one environment each: DynoPlan's
+    decisions of one step for every episode in one planner call (the planner of
+    ``controller``, as a :class:`~dynoplan.planning.SequencePlanner` of the same
+    settings: at depth 1 the same Eq. 1), a baseline's one after another."""
+    chooser: Any = controller.chooser
+    if isinstance(chooser, OptionPlanner):
+        chooser = SequencePlanner(chooser.options, NoisyWalkGoal(noise, settings.goal_state),
+                                  horizon=settings.horizon, samples=settings.samples,
+                                  depth=settings.depth)
+    envs = [gym.make(RANDOM_WALK_ID, goal_state=settings.goal_state,
+                     start_state=settings.start_state) for _ in seeds]
+    planner_rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(1)[0])
+    return run_batched(envs, controller.options, chooser, seeds, planner_rng,
+                       max_decisions=settings.max_decisions)
 
 
 def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = True) -> dict[
@@ -86,7 +118,11 @@ def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = Tr
     def evaluate(kind: str, noise: float) -> tuple[dict[str, Any], list[Any]]:
         controller = make_walk_controller(kind, noise, settings)
         t0 = time.perf_counter()
-        traces = run_episodes(env, controller, seeds, f"{kind} (noise {noise:g})", progress)
+        if settings.lockstep:
+            traces = run_lockstep(controller, noise, settings, seeds)
+        else:
+            traces = run_episodes(env, controller, seeds, f"{kind} (noise {noise:g})",
+                                  progress)
         summary = planning_steps_summary(traces)
         summary["seconds"] = time.perf_counter() - t0
         return summary, traces

@@ -10,6 +10,7 @@ chained right, and DynoPlan's success is reported as a share of its success
 
 from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -20,6 +21,7 @@ from dynoplan.adapters.spec import OptionSpec, as_spec
 from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
 from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.errors import DynoplanError
+from dynoplan.limits import DEPTH_MAX
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import RegionModel
@@ -28,6 +30,7 @@ from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.pipeline.collect import Demonstrator, demonstrator_from, record_episode
 from dynoplan.pipeline.task import Task
 from dynoplan.planning.option_planner import OptionPlanner
+from dynoplan.planning.sequence_planner import SequencePlanner
 from dynoplan.progress import track
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import EpisodeSeed, episode_seeds
@@ -48,7 +51,10 @@ class ControllerSettings:
 
     Attributes:
         horizon: ``n`` of Eq. 1, in model steps (``stride`` environment steps each).
-        samples: Monte-Carlo rollouts per option.
+        samples: Monte-Carlo rollouts per option (per option sequence at ``depth`` > 1).
+        depth: options per imagined sequence of DynoPlan's planner (1: the paper's Eq. 1,
+            :class:`~dynoplan.planning.OptionPlanner`; more: the look-ahead of
+            :class:`~dynoplan.planning.SequencePlanner`).
         risk: ``k`` in ``E[G] - k * std[G]`` (0: the paper's expectation).
         replan_every: plan again after this many environment steps (``None``: only
             when the option stops).
@@ -98,6 +104,7 @@ class ControllerSettings:
 
     horizon: int = 20
     samples: int = 32
+    depth: int = 1
     risk: float = 0.0
     replan_every: int | None = 10
     margin: float = 0.0
@@ -121,6 +128,8 @@ class ControllerSettings:
         if self.horizon < 1 or self.samples < 1:
             raise DynoplanError(
                 f"horizon and samples must be >= 1, got {self.horizon} and {self.samples}")
+        if not 1 <= self.depth <= DEPTH_MAX:
+            raise DynoplanError(f"depth must be in [1, {DEPTH_MAX}], got {self.depth}")
         if self.oracle_horizon < 1 or self.oracle_samples < 1:
             raise DynoplanError(
                 f"oracle_horizon and oracle_samples must be >= 1, got {self.oracle_horizon} "
@@ -245,14 +254,17 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
     hold = hold_action(settings, action_space)
     chooser: OptionChooser
     if kind == DYNOPLAN:
-        chooser = OptionPlanner(with_dynamics_noise(planner_options or options,
-                                                    settings.dynamics_noise), goal,
-                                horizon=settings.horizon, samples=settings.samples,
-                                risk=settings.risk, epistemic=settings.epistemic,
-                                end_inside=settings.end_inside,
-                                # holding is a way to wait only where there is a hold
-                                fallback_must_gain=settings.fallback_own_sets
-                                and hold is not None)
+        # depth 1 is OptionPlanner itself (the same decisions to the bit)
+        planner = OptionPlanner if settings.depth == 1 else partial(SequencePlanner,
+                                                                    depth=settings.depth)
+        chooser = planner(with_dynamics_noise(planner_options or options,
+                                              settings.dynamics_noise), goal,
+                          horizon=settings.horizon, samples=settings.samples,
+                          risk=settings.risk, epistemic=settings.epistemic,
+                          end_inside=settings.end_inside,
+                          # holding is a way to wait only where there is a hold
+                          fallback_must_gain=settings.fallback_own_sets
+                          and hold is not None)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):
