@@ -180,3 +180,20 @@ def test_the_trap_walk_follows_the_gymnasium_api_and_its_rules():
     for _ in range(16):
         obs, reward, terminated, _, info = env.step(1)
     assert terminated and reward == 1.0 and info["is_success"]
+
+
+@pytest.mark.parametrize("walk", ["random", "trap"])
+def test_rollouts_of_the_running_rows_only_equal_the_full_arrays_in_distribution(walk):
+    if walk == "random":
+        options, goal, state = make_random_walk_options(0.2), NoisyWalkGoal(0.2), [3.0]
+    else:
+        options, goal, state = make_trap_options(), CorridorProgress(), [6.0, 0.0]
+    full = SequencePlanner(options, goal, samples=2000, depth=1)
+    rows = SequencePlanner(options, goal, samples=2000, depth=1, compact=True)
+    idx = tuple(range(len(options)))
+    a = full.rollout(idx, np.array(state), np.random.default_rng(0))
+    b = rows.rollout(idx, np.array(state), np.random.default_rng(1))
+    for o in idx:
+        assert ks_2samp(a.end_states[o, :, 0], b.end_states[o, :, 0]).pvalue > 1e-3
+        assert ks_2samp(a.steps[o], b.steps[o]).pvalue > 1e-3
+    assert not np.array_equal(a.steps, b.steps)

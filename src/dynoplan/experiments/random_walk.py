@@ -93,12 +93,13 @@ def run_lockstep(controller: Controller, noise: float, settings: RandomWalkSetti
     """``controller``'s episodes side by side, one environment each: DynoPlan's
     decisions of one step for every episode in one planner call (the planner of
     ``controller``, as a :class:`~dynoplan.planning.SequencePlanner` of the same
-    settings: at depth 1 the same Eq. 1), a baseline's one after another."""
+    settings: at depth 1 the same Eq. 1, advancing only the rollouts still running),
+    a baseline's one after another."""
     chooser: Any = controller.chooser
     if isinstance(chooser, OptionPlanner):
         chooser = SequencePlanner(chooser.options, NoisyWalkGoal(noise, settings.goal_state),
                                   horizon=settings.horizon, samples=settings.samples,
-                                  depth=settings.depth)
+                                  depth=settings.depth, compact=True)
     envs = [gym.make(RANDOM_WALK_ID, goal_state=settings.goal_state,
                      start_state=settings.start_state) for _ in seeds]
     planner_rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(1)[0])

@@ -11,7 +11,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from dynoplan.stacking import stack
-from dynoplan.types import FloatArray
+from dynoplan.types import FloatArray, IntArray
 
 
 @runtime_checkable
@@ -52,6 +52,11 @@ class _StackedConstant:
         if self._full.shape != states.shape[:-1]:  # built once per rollout shape
             self._full = np.repeat(self.betas[:, None], states.shape[1], axis=1)
         return self._full
+
+    def probability_rows(self, states: FloatArray, branches: IntArray) -> FloatArray:
+        """``(rows, d)`` -> ``(rows,)``; row ``i`` follows option ``branches[i]``."""
+        out: FloatArray = self.betas[branches]
+        return out
 
 
 class TerminationFromCallable:

@@ -20,6 +20,7 @@ horizon step; the only Python loop is over the horizon.
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -146,13 +147,18 @@ class OptionPlanner:
             fall back (:func:`admissible`), an option is chosen only if its score is at
             least the goal heuristic's mean at the present state; else none is (the
             controller holds): a fallback is a way on, not a way back.
+        compact: advance only the rollouts still running, as rows, where the stacked
+            dynamics and terminations can (``sample_rows`` and ``probability_rows``, see
+            :meth:`rollout`): the same distribution of rollouts for a fraction of the
+            work when most stop early, but another use of the generator than the full
+            arrays (so other seeded draws).
     """
 
     def __init__(self, options: Sequence[Option], goal: GoalHeuristic, horizon: int = 20,
                  samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
                  epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
                  risk_level: float = 0.05, end_inside: bool = False,
-                 fallback_must_gain: bool = False) -> None:
+                 fallback_must_gain: bool = False, compact: bool = False) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -173,6 +179,7 @@ class OptionPlanner:
         self.risk_level = float(risk_level)
         self.end_inside = bool(end_inside)
         self.fallback_must_gain = bool(fallback_must_gain)
+        self.compact = bool(compact)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
 
     @property
@@ -253,12 +260,21 @@ class OptionPlanner:
                 constraint judges step ``step_offset + t``).
 
         Returns arrays over ``(branches, samples, ...)``.
+
+        With ``compact`` on, and stacked dynamics and terminations that offer
+        ``sample_rows(states (rows, d), branches (rows,), rng)`` and
+        ``probability_rows(states (rows, d), branches (rows,))`` (row ``i`` follows the
+        stack's slice ``branches[i]``), each step advances only the rollouts still
+        running (:meth:`_rollout_rows`).
         """
         idx = tuple(option_indices)
         dynamics, termination = self._stack(idx)
         x = np.broadcast_to(state, (len(idx), self.samples, state.shape[-1])).copy()
         alive = np.ones(x.shape[:2], dtype=bool) if start_alive is None \
             else np.array(start_alive, dtype=bool)
+        if self.compact and callable(getattr(dynamics, "sample_rows", None)) \
+                and callable(getattr(termination, "probability_rows", None)):
+            return self._rollout_rows(idx, dynamics, termination, x, alive, rng, step_offset)
         valid = np.ones(x.shape[:2], dtype=bool)
         steps = np.zeros(x.shape[:2], dtype=np.int64)
         regions = self._region_groups(idx) if self.respect_regions else []
@@ -292,6 +308,45 @@ class OptionPlanner:
         members = getattr(step, "members", None)
         return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
                         unsafe)
+
+    def _rollout_rows(self, idx: tuple[int, ...], dynamics: Any, termination: Any,
+                      x: FloatArray, alive: BoolArray, rng: Generator,
+                      step_offset: int) -> Rollouts:
+        """:meth:`rollout` on the running rollouts only: ``x`` ``(branches, samples, d)``
+        start states (changed in place), ``alive`` ``(branches, samples)`` which run."""
+        b, n, d = x.shape
+        flat = x.reshape(-1, d)
+        branch = np.repeat(np.arange(b), n)
+        steps = np.zeros(b * n, dtype=np.int64)
+        valid = np.ones(b * n, dtype=bool)
+        unsafe = None if self.constraint is None else np.zeros(b * n, dtype=bool)
+        regions = self._region_groups(idx) if self.respect_regions else []
+        live = np.flatnonzero(alive.reshape(-1))
+        for t in range(self.horizon):
+            if live.size == 0:
+                break
+            now = flat[live]
+            nxt = dynamics.sample_rows(now, branch[live], rng)
+            finite = np.isfinite(nxt).all(axis=-1)
+            if not finite.all():  # rare: stop diverged rollouts where they are
+                valid[live[~finite]] = False
+                live, now, nxt = live[finite], now[finite], nxt[finite]
+            if unsafe is not None and self.constraint is not None:
+                unsafe[live] |= self.constraint.unsafe(now, nxt, step_offset + t + 1)
+            flat[live] = nxt
+            steps[live] += 1
+            go_on = rng.random(live.size) >= termination.probability_rows(nxt, branch[live])
+            for rows, initiation in regions:
+                mine = np.isin(branch[live], rows)
+                inside = np.asarray(initiation.contains(nxt[mine]), dtype=bool)
+                go_on[np.flatnonzero(mine)[~inside]] = False
+                if self.end_inside:  # back to the last state inside the set
+                    left = live[mine][~inside]
+                    flat[left] = now[mine][~inside]
+                    steps[left] -= 1
+            live = live[go_on]
+        return Rollouts(flat.reshape(b, n, d), steps.reshape(b, n), valid.reshape(b, n), None,
+                        None if unsafe is None else unsafe.reshape(b, n))
 
     def _region_groups(self, idx: tuple[int, ...]) -> list[tuple[IntArray, Initiation]]:
         """``(branch rows, continuation set)`` of every option in ``idx`` with a set that

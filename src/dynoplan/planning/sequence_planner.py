@@ -103,7 +103,7 @@ class SequencePlanner(OptionPlanner):
 
     Args:
         options, goal, horizon, samples, risk, respect_regions, epistemic, constraint,
-            risk_level, end_inside, fallback_must_gain: as
+            risk_level, end_inside, fallback_must_gain, compact: as
             :class:`~dynoplan.planning.OptionPlanner`; ``horizon`` bounds each option of
             a sequence, ``samples`` are the imagined futures of every branch.
         depth: options per sequence; 1 is :class:`~dynoplan.planning.OptionPlanner`'s
@@ -116,11 +116,11 @@ class SequencePlanner(OptionPlanner):
                  epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
                  risk_level: float = 0.05, end_inside: bool = False,
                  fallback_must_gain: bool = False, depth: int = 2,
-                 beam: int | None = None) -> None:
+                 beam: int | None = None, compact: bool = False) -> None:
         super().__init__(options, goal, horizon=horizon, samples=samples, risk=risk,
                          respect_regions=respect_regions, epistemic=epistemic,
                          constraint=constraint, risk_level=risk_level, end_inside=end_inside,
-                         fallback_must_gain=fallback_must_gain)
+                         fallback_must_gain=fallback_must_gain, compact=compact)
         if depth < 1:
             raise DynoplanError(f"depth must be >= 1, got {depth}")
         if beam is not None and beam < 1:
@@ -145,7 +145,7 @@ class SequencePlanner(OptionPlanner):
         """
         x = np.asarray(states, dtype=np.float64)
         x = x.reshape(x.shape[0], -1)
-        run = [None] * len(x) if running is None else list(running)
+        run: list[int | None] = [None] * len(x) if running is None else list(running)
         if len(run) != len(x):
             raise DynoplanError(f"running has {len(run)} entries for {len(x)} states")
         if self.constraint is not None and len(x) > 1:
@@ -154,7 +154,7 @@ class SequencePlanner(OptionPlanner):
                                    np.array([-1 if k is None else k for k in run]))
         roots, firsts = np.nonzero(may_run.T)  # root-major, options in order
         if len(firsts) == 0:
-            return [self._assemble(x[r], may_run[:, r], run[r], None) for r in range(len(x))]
+            return self._plans(x, may_run, run, None)
         if self.constraint is not None:
             self.constraint.prepare(x[0])
         start = x[0] if len(x) == 1 else x[roots][:, None, :]
@@ -169,8 +169,7 @@ class SequencePlanner(OptionPlanner):
         leaf = self.score(levels[-1], rng)
         values, best_child = self._back_up(levels, kept, leaf.values)
         tree = Tree(levels, leaf, values, best_child)
-        return [self._assemble(x[r], may_run[:, r], run[r], tree, root=r)
-                for r in range(len(x))]
+        return self._plans(x, may_run, run, tree)
 
     def score(self, level: Level, rng: Generator) -> LeafScores:
         """Eq. 1's score of every branch of ``level`` from one goal draw per rollout."""
@@ -239,47 +238,55 @@ class SequencePlanner(OptionPlanner):
             values = up
         return values, best
 
-    def _assemble(self, state: FloatArray, may_run: BoolArray, running: int | None,
-                  tree: "Tree | None", root: int = 0) -> Plan:
-        """The :class:`Plan` of start state ``root``: the first options' backed-up
-        values as ``scores``; spreads, disagreements and unsafe shares of each first
-        option's best sequence; its level-1 rollouts; the best sequences' names."""
-        n_opt, d = len(self.options), state.shape[0]
-        scores = np.full(n_opt, np.nan)
-        spreads = np.full(n_opt, np.nan)
-        disagreements = np.full(n_opt, np.nan)
-        end_states = np.full((n_opt, self.samples, d), np.nan)
-        steps = np.zeros((n_opt, self.samples), dtype=np.int64)
-        shares = None if self.constraint is None else np.full(n_opt, np.nan)
-        sequences: list[tuple[str, ...]] = [() for _ in range(n_opt)]
-        chosen: int | None = None
+    def _plans(self, states: FloatArray, may_run: BoolArray, running: list[int | None],
+               tree: Tree | None) -> list[Plan]:
+        """One :class:`Plan` per start state: the first options' backed-up values as
+        ``scores``; the spreads, disagreements and unsafe shares of each first option's
+        best sequence; its level-1 rollouts; the best sequences' names. Arrays are
+        filled for all start states at once, ``(roots, options, ...)``."""
+        (n_root, d), n_opt = states.shape, len(self.options)
+        scores = np.full((n_root, n_opt), np.nan)
+        spreads = np.full((n_root, n_opt), np.nan)
+        disagreements = np.full((n_root, n_opt), np.nan)
+        end_states = np.full((n_root, n_opt, self.samples, d), np.nan)
+        steps = np.zeros((n_root, n_opt, self.samples), dtype=np.int64)
+        shares = None if self.constraint is None else np.full((n_root, n_opt), np.nan)
+        names: list[list[tuple[str, ...]]] = [[() for _ in range(n_opt)] for _ in range(n_root)]
         if tree is not None:
-            levels, leaf, values, best_child = tree.levels, tree.leaf, tree.values, tree.best
-            first = levels[0]
-            rows = np.flatnonzero(first.parents == root)
-            idx = first.options[rows]
-            for row, option in zip(rows, idx, strict=True):
-                path, branch = [int(option)], int(row)
-                for k, child in enumerate(best_child):
-                    branch = int(child[branch])
-                    if branch < 0:
-                        break
-                    path.append(int(levels[k + 1].options[branch]))
-                if branch >= 0:  # a complete sequence: its leaf's statistics
-                    spreads[option] = leaf.spreads[branch]
-                    disagreements[option] = leaf.disagreements[branch]
-                    if shares is not None and leaf.unsafe_shares is not None:
-                        shares[option] = leaf.unsafe_shares[branch]
-                sequences[option] = tuple(self.options[i].name for i in path)
-            scores[idx] = values[rows]
-            end_states[idx] = first.end_states[rows]
-            steps[idx] = first.steps[rows]
-            if len(idx):
-                best = int(idx[int(np.argmax(scores[idx]))])
-                chosen = None if scores[best] == -np.inf else best
-                if chosen is not None and self.fallback_must_gain \
-                        and self._falls_back(state, running) \
-                        and scores[chosen] < float(self.goal.mean_std(state[None])[0][0]):
-                    chosen = None
-        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen,
-                    disagreements, shares, tuple(sequences))
+            first = tree.levels[0]
+            at = (first.parents, first.options)
+            scores[at] = tree.values
+            end_states[at] = first.end_states
+            steps[at] = first.steps
+            # follow every level-1 branch down its best children to its best leaf
+            branch = np.arange(len(first.options))
+            path = [first.options]
+            for k, child in enumerate(tree.best):
+                branch = np.where(branch >= 0, child[np.maximum(branch, 0)], -1)
+                path.append(np.where(branch >= 0, tree.levels[k + 1].options[branch], -1))
+            done = branch >= 0
+            leaf_at = (first.parents[done], first.options[done])
+            spreads[leaf_at] = tree.leaf.spreads[branch[done]]
+            disagreements[leaf_at] = tree.leaf.disagreements[branch[done]]
+            if shares is not None and tree.leaf.unsafe_shares is not None:
+                shares[leaf_at] = tree.leaf.unsafe_shares[branch[done]]
+            option_names = self.option_names
+            for root, option, *rest in zip(first.parents.tolist(), *[p.tolist() for p in path],
+                                           strict=True):
+                names[root][option] = tuple(option_names[i] for i in (option, *rest) if i >= 0)
+        best = np.argmax(np.where(may_run.T, np.nan_to_num(scores, nan=-np.inf), -np.inf),
+                         axis=1)
+        option_names = self.option_names
+        plans = []
+        for r in range(n_root):
+            chosen: int | None = int(best[r])
+            if not may_run[:, r].any() or scores[r, best[r]] == -np.inf:
+                chosen = None
+            elif self.fallback_must_gain and self._falls_back(states[r], running[r]):
+                # a fallback is a way on, not a way back (OptionPlanner's rule)
+                here = float(self.goal.mean_std(states[r][None])[0][0])
+                chosen = None if scores[r, best[r]] < here else chosen
+            plans.append(Plan(option_names, may_run[:, r], scores[r], spreads[r],
+                              end_states[r], steps[r], chosen, disagreements[r],
+                              None if shares is None else shares[r], tuple(names[r])))
+        return plans

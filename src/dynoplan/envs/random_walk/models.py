@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dynoplan.types import FloatArray, Generator
+from dynoplan.types import FloatArray, Generator, IntArray
 
 
 def _wrong_state(true: FloatArray, goal_state: int, u: FloatArray) -> FloatArray:
@@ -64,6 +64,12 @@ class _StackedWalkDynamics:
 
     def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
         return _sample(states, self.p_right, self.noise, self.goal_state, rng)
+
+    def sample_rows(self, states: FloatArray, branches: IntArray,
+                    rng: Generator) -> FloatArray:
+        """``(rows, 1)`` -> ``(rows, 1)``; row ``i`` follows option ``branches[i]``."""
+        return _sample(states, self.p_right[branches, 0], self.noise[branches, 0],
+                       self.goal_state, rng)
 
 
 def _sample(states: FloatArray, p_right: FloatArray, noise: FloatArray, goal_state: int,

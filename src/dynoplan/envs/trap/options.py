@@ -20,7 +20,7 @@ import numpy as np
 from dynoplan.envs.trap.env import LEFT, RIGHT, SWITCH
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
 from dynoplan.options.option import FunctionPolicy, Option
-from dynoplan.types import FloatArray, Generator
+from dynoplan.types import FloatArray, Generator, IntArray
 
 FORWARD, BACK, DETOUR = 0, 1, 2
 OPTION_NAMES = ("forward", "back", "detour")
@@ -60,6 +60,12 @@ class TrapDynamics:
         stacked.kind = np.array([int(m.kind) for m in items])[:, None]  # (options, 1)
         return stacked
 
+    def sample_rows(self, states: FloatArray, branches: IntArray,
+                    rng: Generator) -> FloatArray:
+        """``(rows, 2)`` -> ``(rows, 2)``; row ``i`` follows option ``branches[i]`` of a
+        stack."""
+        return self._step(states, self.kind.reshape(-1)[branches], rng)
+
     def _step(self, states: FloatArray, kind: np.ndarray, rng: Generator) -> FloatArray:
         x, lane = states[..., 0], states[..., 1]
         at_gate = x <= self.gate
@@ -93,6 +99,12 @@ class TrapTermination:
         detour = (states[..., 1] == 1).astype(np.float64)
         out: FloatArray = np.where(self.kind == DETOUR, detour, constant)
         return np.broadcast_to(out, states.shape[:-1])
+
+    def probability_rows(self, states: FloatArray, branches: IntArray) -> FloatArray:
+        """``(rows, 2)`` -> ``(rows,)``; row ``i`` follows option ``branches[i]``."""
+        rows = TrapTermination(FORWARD)
+        rows.kind = self.kind.reshape(-1)[branches]
+        return rows.probability(states)
 
     @classmethod
     def stack(cls, items: Sequence["TrapTermination"]) -> "TrapTermination":
