@@ -19,6 +19,11 @@ shared) machine:
   (``2 * in * out`` per layer per computed row, every row the ensembles compute) over the
   p50 decision time. ``gemm_fraction = achieved / GEMM``.
 
+``--depth 2`` times :class:`~dynoplan.planning.SequencePlanner` instead: every option,
+then every option again from each rollout's end (16 sequences of the 4 options), with
+``--samples`` (default 32 at depth 2) rollouts per sequence and ``--horizon`` (default 10
+at depth 2) steps per option; the naive loop is timed at depth 1 only.
+
 Run ``python benchmarks/planner.py`` for a table, ``--json`` for one JSON object.
 """
 
@@ -35,7 +40,7 @@ import torch
 
 from dynoplan.models.neural_dynamics import DEFAULT_HIDDEN, DEFAULT_MEMBERS, MLPEnsembleDynamics
 from dynoplan.options import ConstantTermination, FunctionPolicy, Option
-from dynoplan.planning import OptionPlanner
+from dynoplan.planning import OptionPlanner, SequencePlanner
 from dynoplan.types import FloatArray, Generator
 
 STATE_DIM = 12
@@ -75,9 +80,11 @@ def _sigmoid(x: FloatArray) -> FloatArray:
     return 0.5 * (1.0 + np.tanh(0.5 * x))
 
 
-def build(hidden: Sequence[int], members: int,
-          seed: int) -> tuple[OptionPlanner, list[Option], LinearSigmoidGoal]:
-    """The benchmark's planner: 4 options with untrained ensembles, seeded."""
+def build(hidden: Sequence[int], members: int, seed: int, depth: int = 1,
+          samples: int = SAMPLES, horizon: int = HORIZON
+          ) -> tuple[OptionPlanner, list[Option], LinearSigmoidGoal]:
+    """The benchmark's planner: 4 options with untrained ensembles, seeded (depth 1:
+    :class:`OptionPlanner`; more: :class:`SequencePlanner`)."""
     options = [
         Option(f"option_{k}", FunctionPolicy(lambda obs, rng: None),
                MLPEnsembleDynamics(STATE_DIM, hidden, members, option=f"option_{k}",
@@ -87,7 +94,10 @@ def build(hidden: Sequence[int], members: int,
     ]
     goal = LinearSigmoidGoal(np.random.default_rng(seed).normal(size=STATE_DIM)
                              / np.sqrt(STATE_DIM))
-    return OptionPlanner(options, goal, horizon=HORIZON, samples=SAMPLES), options, goal
+    if depth == 1:
+        return OptionPlanner(options, goal, horizon=horizon, samples=samples), options, goal
+    return (SequencePlanner(options, goal, horizon=horizon, samples=samples, depth=depth),
+            options, goal)
 
 
 def naive_decision(options: Sequence[Option], goal: LinearSigmoidGoal, state: FloatArray,
@@ -157,38 +167,43 @@ def profile_breakdown(planner: OptionPlanner, state: FloatArray, rng: Generator,
 
 
 def run(repeats: int, loop_repeats: int, rounds: int, threads: int, hidden: Sequence[int],
-        members: int, seed: int, with_profile: bool = False) -> dict[str, object]:
+        members: int, seed: int, with_profile: bool = False, depth: int = 1,
+        samples: int = SAMPLES, horizon: int = HORIZON) -> dict[str, object]:
     """Measure everything in one process; returns the results as a flat dict."""
     torch.set_num_threads(threads)
-    planner, options, goal = build(hidden, members, seed)
+    planner, options, goal = build(hidden, members, seed, depth, samples, horizon)
+    if depth > 1:
+        loop_repeats = 0  # the naive loop is Eq. 1's (depth 1)
     state = np.zeros(STATE_DIM)
     rng = np.random.default_rng(seed)
     for _ in range(20):  # warm-up: buffers, allocator, thread pool
         plan = planner.plan(state, rng)
-    if not (plan.steps == HORIZON).all():
+    if not (plan.steps == horizon).all():
         raise RuntimeError("rollouts stopped early; the FLOP count assumes full horizons")
-    naive_decision(options, goal, state, rng)
+    if loop_repeats:
+        naive_decision(options, goal, state, rng)
 
     decisions: list[float] = []
     loops: list[float] = []
     gemms: list[float] = []
     per_round = max(1, repeats // rounds)
-    loops_per_round = -(-loop_repeats // rounds)
+    loops_per_round = -(-loop_repeats // rounds) if loop_repeats else 0
     for r in range(rounds):
         gemms += gemm_seconds(GEMM_SIZE, 5)
         decisions += _time(lambda: planner.plan(state, rng), per_round)
-        if r * loops_per_round < loop_repeats:
+        if loop_repeats and r * loops_per_round < loop_repeats:
             loops += _time(lambda: naive_decision(options, goal, state, rng), loops_per_round)
     gemms += gemm_seconds(GEMM_SIZE, 5)
 
     model = options[0].dynamics
     assert isinstance(model, MLPEnsembleDynamics)
-    slots = -(-SAMPLES // members)
-    rows_per_decision = OPTIONS * members * slots * HORIZON
+    slots = -(-samples // members)
+    branches = sum(OPTIONS ** k for k in range(1, depth + 1))  # every level's sequences
+    rows_per_decision = branches * members * slots * horizon
     flops_per_decision = rows_per_decision * model.flops_per_row()
     breakdown = profile_breakdown(planner, state, rng) if with_profile else {}
     p50, p99 = float(np.percentile(decisions, 50)), float(np.percentile(decisions, 99))
-    loop = float(np.median(loops))
+    loop = float(np.median(loops)) if loops else float("nan")
     gemm_flops = 2.0 * GEMM_SIZE ** 3 / float(np.median(gemms))
     achieved = flops_per_decision / p50
     return {
@@ -196,15 +211,17 @@ def run(repeats: int, loop_repeats: int, rounds: int, threads: int, hidden: Sequ
         "decision_ms_p99": 1e3 * p99,
         "decision_ms_mean": 1e3 * float(np.mean(decisions)),
         "loop_decision_ms_median": 1e3 * loop,
-        "batched_vs_loop": loop / p50,
+        "batched_vs_loop": loop / p50 if loops else None,
         "achieved_gflops": achieved / 1e9,
         "gemm_gflops": gemm_flops / 1e9,
         "gemm_fraction": achieved / gemm_flops,
         "mflop_per_decision": flops_per_decision / 1e6,
         "rows_per_decision": rows_per_decision,
         "options": OPTIONS,
-        "samples": SAMPLES,
-        "horizon": HORIZON,
+        "depth": depth,
+        "sequences": OPTIONS ** depth,
+        "samples": samples,
+        "horizon": horizon,
         "state_dim": STATE_DIM,
         "hidden_sizes": list(hidden),
         "members": members,
@@ -227,7 +244,8 @@ def _table(result: dict[str, object]) -> str:
         ("decision latency p50", f"{result['decision_ms_p50']:.2f} ms"),
         ("decision latency p99", f"{result['decision_ms_p99']:.2f} ms"),
         ("naive loop decision (median)", f"{result['loop_decision_ms_median']:.0f} ms"),
-        ("batched vs loop", f"{result['batched_vs_loop']:.0f}x"),
+        ("batched vs loop", "-" if result["batched_vs_loop"] is None
+         else f"{result['batched_vs_loop']:.0f}x"),
         ("MLP work per decision", f"{result['mflop_per_decision']:.0f} MFLOP "
                                   f"({result['rows_per_decision']} member rows)"),
         ("achieved", f"{result['achieved_gflops']:.1f} GFLOP/s"),
@@ -235,7 +253,8 @@ def _table(result: dict[str, object]) -> str:
          f"{result['gemm_gflops']:.1f} GFLOP/s"),
         ("fraction of GEMM", f"{100 * float(result['gemm_fraction']):.0f}%"),  # type: ignore[arg-type]
         ("torch threads", str(result["torch_threads"])),
-        ("setup", f"{result['options']} options x {result['samples']} samples x horizon "
+        ("setup", f"depth {result['depth']} ({result['sequences']} sequences), "
+                  f"{result['options']} options x {result['samples']} samples x horizon "
                   f"{result['horizon']}, d={result['state_dim']}, MLP {result['hidden_sizes']}"
                   f" x {result['members']} members"),
         ("decisions timed", f"{result['repeats']} (+ {result['loop_repeats']} naive)"),
@@ -262,13 +281,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="hidden layer widths")
     parser.add_argument("--members", type=int, default=DEFAULT_MEMBERS, help="ensemble size")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--depth", type=int, default=1,
+                        help="options per imagined sequence (2: SequencePlanner)")
+    parser.add_argument("--samples", type=int, default=None,
+                        help=f"rollouts per option sequence [{SAMPLES}; 32 at depth > 1]")
+    parser.add_argument("--horizon", type=int, default=None,
+                        help=f"steps per option [{HORIZON}; 10 at depth > 1]")
     parser.add_argument("--profile", action="store_true",
                         help="also split a decision's time with torch.profiler (50 decisions)")
     args = parser.parse_args(argv)
-    if min(args.repeats, args.loop_repeats, args.rounds, args.threads, args.members) < 1:
-        parser.error("--repeats, --loop-repeats, --rounds, --threads, --members must be >= 1")
+    samples = args.samples or (SAMPLES if args.depth == 1 else 32)
+    horizon = args.horizon or (HORIZON if args.depth == 1 else 10)
+    if min(args.repeats, args.loop_repeats, args.rounds, args.threads, args.members,
+           args.depth, samples, horizon) < 1:
+        parser.error("--repeats, --loop-repeats, --rounds, --threads, --members, --depth, "
+                     "--samples, --horizon must be >= 1")
     result = run(args.repeats, args.loop_repeats, args.rounds, args.threads, args.hidden,
-                 args.members, args.seed, args.profile)
+                 args.members, args.seed, args.profile, args.depth, samples, horizon)
     print(json.dumps(result) if args.json else _table(result))
     return 0
 
