@@ -135,7 +135,7 @@ class StackedMLPEnsemble:
     def _sample(self, states: FloatArray, lay: "_Layout", gather: np.ndarray,
                 scatter: np.ndarray, rng: Generator) -> FloatArray:
         o, s, d = states.shape
-        noise = rng.standard_normal((self.groups, lay.slots, d), dtype=np.float32)
+        rng.standard_normal(dtype=np.float32, out=lay.noise_np)  # (groups, slots, d)
         np.take(states.reshape(o * s, d), gather, axis=0, out=lay.x64)
         lay.x32_np[...] = lay.x64_blocks
         with torch.inference_mode():
@@ -148,7 +148,7 @@ class StackedMLPEnsemble:
             t = F.softplus(torch.sub(self._max_logvar, out[..., d:], out=lay.tmp))
             t = F.softplus(torch.sub(self._logvar_span, t, out=lay.tmp))
             std = torch.add(self._log_std_offset, t, alpha=0.5, out=lay.tmp).exp_()
-            nxt = torch.addcmul(x, std, torch.from_numpy(noise), out=lay.next)
+            nxt = torch.addcmul(x, std, lay.noise, out=lay.next)
             nxt.add_(out[..., :d])
         result = np.empty((lay.result_rows, d))
         result[scatter] = lay.next_np
@@ -194,6 +194,8 @@ class _Layout:
         self.hidden = [torch.empty(options * e, m, w) for w in widths]
         self.tmp = torch.empty(options * e, m, d)
         self.next = torch.empty(options * e, m, d)
+        self.noise_np = np.empty((options * e, m, d), dtype=np.float32)  # drawn in place
+        self.noise = torch.from_numpy(self.noise_np)
         self.next_np = self.next.numpy().reshape(n_slots, d)
 
     def draw(self, rng: Generator) -> tuple[np.ndarray, np.ndarray]:
