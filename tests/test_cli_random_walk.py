@@ -30,15 +30,26 @@ def test_random_walk_writes_summary_figures_and_is_deterministic(tmp_path):
     assert [r["noise"] for r in a["robustness"]] == [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
 
     def strip(summary):
-        summary.pop("seconds")
-        for row in [*summary["baselines"].values(), *summary["robustness"]]:
+        for row in [summary, *summary["baselines"].values(), *summary["robustness"]]:
             row.pop("seconds")
+            row.pop("cpu_seconds")
         return summary
 
     assert strip(a) == strip(b)
     for name in ("figure_mdp_solution.png", "robustness.png", "robustness.csv"):
         assert (tmp_path / "a" / name).stat().st_size > 1000 or name.endswith(".csv")
     assert not list((tmp_path / "a").glob(".*tmp*"))  # no temporary files left behind
+
+
+@pytest.mark.slow
+def test_depth_two_and_lockstep_reach_the_goal_on_the_walk(tmp_path):
+    for flags in (["--depth", "2"], ["--lockstep"], ["--lockstep", "--depth", "2"]):
+        out = tmp_path / "-".join(flags)
+        _run("random-walk", "--episodes", "30", "--quiet", "--out", str(out), *flags)
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["success_rate"] == 1.0, flags
+        assert summary["planning_steps_median"] <= 7, flags
+        assert summary["settings"]["depth"] == (2 if "2" in flags else 1)
 
 
 @pytest.mark.parametrize(
@@ -48,6 +59,7 @@ def test_random_walk_writes_summary_figures_and_is_deterministic(tmp_path):
         (["--episodes", "0"], "Invalid value for '--episodes'"),
         (["--no-such-flag"], "No such option"),
         (["--start-state", "20"], "--start-state must be in"),
+        (["--depth", "0"], "Invalid value for '--depth'"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, message):

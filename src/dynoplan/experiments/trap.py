@@ -55,13 +55,14 @@ def trap_row(settings: TrapSettings, depth: int) -> dict[str, Any]:
     seeds = episode_seeds(settings.seed, settings.episodes)
     envs = [gym.make(TRAP_WALK_ID) for _ in seeds]
     planner_rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(1)[0])
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     traces = run_batched(envs, options, planner, seeds, planner_rng,
                          max_decisions=settings.max_decisions)
-    seconds = time.perf_counter() - t0
+    seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
     ends = Counter(tuple(int(v) for v in t.decisions[-1].state_after)
                    for t in traces if not t.success and t.decisions)
     return {"depth": depth, **planning_steps_summary(traces), "seconds": seconds,
+            "cpu_seconds": cpu_seconds,
             "failed_ended_at": {f"{x},{lane}": n for (x, lane), n in sorted(ends.items())}}
 
 
