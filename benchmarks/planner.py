@@ -203,15 +203,15 @@ def run(repeats: int, loop_repeats: int, rounds: int, threads: int, hidden: Sequ
     flops_per_decision = rows_per_decision * model.flops_per_row()
     breakdown = profile_breakdown(planner, state, rng) if with_profile else {}
     p50, p99 = float(np.percentile(decisions, 50)), float(np.percentile(decisions, 99))
-    loop = float(np.median(loops)) if loops else float("nan")
+    loop = float(np.median(loops)) if loops else None
     gemm_flops = 2.0 * GEMM_SIZE ** 3 / float(np.median(gemms))
     achieved = flops_per_decision / p50
     return {
         "decision_ms_p50": 1e3 * p50,
         "decision_ms_p99": 1e3 * p99,
         "decision_ms_mean": 1e3 * float(np.mean(decisions)),
-        "loop_decision_ms_median": 1e3 * loop,
-        "batched_vs_loop": loop / p50 if loops else None,
+        "loop_decision_ms_median": None if loop is None else 1e3 * loop,
+        "batched_vs_loop": None if loop is None else loop / p50,
         "achieved_gflops": achieved / 1e9,
         "gemm_gflops": gemm_flops / 1e9,
         "gemm_fraction": achieved / gemm_flops,
@@ -243,7 +243,8 @@ def _table(result: dict[str, object]) -> str:
     rows = [
         ("decision latency p50", f"{result['decision_ms_p50']:.2f} ms"),
         ("decision latency p99", f"{result['decision_ms_p99']:.2f} ms"),
-        ("naive loop decision (median)", f"{result['loop_decision_ms_median']:.0f} ms"),
+        ("naive loop decision (median)", "-" if result["loop_decision_ms_median"] is None
+         else f"{result['loop_decision_ms_median']:.0f} ms"),
         ("batched vs loop", "-" if result["batched_vs_loop"] is None
          else f"{result['batched_vs_loop']:.0f}x"),
         ("MLP work per decision", f"{result['mflop_per_decision']:.0f} MFLOP "

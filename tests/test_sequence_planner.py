@@ -197,3 +197,17 @@ def test_rollouts_of_the_running_rows_only_equal_the_full_arrays_in_distribution
         assert ks_2samp(a.end_states[o, :, 0], b.end_states[o, :, 0]).pvalue > 1e-3
         assert ks_2samp(a.steps[o], b.steps[o]).pvalue > 1e-3
     assert not np.array_equal(a.steps, b.steps)
+
+
+def test_member_disagreements_equal_the_loop_over_options():
+    from dynoplan.planning.option_planner import member_disagreement
+    from dynoplan.planning.sequence_planner import member_disagreements
+
+    rng = np.random.default_rng(0)
+    g = rng.random((6, 40))
+    members = rng.integers(0, 4, size=(6, 40))
+    members[2] = 1  # one member only: no disagreement
+    np.testing.assert_allclose(member_disagreements(g, members),
+                               member_disagreement(g, members), atol=1e-12)
+    assert member_disagreements(g, members)[2] == 0.0
+    assert (member_disagreements(g, None) == 0).all()
