@@ -239,6 +239,22 @@ def run(repeats: int, loop_repeats: int, rounds: int, threads: int, hidden: Sequ
     }
 
 
+def digest(depth: int, samples: int, horizon: int, hidden: Sequence[int], members: int,
+           seed: int, decisions: int = 20) -> str:
+    """SHA-256 of the scores and end states of ``decisions`` seeded decisions from
+    different states: equal digests mean an engine change kept the seeded results."""
+    import hashlib
+
+    torch.set_num_threads(1)
+    planner, _, _ = build(hidden, members, seed, depth, samples, horizon)
+    rng, h = np.random.default_rng(seed), hashlib.sha256()
+    for k in range(decisions):
+        plan = planner.plan(np.full(STATE_DIM, 0.1 * k), rng)
+        h.update(plan.scores.tobytes())
+        h.update(plan.end_states.tobytes())
+    return h.hexdigest()
+
+
 def _table(result: dict[str, object]) -> str:
     rows = [
         ("decision latency p50", f"{result['decision_ms_p50']:.2f} ms"),
@@ -288,6 +304,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"rollouts per option sequence [{SAMPLES}; 32 at depth > 1]")
     parser.add_argument("--horizon", type=int, default=None,
                         help=f"steps per option [{HORIZON}; 10 at depth > 1]")
+    parser.add_argument("--digest", action="store_true",
+                        help="only print a SHA-256 of 20 seeded decisions (compare engines)")
     parser.add_argument("--profile", action="store_true",
                         help="also split a decision's time with torch.profiler (50 decisions)")
     args = parser.parse_args(argv)
@@ -297,6 +315,9 @@ def main(argv: Sequence[str] | None = None) -> int:
            args.depth, samples, horizon) < 1:
         parser.error("--repeats, --loop-repeats, --rounds, --threads, --members, --depth, "
                      "--samples, --horizon must be >= 1")
+    if args.digest:
+        print(digest(args.depth, samples, horizon, args.hidden, args.members, args.seed))
+        return 0
     result = run(args.repeats, args.loop_repeats, args.rounds, args.threads, args.hidden,
                  args.members, args.seed, args.profile, args.depth, samples, horizon)
     print(json.dumps(result) if args.json else _table(result))
