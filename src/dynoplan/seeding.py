@@ -29,4 +29,14 @@ def episode_seeds(seed: int, episodes: int) -> list[EpisodeSeed]:
     return [EpisodeSeed(i, int(c.generate_state(1)[0]), c) for i, c in enumerate(children)]
 
 
-__all__ = ["EpisodeSeed", "episode_seeds"]
+BATCH_STREAM = 2**32 - 1
+"""The spawn key of :func:`batch_planner_seed`'s stream (episodes use ``0, 1, ...``)."""
+
+
+def batch_planner_seed(seed: int) -> np.random.SeedSequence:
+    """The seed of a planner shared by a batch of episodes run side by side: derived from
+    ``seed`` like :func:`episode_seeds`' streams, and independent of every one of them."""
+    return np.random.SeedSequence(seed, spawn_key=(BATCH_STREAM,))
+
+
+__all__ = ["BATCH_STREAM", "EpisodeSeed", "batch_planner_seed", "episode_seeds"]

@@ -33,7 +33,7 @@ from dynoplan.pipeline.evaluate import (
 from dynoplan.planning import OptionPlanner, SequencePlanner
 from dynoplan.reports.random_walk_figures import plot_mdp_solution, plot_robustness
 from dynoplan.reports.random_walk_results import random_walk_markdown, trace_rows
-from dynoplan.seeding import EpisodeSeed, episode_seeds
+from dynoplan.seeding import EpisodeSeed, batch_planner_seed, episode_seeds
 
 ROBUSTNESS_NOISES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
@@ -102,7 +102,7 @@ def run_lockstep(controller: Controller, noise: float, settings: RandomWalkSetti
                                   depth=settings.depth, compact=True)
     envs = [gym.make(RANDOM_WALK_ID, goal_state=settings.goal_state,
                      start_state=settings.start_state) for _ in seeds]
-    planner_rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(1)[0])
+    planner_rng = np.random.default_rng(batch_planner_seed(settings.seed))
     return run_batched(envs, controller.options, chooser, seeds, planner_rng,
                        max_decisions=settings.max_decisions)
 

@@ -23,7 +23,7 @@ from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.limits import DEPTH_MAX
 from dynoplan.pipeline.evaluate import planning_steps_summary
 from dynoplan.planning import SequencePlanner
-from dynoplan.seeding import episode_seeds
+from dynoplan.seeding import batch_planner_seed, episode_seeds
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,7 @@ def trap_row(settings: TrapSettings, depth: int) -> dict[str, Any]:
                               samples=settings.samples, depth=depth, compact=True)
     seeds = episode_seeds(settings.seed, settings.episodes)
     envs = [gym.make(TRAP_WALK_ID) for _ in seeds]
-    planner_rng = np.random.default_rng(np.random.SeedSequence(settings.seed).spawn(1)[0])
+    planner_rng = np.random.default_rng(batch_planner_seed(settings.seed))
     t0, cpu0 = time.perf_counter(), time.process_time()
     traces = run_batched(envs, options, planner, seeds, planner_rng,
                          max_decisions=settings.max_decisions)
