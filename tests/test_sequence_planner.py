@@ -211,3 +211,80 @@ def test_member_disagreements_equal_the_loop_over_options():
                                member_disagreement(g, members), atol=1e-12)
     assert member_disagreements(g, members)[2] == 0.0
     assert (member_disagreements(g, None) == 0).all()
+
+
+class _Drift:
+    """Deterministic s -> s + speed (a known answer)."""
+
+    def __init__(self, speed):
+        self.speed = speed
+
+    @property
+    def state_dim(self):
+        return 1
+
+    def sample(self, states, rng):
+        return states + self.speed
+
+
+class _Linear:
+    """G(s) = s / 100, exact."""
+
+    def sample(self, states, rng):
+        return states[:, 0] / 100.0
+
+    def mean_std(self, states):
+        return states[:, 0] / 100.0, np.zeros(len(states))
+
+
+class _Beyond:
+    """A step that ends beyond ``limit`` is unsafe."""
+
+    def __init__(self, limit):
+        self.limit = limit
+
+    def prepare(self, state):
+        pass
+
+    def unsafe(self, before, after, step):
+        return after[..., 0] > self.limit
+
+
+def _drift_options():
+    from dynoplan.options import ConstantTermination, FunctionPolicy
+    from dynoplan.options.initiation import Everywhere
+
+    low = InitiationFromCallable(lambda s: s[:, 0] < 3.0)  # may start low, then runs on
+    return [Option("slow", FunctionPolicy(lambda o, r: 0), _Drift(1.0), ConstantTermination(0.0)),
+            Option("fast", FunctionPolicy(lambda o, r: 0), _Drift(3.0), ConstantTermination(0.0)),
+            Option("only_low", FunctionPolicy(lambda o, r: 0), _Drift(10.0),
+                   ConstantTermination(0.0), initiation=low, continuation=Everywhere())]
+
+
+def test_an_unsafe_step_anywhere_along_a_sequence_rules_the_sequence_out():
+    options = _drift_options()
+    free = SequencePlanner(options, _Linear(), horizon=5, samples=4, depth=2).plan(
+        np.array([0.0]), np.random.default_rng(0))
+    # only_low runs first (0 -> 50), then fast (-> 65); after slow or fast it may not start
+    assert free.chosen_name == "only_low"
+    assert free.sequences == (("slow", "fast"), ("fast", "fast"), ("only_low", "fast"))
+    np.testing.assert_allclose(free.scores, [0.20, 0.30, 0.65])
+    safe = SequencePlanner(options, _Linear(), horizon=5, samples=4, depth=2,
+                           constraint=_Beyond(12.0)).plan(np.array([0.0]),
+                                                          np.random.default_rng(0))
+    # slow then slow reaches 10 safely; every sequence through a step beyond 12 is out
+    assert safe.chosen_name == "slow"
+    assert safe.sequences is not None and safe.sequences[0] == ("slow", "slow")
+    np.testing.assert_allclose(safe.scores, [0.10, -np.inf, -np.inf])
+    np.testing.assert_allclose(safe.unsafe_shares, [0.0, 1.0, 1.0])
+
+
+def test_a_second_option_that_may_not_start_leaves_the_sequence_where_it_is():
+    options = _drift_options()
+    planner = SequencePlanner(options, _Linear(), horizon=5, samples=4, depth=2)
+    plan = planner.plan(np.array([0.0]), np.random.default_rng(0))
+    assert plan.chosen_name == "only_low"
+    # 'slow' then 'only_low' cannot start at 5: it scores 5 / 100, below slow-then-fast
+    level = planner.rollout((2,), np.full((1, 4, 1), 5.0), np.random.default_rng(0),
+                            start_alive=np.zeros((1, 4), dtype=bool))
+    assert (level.end_states == 5.0).all() and (level.steps == 0).all()
