@@ -15,6 +15,7 @@ from dynoplan.cli.generic import generic_app
 from dynoplan.cli.params import out_folder, require_gear
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
+    DEPTH_MAX,
     HORIZON_MAX,
     RANDOM_WALK_EPISODES_MAX,
     SAMPLES_MAX,
@@ -49,6 +50,12 @@ def random_walk(
                                 help="Monte-Carlo rollouts per option."),
     max_decisions: int = typer.Option(50, min=1, max=STEPS_MAX,
                                       help="Planning steps before an episode fails."),
+    depth: int = typer.Option(1, min=1, max=DEPTH_MAX,
+                              help="Options per imagined sequence (1: Eq. 1; 2: look one "
+                                   "option further)."),
+    lockstep: bool = typer.Option(False, "--lockstep",
+                                  help="Run the episodes side by side: every episode's "
+                                       "decision of one step in one planner call."),
     start_state: int = typer.Option(0, min=0, help="Start state of the walk (0..19)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -58,7 +65,7 @@ def random_walk(
 
     settings = RandomWalkSettings(episodes=episodes, noise=noise, seed=seed, horizon=horizon,
                                   samples=samples, max_decisions=max_decisions,
-                                  start_state=start_state)
+                                  depth=depth, lockstep=lockstep, start_state=start_state)
     with staged_folder(out) as folder:
         summary = run_random_walk(settings, folder, progress=not quiet)
     typer.echo(
@@ -66,6 +73,36 @@ def random_walk(
         f"{summary['planning_steps_median']}, p90 {summary['planning_steps_p90']}, "
         f"{summary['episodes']} episodes in {summary['seconds']:.2f} s -> {out}/summary.json"
     )
+
+
+@app.command("trap-walk")
+def trap_walk(
+    out: Path = typer.Option(Path("results/trap-walk"), callback=out_folder,
+                             help="Output folder."),
+    episodes: int = typer.Option(1000, min=1, max=RANDOM_WALK_EPISODES_MAX,
+                                 help="Episodes per depth (the same episodes at every depth)."),
+    depth: list[int] = typer.Option([1, 2], "--depth", min=1, max=DEPTH_MAX,
+                                    help="Options per imagined sequence; repeat for several."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of every random choice."),
+    horizon: int = typer.Option(20, min=1, max=HORIZON_MAX, help="Rollout horizon per option."),
+    samples: int = typer.Option(64, min=1, max=SAMPLES_MAX,
+                                help="Monte-Carlo rollouts per option sequence."),
+    max_decisions: int = typer.Option(50, min=1, max=STEPS_MAX,
+                                      help="Planning steps before an episode fails."),
+) -> None:
+    """The look-ahead's known answer: the trap walk at depth 1 (stalls) and 2 (does not)."""
+    from dynoplan.experiments.trap import TrapSettings, run_trap
+    from dynoplan.io import staged_folder
+
+    settings = TrapSettings(episodes=episodes, depths=tuple(depth), seed=seed,
+                            horizon=horizon, samples=samples, max_decisions=max_decisions)
+    with staged_folder(out) as folder:
+        summary = run_trap(settings, folder)
+    for row in summary["rows"]:
+        typer.echo(f"depth {row['depth']}: success {row['success_rate']:.1%}, planning steps "
+                   f"median {row['planning_steps_median']}, {row['episodes']} episodes in "
+                   f"{row['seconds']:.2f} s")
+    typer.echo(f"-> {out}/summary.json")
 
 
 @app.command("sweep")
