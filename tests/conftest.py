@@ -13,20 +13,31 @@ def pytest_configure(config):
     torch.set_num_threads(1)
 
 
-@pytest.fixture(scope="session")
-def quick_gear_run(tmp_path_factory):
-    """``dynoplan gear run --quick`` once per session (a few minutes; slow tests only): its
-    output folder, with ``models/``, ``flat_ppo/`` and the results of 3 episodes."""
+def run_quick_gear(out):
+    """``dynoplan gear run --quick`` on 3 episodes (the oracle on 1, no video) into ``out``,
+    in this process; returns ``out``."""
     from typer.testing import CliRunner
 
     from dynoplan.cli.main import app
 
-    out = tmp_path_factory.mktemp("gear-quick") / "run"
     result = CliRunner().invoke(app, ["gear", "run", "--quick", "--out", str(out), "--quiet",
                                       "--no-video", "--episodes", "3",
                                       "--oracle-episodes", "1"])
     assert result.exit_code == 0, result.output
     return out
+
+
+@pytest.fixture(scope="session")
+def quick_gear_run(tmp_path_factory):
+    """``dynoplan gear run --quick`` once per session (a few minutes; slow tests only): its
+    output folder, with ``models/``, ``flat_ppo/`` and the results of 3 episodes."""
+    return run_quick_gear(tmp_path_factory.mktemp("gear-quick") / "run")
+
+
+@pytest.fixture(scope="session")
+def quick_gear_rerun(tmp_path_factory, quick_gear_run):
+    """The command of :func:`quick_gear_run` run again, after it, into another folder."""
+    return run_quick_gear(tmp_path_factory.mktemp("gear-quick-again") / "run")
 
 
 @pytest.fixture(scope="session")

@@ -104,6 +104,27 @@ def test_save_load_round_trips_bit_exactly(trained, tmp_path):
     np.testing.assert_array_equal(network.predict(x), loaded.predict(x))
 
 
+def test_the_same_fit_writes_the_same_file_whatever_threads_the_caller_set(demos, tmp_path):
+    """Two fits of the same demonstrations and seed write the same bytes: no wall-clock
+    times in the file, and the caller's thread count (1 or 2 here) does not reach the
+    training, which runs on its own fixed thread count and leaves the caller's as it was."""
+    before = torch.get_num_threads()
+    files = []
+    try:
+        for threads in (2, 1):
+            torch.set_num_threads(threads)
+            path = tmp_path / f"t{threads}.safetensors"
+            report = train_insertion(path, demos, seed=0, epochs=20, hidden_sizes=(64, 64),
+                                     held_out_fraction=0.4)
+            assert torch.get_num_threads() == threads
+            assert report["train_seconds"] > 0.0  # the caller still gets the times
+            files.append(path.read_bytes())
+    finally:
+        torch.set_num_threads(before)
+    assert files[0] == files[1]
+    assert "seconds" not in InsertionNetwork.load(tmp_path / "t1.safetensors").report
+
+
 def _one_line_error(path) -> str:
     with pytest.raises(DynoplanError) as err:
         InsertionNetwork.load(path)

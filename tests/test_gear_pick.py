@@ -16,6 +16,7 @@ from dynoplan.envs.gear.options.recognition import (
     fit_recognizer,
     generate_grasp_data,
     grasp_features,
+    train_recognizer,
 )
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
@@ -92,6 +93,28 @@ def test_save_load_round_trips_bit_exactly(tmp_path, data, trained):
     for a, b in zip(loaded.network.parameters(), model.network.parameters(), strict=True):
         assert np.array_equal(a.detach().numpy(), b.detach().numpy())
     assert loaded.report["held_out_accuracy"] == report["held_out_accuracy"]
+
+
+def test_the_same_fit_writes_the_same_file_whatever_threads_the_caller_set(tmp_path, data):
+    """Two fits of the same data and seed write the same bytes: no wall-clock times in
+    the file, and the caller's thread count (1 or 2 here) does not reach the training,
+    which runs on its own fixed thread count and leaves the caller's as it was."""
+    import torch
+
+    before = torch.get_num_threads()
+    files = []
+    try:
+        for threads in (2, 1):
+            torch.set_num_threads(threads)
+            report = train_recognizer(tmp_path / f"t{threads}.safetensors", data, seed=0,
+                                      epochs=20)
+            assert torch.get_num_threads() == threads
+            assert report["train_seconds"] > 0.0  # the caller still gets the times
+            files.append((tmp_path / f"t{threads}.safetensors").read_bytes())
+    finally:
+        torch.set_num_threads(before)
+    assert files[0] == files[1]
+    assert "train_seconds" not in GraspRecognizer.load(tmp_path / "t1.safetensors").report
 
 
 def test_bad_files_are_rejected_with_one_clear_error(tmp_path, trained):

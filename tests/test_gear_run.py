@@ -152,6 +152,34 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     assert "## Ablation" in (out / "results.md").read_text()
 
 
+MODEL_FILES = ("models/models.json", "flat_ppo/flat_policy.json")
+"""Model files beside the ``.safetensors`` that must repeat to the byte too."""
+
+
+def _episodes_without_latencies(path: Path) -> dict[str, list[dict]]:
+    """``episodes.json`` without the measured wall-clock ``decision_ms`` of each episode."""
+    return {name: [{k: v for k, v in e.items() if k != "decision_ms"} for e in episodes]
+            for name, episodes in json.loads(path.read_text()).items()}
+
+
+@pytest.mark.slow
+def test_the_same_command_twice_writes_the_same_models_and_episodes(quick_gear_run: Path,
+                                                                    quick_gear_rerun: Path):
+    """Same seed, same result: two ``gear run --quick`` (3 episodes, in one process, one
+    after the other) write every ``.safetensors`` (option networks, goal, regions,
+    dynamics, initiation, flat PPO) and the JSON beside them to the same bytes, and the
+    same episode records but for the measured latencies."""
+    first, again = quick_gear_run, quick_gear_rerun
+    tensors = sorted(p.relative_to(first) for p in first.rglob("*.safetensors"))
+    assert sorted(p.relative_to(again) for p in again.rglob("*.safetensors")) == tensors
+    assert len(tensors) >= 10  # 2 option networks, goal, regions, 4 dynamics, initiation, ppo
+    differ = [str(p) for p in (*tensors, *map(Path, MODEL_FILES))
+              if (first / p).read_bytes() != (again / p).read_bytes()]
+    assert differ == []
+    assert (_episodes_without_latencies(first / "episodes.json")
+            == _episodes_without_latencies(again / "episodes.json"))
+
+
 def test_the_video_shows_the_shortest_successful_switch_to_the_cautious_move():
     def episode(options, mode="cross", success=True, seconds=10.0):
         steps = round(seconds / CONTROL_DT)

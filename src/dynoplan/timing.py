@@ -65,6 +65,17 @@ class StageClock:
             self._say(self._label.format(name) + note)
 
 
+WALL_CLOCK_KEYS = frozenset({"seconds", "data_seconds", "train_seconds"})
+"""Keys of a training report that hold wall-clock seconds (they differ run to run)."""
+
+
+def without_wall_clock(report: dict[str, Any]) -> dict[str, Any]:
+    """``report`` without its :data:`WALL_CLOCK_KEYS`: what a model file stores of its
+    training report, so that the same fit writes the same bytes (the times stay in the
+    report returned to the caller, and in ``summary.json``)."""
+    return {k: v for k, v in report.items() if k not in WALL_CLOCK_KEYS}
+
+
 def _timed(fn: Callable[..., T], *args: Any) -> tuple[float, T]:
     """``(wall seconds, fn(*args))``: a stage run as one task, and how long it took."""
     t0 = perf_counter()
@@ -72,4 +83,4 @@ def _timed(fn: Callable[..., T], *args: Any) -> tuple[float, T]:
     return perf_counter() - t0, result
 
 
-__all__ = ["StageClock"]
+__all__ = ["WALL_CLOCK_KEYS", "StageClock", "without_wall_clock"]

@@ -36,6 +36,7 @@ from dynoplan.options.termination import ConstantTermination
 from dynoplan.pipeline.collect import CallableDemonstrator, RunStart, record_episode
 from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.seeding import EpisodeSeed
+from dynoplan.timing import without_wall_clock
 from dynoplan.types import FloatArray, Generator
 
 JOINT_STEP = 0.05  # rad per decision at |a| = 1
@@ -97,17 +98,27 @@ def train_flat_policy(steps: int, seed: int, out: Path, progress: bool = False) 
 
 def fit_flat_policy(steps: int, seed: int,
                     progress: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Train PPO for ``steps`` environment steps on one torch thread, writing nothing:
-    the policy's ``state_dict`` (CPU tensors) and the report of
-    :func:`train_flat_policy`. Depends on ``steps`` and ``seed`` alone, so it can run in
-    any process (a Ray task, while other work goes on) and give the same weights."""
+    """Train PPO for ``steps`` environment steps, writing nothing: the policy's
+    ``state_dict`` (CPU tensors) and the report of :func:`train_flat_policy`. Depends on
+    ``steps`` and ``seed`` alone (SB3 seeds its generators, the environment and the
+    action space from ``seed``; the training runs inside
+    :func:`~dynoplan.models.trainer.deterministic_training`, one thread, restored
+    afterwards), so it gives the same weights to the bit in any process on one machine
+    (a Ray task, while other work goes on)."""
+    from dynoplan.models.trainer import deterministic_training
+
+    with deterministic_training():
+        return _fit_flat_policy(steps, seed, progress)
+
+
+def _fit_flat_policy(steps: int, seed: int,
+                     progress: bool) -> tuple[dict[str, Any], dict[str, Any]]:
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import Logger
 
     if steps < 64:
         raise DynoplanError(f"--flat-steps must be >= 64, got {steps}")
-    torch.set_num_threads(1)
     env = FlatGearTask()
     env.reset(seed=seed)
     n_steps = min(512, steps)
@@ -130,13 +141,14 @@ def fit_flat_policy(steps: int, seed: int,
 
 def save_flat_policy(fitted: tuple[dict[str, Any], dict[str, Any]], out: Path) -> dict[str, Any]:
     """Write :func:`fit_flat_policy`'s result into ``out`` (``flat_policy.safetensors``
-    and ``flat_policy.json``, which :class:`FlatPolicy` reads); return the report."""
+    and ``flat_policy.json``, which :class:`FlatPolicy` reads; the JSON without the
+    report's wall-clock ``train_seconds``); return the report, with them."""
     from safetensors.torch import save_file
 
     state, report = fitted
     out.mkdir(parents=True, exist_ok=True)
     write_with(out / WEIGHTS_FILE, lambda p: save_file(state, str(p)))
-    write_json(out / META_FILE, report)
+    write_json(out / META_FILE, without_wall_clock(report))  # the same bytes for the same fit
     return report
 
 

@@ -8,16 +8,55 @@ What differs between networks (the loss, Adam or AdamW, weight decay, the schedu
 batch order, the hold-out, which epoch is kept) is a parameter, so each network trains
 exactly as it always has. Every random choice comes from the generator inside the row
 order; the global torch random state is not used.
+
+:func:`deterministic_training` is what makes a fit repeat to the bit on one machine
+whoever calls it: a fixed thread count (the sums inside a matrix product are split
+over the threads, and float addition does not associate) and torch's deterministic
+algorithms, both restored afterwards.
 """
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Literal
 
 import torch
+from threadpoolctl import threadpool_limits
 from torch import nn
+
+TRAINING_THREADS = 1
+"""Threads every fit of :func:`deterministic_training` runs on unless told otherwise."""
+
+
+@contextmanager
+def deterministic_training(threads: int = TRAINING_THREADS) -> Iterator[None]:
+    """Run the ``with`` block on ``threads`` threads with deterministic algorithms.
+
+    Inside the block torch uses ``threads`` intra-op threads
+    (``torch.set_num_threads``) and only deterministic algorithms
+    (``torch.use_deterministic_algorithms(True)``: an operation without one raises), and
+    the BLAS and OpenMP pools of numpy, scipy and scikit-learn are limited to ``threads``
+    (``threadpoolctl``). A fit seeded the same then gives the same bits on one machine
+    however many threads the caller ran on (the reductions inside a matrix product are
+    split over the threads, so their rounding depends on how many there are). Every
+    setting is restored on leaving, also when the block raises. Random draws are not
+    touched: each fit seeds its own generators.
+    """
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    previous_threads = torch.get_num_threads()
+    previous_deterministic = torch.are_deterministic_algorithms_enabled()
+    previous_warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
+    try:
+        with threadpool_limits(limits=threads):
+            torch.set_num_threads(threads)
+            torch.use_deterministic_algorithms(True)
+            yield
+    finally:
+        torch.use_deterministic_algorithms(previous_deterministic, warn_only=previous_warn_only)
+        torch.set_num_threads(previous_threads)
 
 BatchLoss = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """``loss(inputs, targets)`` of one minibatch -> ``(objective, value)``: the scalar the
@@ -185,5 +224,5 @@ def _snapshot(model: nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().clone() for k, v in model.state_dict().items()}
 
 
-__all__ = ["BatchLoss", "HoldOut", "KeepBest", "RowOrder", "TrainingReport", "bootstrapped",
-           "shuffled", "train"]
+__all__ = ["TRAINING_THREADS", "BatchLoss", "HoldOut", "KeepBest", "RowOrder", "TrainingReport",
+           "bootstrapped", "deterministic_training", "shuffled", "train"]

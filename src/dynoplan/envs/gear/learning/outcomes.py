@@ -76,12 +76,16 @@ def fit_gear_initiation(models: Path, outcomes: Path, seed: int,
                         features: str = "relative") -> dict[str, Any]:
     """The initiation learned from the outcome runs ``outcomes`` (:func:`collect_outcomes`)
     on the feature map ``features`` of the planner state, written into the models folder
-    ``models`` (:func:`~dynoplan.pipeline.fit.fit_initiation_from_outcomes`); the fit's
-    report."""
+    ``models`` (:func:`~dynoplan.pipeline.fit.fit_initiation_from_outcomes`, inside
+    :func:`~dynoplan.models.trainer.deterministic_training`: the same file to the bit for
+    the same runs and ``seed`` on one machine); the fit's report."""
     from dynoplan.envs.gear.features import feature_map
+    from dynoplan.models.trainer import deterministic_training
 
-    return fit_initiation_from_outcomes(models, read_outcomes(outcomes), GEAR_OPTIONS.names(),
-                                        PlannerState(), feature_map(features), seed)
+    runs = read_outcomes(outcomes)
+    with deterministic_training():
+        return fit_initiation_from_outcomes(models, runs, GEAR_OPTIONS.names(),
+                                            PlannerState(), feature_map(features), seed)
 
 
 def transitions_beyond(transitions: Path, outcomes: Path, out: Path) -> dict[str, Any]:

@@ -46,7 +46,14 @@ from dynoplan.envs.gear.options.insert import (
 from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.task import STAGE_INDEX, relation
 from dynoplan.errors import DynoplanError
-from dynoplan.models.trainer import HoldOut, KeepBest, shuffled, train
+from dynoplan.models.trainer import (
+    HoldOut,
+    KeepBest,
+    deterministic_training,
+    shuffled,
+    train,
+)
+from dynoplan.timing import without_wall_clock
 from dynoplan.types import BoolArray, FloatArray, IntArray
 
 DEFAULT_EPISODES = 80
@@ -259,7 +266,9 @@ def fit_insertion(network: InsertionNetwork, demos: InsertionDemos, *,
                   seed: int = 0) -> dict[str, Any]:
     """Behaviour cloning: fit ``network`` to the demos' steps by mean squared error on
     standardised targets (Adam, cosine-decayed learning rate, shuffling from a seeded
-    ``torch.Generator``), keeping the epoch with the lowest held-out loss.
+    ``torch.Generator``), keeping the epoch with the lowest held-out loss. The same demos
+    and ``seed`` give the same weights to the bit on one machine (trained inside
+    :func:`~dynoplan.models.trainer.deterministic_training`).
 
     Returns the report: ``train_loss``/``held_out_loss`` per epoch (standardised MSE; 1.0
     is "predict the mean"), their values at the kept epoch, ``best_epoch``, sizes and
@@ -287,14 +296,17 @@ def fit_insertion(network: InsertionNetwork, demos: InsertionDemos, *,
         return batch_mse, batch_mse
 
     optimiser = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay)
-    report = train(net, loss, x_tr, y_tr, optimiser,
-                   shuffled(len(x_tr), torch.Generator().manual_seed(int(seed))),
-                   epochs=epochs, batch_size=batch_size,
-                   schedule=torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=epochs),
-                   holdout=HoldOut(x_ho, y_ho, lambda inputs, targets: float(mse(inputs, targets))),
-                   keep_best=KeepBest(start=True))
-    with torch.no_grad():
-        final_train = float(mse(x_tr, y_tr))
+    with deterministic_training():
+        report = train(net, loss, x_tr, y_tr, optimiser,
+                       shuffled(len(x_tr), torch.Generator().manual_seed(int(seed))),
+                       epochs=epochs, batch_size=batch_size,
+                       schedule=torch.optim.lr_scheduler.CosineAnnealingLR(optimiser,
+                                                                           T_max=epochs),
+                       holdout=HoldOut(x_ho, y_ho,
+                                       lambda inputs, targets: float(mse(inputs, targets))),
+                       keep_best=KeepBest(start=True))
+        with torch.no_grad():
+            final_train = float(mse(x_tr, y_tr))
     # the kept epoch's held-out loss; +inf when none was finite (the starting weights)
     final_held_out = min((h for h in report.holdout_loss if not math.isnan(h)), default=math.inf)
     return {
@@ -363,7 +375,7 @@ def train_insertion(out_path: str | os.PathLike[str] | None,
         "data_seconds": float(data_seconds),
         "seconds": float(time.perf_counter() - t0),
     }
-    network.report = dict(report)
+    network.report = without_wall_clock(report)  # the file: the same bytes for the same fit
     if out_path is not None:
         network.save(out_path)
     report["path"] = None if out_path is None else str(out_path)

@@ -64,7 +64,8 @@ from dynoplan.models.mlp_file import (
     require_finite,
 )
 from dynoplan.models.storage import load_arrays, save_arrays
-from dynoplan.models.trainer import shuffled, train
+from dynoplan.models.trainer import deterministic_training, shuffled, train
+from dynoplan.timing import without_wall_clock
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
 
 MODEL_KIND = "grasp_recognizer"
@@ -351,19 +352,24 @@ def fit_recognizer(data: GraspData, seed: int = 0, held_out_fraction: float = 0.
 
     Returns the recogniser (its ``report`` filled) and the report: ``held_out_accuracy``,
     ``train_accuracy``, sizes in rows and episodes, positive fractions, ``epochs``,
-    ``final_loss``, ``train_seconds``.
+    ``final_loss``, ``train_seconds``. The same ``data`` and ``seed`` give the same
+    weights to the bit on one machine (trained and measured inside
+    :func:`~dynoplan.models.trainer.deterministic_training`).
     """
     rng = np.random.default_rng([int(seed), 1])
     train, held = split_by_episode(data, held_out_fraction, rng)
     kin = ArmKinematics()
     features = grasp_features(data.observations, kin)
     model = GraspRecognizer(hidden_sizes, seed=seed)
-    t0 = time.perf_counter()
-    losses = model.fit(features[train], data.labels[train], epochs=epochs, seed=seed)
-    seconds = time.perf_counter() - t0
+    with deterministic_training():
+        t0 = time.perf_counter()
+        losses = model.fit(features[train], data.labels[train], epochs=epochs, seed=seed)
+        seconds = time.perf_counter() - t0
+        held_out_accuracy = model.accuracy(features[held], data.labels[held])
+        train_accuracy = model.accuracy(features[train], data.labels[train])
     report: dict[str, Any] = {
-        "held_out_accuracy": model.accuracy(features[held], data.labels[held]),
-        "train_accuracy": model.accuracy(features[train], data.labels[train]),
+        "held_out_accuracy": held_out_accuracy,
+        "train_accuracy": train_accuracy,
         "train_size": int(train.sum()),
         "held_out_size": int(held.sum()),
         "train_episodes": len(np.unique(data.episodes[train])),
@@ -406,7 +412,7 @@ def train_recognizer(out_path: str | os.PathLike[str] | None,
     report["episodes"] = len(data.perturbations)
     report["data_seconds"] = float(data_seconds)
     report["seconds"] = float(time.perf_counter() - t0)
-    model.report = dict(report)
+    model.report = without_wall_clock(report)  # the file: the same bytes for the same fit
     if out_path is not None:
         model.save(out_path)
     report["path"] = None if out_path is None else str(out_path)
