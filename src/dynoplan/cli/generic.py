@@ -111,7 +111,7 @@ def pipeline(
     dynamics_min_updates: int | None = typer.Option(
         None, "--dynamics-min-updates", **_bounds("fit.dynamics_min_updates"),
         help="More epochs when an option has so few transitions that --dynamics-epochs "
-             "would take fewer gradient steps than this [no bound]."),
+             "would take fewer gradient steps than this [1000]."),
     goal_hidden: int | None = typer.Option(None, "--goal-hidden", **_bounds("fit.goal_hidden"),
                                            help="Hidden width of the goal network [64]."),
     goal_members: int | None = typer.Option(

@@ -27,8 +27,8 @@ class FitSettings:
         dynamics_min_updates: more epochs when an option has so few transitions that
             ``dynamics_epochs`` would take fewer gradient steps than this (``None``: no
             bound): 30 epochs of 264 transitions are 30 steps of 256 rows, and leave an
-            option model no better than "no change" (the hold-out still picks the epoch
-            kept).
+            option model hardly better than "no change" (the hold-out still picks the
+            epoch kept; ``docs/suite.md``).
         goal_hidden: hidden width of the goal network.
         goal_members: goal ensemble size.
         goal_epochs: training epochs of the goal network.
@@ -84,7 +84,7 @@ class FitSettings:
     dynamics_members: int = 5
     dynamics_epochs: int = 30
     dynamics_max_updates: int | None = None
-    dynamics_min_updates: int | None = None
+    dynamics_min_updates: int | None = 1000
     goal_hidden: int = 64
     goal_members: int = 1
     goal_epochs: int = 150

@@ -19,7 +19,7 @@ DEFAULT_SETTINGS = FitSettings(
     goal_epochs=150, goal_features=OBJECTS.name, region_features=RELATIVE.name,
     region_fit="cv", region_coverage=0.99, region_cv_coverage=0.97, region_reg_covar=3e-3,
     region_max_components=8, region_undemonstrated="everywhere", option_model="step",
-    goal_off_demos=False, constant_dimensions_still=False)
+    goal_off_demos=False, constant_dimensions_still=False, dynamics_min_updates=None)
 """The gear's models, one step per decision:
 
 - the goal heuristic reads the ``objects`` features (the gripper, the tool relative to
@@ -35,9 +35,10 @@ DEFAULT_SETTINGS = FitSettings(
   directions the 10 demonstrations hardly vary in do not make regions needle-thin;
 - an option the demonstrations do not show gets no region (``"everywhere"``: its own
   conditions alone decide where it starts);
-- one-step dynamics, a goal on the demonstrations alone and constant dimensions learned
-  as any other: the generic pipeline's remedies of the composition suite
-  (``docs/suite.md``) are not measured on the gear yet, whose own fit keeps its results
+- one-step dynamics, a goal on the demonstrations alone, constant dimensions learned
+  as any other and no lower bound on the dynamics' gradient steps: the generic
+  pipeline's remedies of the composition suite (``docs/suite.md``) are not measured on
+  the gear yet, whose own fit keeps its results
   (the gear goes through ``run_pipeline`` in a later issue)."""
 
 QUICK_SETTINGS = replace(DEFAULT_SETTINGS, goal_hidden=32, goal_epochs=40,
