@@ -464,6 +464,24 @@ def run(
     typer.echo(f"-> {out}/results.md, results.csv, summary.json")
 
 
+@gear_app.command("seeds")
+def seeds(
+    runs: list[Path] = typer.Argument(..., help="Folders of gear runs that differ only in "
+                                      "--seed (each with its summary.json)."),
+    out: Path = typer.Option(Path("results/gear-seeds.md"), help="The table (markdown)."),
+) -> None:
+    """One table over several seeds' gear runs: each controller's mean and range."""
+    from dynoplan.io import check_writable, write_text
+    from dynoplan.reports.seed_table import read_runs, seed_markdown
+
+    check_writable(out.parent)
+    table = seed_markdown(read_runs(runs))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text(out, "Produced by `dynoplan gear seeds " + " ".join(map(str, runs))
+               + f" --out {out}`.\n\n" + table)
+    typer.echo(table, nl=False)
+
+
 @gear_app.command("evaluate")
 def evaluate(
     models: Path = typer.Option(DEFAULT_MODELS, callback=models_folder,
