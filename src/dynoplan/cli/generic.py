@@ -223,7 +223,7 @@ def pipeline(
         None, "--loop-share", **_bounds("control.loop_share"),
         help="Where the state comes back to where an earlier decision started an option "
              "(each coordinate within this share of its spread over the fitted data), "
-             "that option does not start there again (0: no such rule) [0]."),
+             "that option does not start there again (0: no such rule) [0.05]."),
     start_where_done: bool | None = typer.Option(
         None, "--start-where-done/--no-start-where-done",
         help="An option may start where its termination is certain (it ends at its first "

@@ -120,7 +120,7 @@ class ControllerSettings:
     end_inside: bool = False
     no_effect_tolerance: float | None = None
     no_effect_share: float | None = 0.01
-    loop_share: float | None = None
+    loop_share: float | None = 0.05
     start_where_done: bool = False
     fallback_own_sets: bool = True
 
