@@ -6,13 +6,13 @@ list one row per controller, as ``dynoplan gear run`` writes it. A headline that
 on one seed hides how far another seed lands; this table shows it.
 """
 
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
+from dynoplan.io import read_json_object
 
 MEASURES = (("success_rate", "success", "{:.0%}"),
             ("time_to_success_s", "median time (s)", "{:.1f}"),
@@ -32,13 +32,8 @@ def read_runs(folders: Sequence[Path]) -> list[dict[str, Any]]:
     runs = []
     for folder in folders:
         path = Path(folder) / "summary.json"
-        try:
-            summary = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise DynoplanError(f"{path}: no such file (a gear run's folder?)") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise DynoplanError(f"{path}: cannot read it ({exc})") from None
-        if not isinstance(summary, dict) or not isinstance(summary.get("results"), list):
+        summary = read_json_object(path, "gear run's summary")
+        if not isinstance(summary.get("results"), list):
             raise DynoplanError(f"{path}: no 'results' rows (a gear run's summary?)")
         runs.append(summary)
     seeds = [r.get("seed") for r in runs]
