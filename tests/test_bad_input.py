@@ -497,18 +497,25 @@ def test_leftovers_of_a_killed_writer_are_removed_by_the_next_write(tmp_path):
     assert not stale_file.exists() and not stale_stage.exists() and alive.exists()
 
 
+def start_long_random_walk(out: Path) -> "tuple[subprocess.Popen[str], list[Path]]":
+    """A ``random-walk`` into ``out`` long enough to be interrupted, in a subprocess, once
+    its staging folder exists beside ``out``: the process and that folder (a list of one)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen([*CLI, "random-walk", "--episodes", "100000", "--out", str(out),
+                             "--quiet"], stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 120
+    while not (staged := [p for p in out.parent.iterdir() if p.name.endswith(".staging")]):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr
+        time.sleep(0.05)
+    return proc, staged
+
+
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_interrupted_run_prints_aborted_and_keeps_the_previous_output(tmp_path, sig, status):
     out = tmp_path / "rw"
     out.mkdir()
     (out / "summary.json").write_text('{"previous": true}')
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    proc = subprocess.Popen([*CLI, "random-walk", "--episodes", "100000", "--out", str(out),
-                             "--quiet"], stderr=subprocess.PIPE, text=True, env=env)
-    deadline = time.monotonic() + 120
-    while not any(p.name.endswith(".staging") for p in tmp_path.iterdir()):
-        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr
-        time.sleep(0.05)
+    proc, _ = start_long_random_walk(out)
     time.sleep(0.5)  # inside the run
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)

@@ -16,7 +16,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -24,7 +23,14 @@ from pathlib import Path
 import pytest
 
 import test_bad_input
-from test_bad_input import CLI, COMMANDS, assert_one_line_error, command, invoke, leftovers
+from test_bad_input import (
+    COMMANDS,
+    assert_one_line_error,
+    command,
+    invoke,
+    leftovers,
+    start_long_random_walk,
+)
 
 gear_models = test_bad_input.gear_models  # the fixture: a tiny valid gear models folder
 
@@ -131,13 +137,7 @@ def test_staging_folder_of_a_killed_run_is_removed_by_the_next_run(tmp_path, mon
     out = tmp_path / "rw"
     out.mkdir()
     (out / "notes.txt").write_text("the user's")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    proc = subprocess.Popen([*CLI, "random-walk", "--episodes", "100000", "--out", str(out),
-                             "--quiet"], stderr=subprocess.PIPE, text=True, env=env)
-    deadline = time.monotonic() + 120
-    while not (staged := [p for p in tmp_path.iterdir() if p.name.endswith(".staging")]):
-        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr
-        time.sleep(0.05)
+    proc, staged = start_long_random_walk(out)
     time.sleep(0.3)  # inside the run
     proc.send_signal(signal.SIGKILL)
     proc.communicate(timeout=60)
