@@ -7,18 +7,21 @@ import numpy as np
 import pytest
 
 from dynoplan.control.controller import Decision, EpisodeTrace
-from dynoplan.data.episodes import FAILURE_KEY, OPTION_KEY, PROGRESS_KEY
+from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, PROGRESS_KEY
 from dynoplan.pipeline import run_pipeline
+from dynoplan.pipeline.fit_data import option_end_pairs
 from dynoplan.pipeline.improve import HOLD, StepRecorder, own_episode, step_labels
 from test_pipeline import SMALL, line_env, line_options
 
 
 def _trace(steps, success):
-    """A trace of decisions ``(option or None, steps)`` run one after the other."""
+    """A trace of decisions ``(option or None, steps[, stop reason])`` run one after the
+    other (an option's run ends ``terminated`` unless a reason is given)."""
     trace, at = EpisodeTrace(success=success), 0
-    for k, (option, n) in enumerate(steps):
+    for k, (option, n, *why) in enumerate(steps):
+        reason = why[0] if why else "terminated" if option else "hold"
         trace.decisions.append(Decision(k, at, np.zeros(1), None, option, n,  # type: ignore[arg-type]
-                                        "terminated" if option else "hold", np.zeros(1), 0.0))
+                                        reason, np.zeros(1), 0.0))
         at += n
     trace.env_steps = at
     return trace
@@ -62,6 +65,19 @@ def test_a_success_without_holds_becomes_a_demonstration_and_one_with_holds_does
     held = own_episode(_recorder(4), _trace([("right", 3), (None, 1)], True), names, 0)
     assert held.demonstration is None
     assert [len(p) for p in held.pieces] == [3]
+
+
+def test_a_run_cut_short_by_a_replan_teaches_the_option_models_no_end():
+    # right replanned into right again (one run), then cut by a replan into left; left's
+    # run ends where left terminated
+    trace = _trace([("right", 2, "replan"), ("right", 2, "replan"), ("left", 2)], False)
+    own = own_episode(_recorder(6), trace, ["right", "left"], env_seed=0)
+    (piece,) = own.pieces
+    assert piece.infos[INTERRUPTED_KEY].tolist() == [False, False, False, True, False, False]
+    pairs = option_end_pairs([piece], ["right", "left"], lambda o: np.asarray(o).reshape(-1))
+    assert len(pairs["right"][0]) == 0  # where right stopped is not where it ends
+    recorded = np.asarray(_recorder(6).observations)
+    np.testing.assert_array_equal(pairs["left"][1], recorded[[6, 6]])
 
 
 @pytest.fixture(scope="module")

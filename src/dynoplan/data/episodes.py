@@ -33,6 +33,10 @@ PROGRESS_KEY = "progress"
 FAILURE_KEY = "failure"
 """``infos`` key, ``(T,)`` ``bool``: True at the last step of an episode that terminated
 without success (the state it reached is a failure: a fallen pole, a crash)."""
+INTERRUPTED_KEY = "interrupted"
+"""``infos`` key, ``(T,)`` ``bool``: True at the last step of an option run that a
+controller cut short to run another option (a replan), so that where the run stopped is
+not where its option ends."""
 
 StateFn = Callable[[np.ndarray], np.ndarray]
 """Maps observations ``(M, *obs_shape)`` to planner states ``(M, state_dim)``."""

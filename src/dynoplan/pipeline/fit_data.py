@@ -5,7 +5,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 
-from dynoplan.data.episodes import OPTION_KEY, Episode
+from dynoplan.data.episodes import INTERRUPTED_KEY, OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.collect import ObservationFn, flat_state
 from dynoplan.types import FloatArray
@@ -81,7 +81,7 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
     found: dict[str, tuple[list[FloatArray], list[FloatArray], list[int]]] = {
         n: ([], [], []) for n in option_names}
     d = 0
-    for name, rows, start, end in _runs(episodes, option_names, state_fn):
+    for name, rows, start, end, _ in _runs(episodes, option_names, state_fn):
         d = rows.shape[1]
         steps = int(end - start) // stride
         found[name][0].append(rows[start])
@@ -92,15 +92,18 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
 
 
 def _runs(episodes: Sequence[Episode], option_names: Sequence[str], state_fn: ObservationFn,
-          ) -> Iterator[tuple[str, FloatArray, int, int]]:
+          ) -> Iterator[tuple[str, FloatArray, int, int, bool]]:
     """Every run (a maximal stretch of steps with one option label) of ``episodes``: its
-    option, its episode's states ``(T+1, d)`` and its steps ``start:end``."""
+    option, its episode's states ``(T+1, d)``, its steps ``start:end`` and whether a
+    controller cut it short (``infos["interrupted"]`` at its last step)."""
     for index, episode in enumerate(episodes):
         labels = option_labels(episode, index, len(option_names))
         rows = episode_states(episode, state_fn)
+        interrupted = episode.infos.get(INTERRUPTED_KEY)
         cuts = np.flatnonzero(np.diff(labels)) + 1
         for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
-            yield option_names[int(labels[start])], rows, int(start), int(end)
+            cut = interrupted is not None and bool(interrupted[end - 1])
+            yield option_names[int(labels[start])], rows, int(start), int(end), cut
 
 def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
                      state_fn: ObservationFn = flat_state,
@@ -110,8 +113,10 @@ def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
     an option started in ``s`` ends, not where it is one step later.
 
     A run is a maximal stretch of steps with the same option label (:func:`option_runs`);
-    it ends where its option terminated, was interrupted or its episode ended, which is
-    where a controller chooses again.
+    it ends where its option terminated, left its set or its episode ended, which is
+    where a controller chooses again. A run that a controller cut short to run another
+    option (``infos["interrupted"]`` at its last step, as in a controller's own episodes)
+    is left out: where it stopped is not where its option ends.
 
     Returns:
         ``{name: (states (N, d), end_states (N, d))}``, ``N`` possibly 0.
@@ -119,8 +124,10 @@ def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
     found: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {
         n: ([], []) for n in option_names}
     d = 0
-    for name, rows, start, end in _runs(episodes, option_names, state_fn):
+    for name, rows, start, end, cut in _runs(episodes, option_names, state_fn):
         d = rows.shape[1]
+        if cut:
+            continue
         found[name][0].append(rows[start:end])
         found[name][1].append(np.repeat(rows[end][None], end - start, axis=0))
     return {n: (np.concatenate(a) if a else np.zeros((0, d)),

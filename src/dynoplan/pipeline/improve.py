@@ -6,7 +6,9 @@ of their own, never the evaluation's) on the models fitted so far; then the mode
 fitted again on everything:
 
 - every step an option ran becomes an option transition (the dynamics' data; the goal's
-  off-demonstration states), cut into pieces where the controller held;
+  off-demonstration states), cut into pieces where the controller held; a run the
+  controller cut short at a replan is marked (``infos["interrupted"]``), so that the
+  option models do not learn that its option ends there;
 - the last state of an episode that did not succeed (failed, ran out of time or of
   decisions) is labelled a failure (``infos["failure"]``, progress 0 for the goal);
 - an episode that succeeded without holding becomes a demonstration (its progress
@@ -18,13 +20,20 @@ The share of each round's episodes that succeeded is the learning curve
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from dynoplan.control.controller import Controller, EpisodeTrace
-from dynoplan.data.episodes import FAILURE_KEY, OPTION_KEY, PROGRESS_KEY, Episode
+from dynoplan.data.episodes import (
+    FAILURE_KEY,
+    INTERRUPTED_KEY,
+    OPTION_KEY,
+    PROGRESS_KEY,
+    Episode,
+)
 from dynoplan.seeding import EpisodeSeed
 
 HOLD = -1
@@ -56,6 +65,18 @@ class StepRecorder(gym.Wrapper[Any, Any, Any, Any]):
         self.terminations.append(bool(terminated))
         self.truncations.append(bool(truncated))
         return observation, reward, terminated, truncated, info
+
+
+def interruptions(trace: EpisodeTrace) -> np.ndarray:
+    """``(T,)`` ``bool``: True at the last step of every option run of ``trace`` that the
+    controller cut short at a replan to run another option or to hold (a replan that
+    chose the same option again continues its run)."""
+    cut = np.zeros(trace.env_steps, dtype=bool)
+    for d, after in pairwise(trace.decisions):
+        if d.option is not None and d.steps and d.stop_reason == "replan" \
+                and after.option != d.option:
+            cut[d.env_step + d.steps - 1] = True
+    return cut
 
 
 def step_labels(trace: EpisodeTrace, option_names: Sequence[str]) -> np.ndarray:
@@ -91,6 +112,7 @@ def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Seque
     """Cut the episode ``recorder`` holds (run by the controller that produced ``trace``)
     into option pieces and, if it succeeded without holding, a demonstration."""
     labels = step_labels(trace, option_names)
+    cut = interruptions(trace)
     observations = np.asarray(recorder.observations)
     if not np.issubdtype(observations.dtype, np.floating):
         observations = observations.astype(np.float64)
@@ -106,13 +128,14 @@ def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Seque
         failure[-1] = end == len(labels) and not trace.success
         pieces.append(Episode(observations[start:end + 1], actions[start:end],
                               rewards[start:end], terms[start:end], truncs[start:end],
-                              {OPTION_KEY: labels[start:end], FAILURE_KEY: failure},
+                              {OPTION_KEY: labels[start:end], FAILURE_KEY: failure,
+                               INTERRUPTED_KEY: cut[start:end]},
                               env_seed))
     demonstration = None
     if trace.success and ran.all() and len(labels):
         t = len(labels)
         demonstration = Episode(observations, actions, rewards, terms, truncs,
-                                {OPTION_KEY: labels,
+                                {OPTION_KEY: labels, INTERRUPTED_KEY: cut,
                                  PROGRESS_KEY: np.arange(1, t + 1, dtype=np.float64) / t},
                                 env_seed)
     return OwnEpisode(trace.success, tuple(pieces), demonstration)
@@ -131,5 +154,5 @@ def own_episodes(env: gym.Env[Any, Any], controller: Controller,
     return out
 
 
-__all__ = ["HOLD", "OwnEpisode", "StepRecorder", "own_episode", "own_episodes",
-           "step_labels"]
+__all__ = ["HOLD", "OwnEpisode", "StepRecorder", "interruptions", "own_episode",
+           "own_episodes", "step_labels"]
