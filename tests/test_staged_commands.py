@@ -268,3 +268,65 @@ def test_gear_figures_interrupted_between_the_figures_keep_the_previous_ones(
         gear_figures.make_gear_figures(tmp_path / "models", tmp_path / "demos",
                                        tmp_path / "held", out, max_points=10)
     assert _snapshot(tmp_path) == before and not leftovers(tmp_path)
+
+
+# --- gear outcomes --------------------------------------------------------------------------
+
+
+def _fake_outcomes(monkeypatch, failure: BaseException | None) -> None:
+    """Outcome runs and the initiation's fit replaced: what they write, then ``failure``
+    (in the fit, after the runs' dataset is written)."""
+    import dynoplan.envs.gear.learning.outcomes as outcomes
+
+    def collect(models: Path, seed: int, out: Path, settings, progress, workers) -> dict:
+        (out / "data").mkdir(parents=True)
+        (out / "data" / "main_data.hdf5").write_bytes(b"the new runs")
+        return {"dataset": str(out), "runs": 1, "starts": {"pick": 1},
+                "ended_well": {"pick": 1}}
+
+    def fit(models: Path, runs: Path, seed: int) -> dict:
+        assert (runs / "data" / "main_data.hdf5").read_bytes() == b"the new runs"
+        (models / "initiation.safetensors").write_bytes(b"a new initiation")
+        if failure is not None:
+            raise failure
+        return {"options": {"pick": 1}, "file": str(models / "initiation.safetensors")}
+
+    monkeypatch.setattr(outcomes, "collect_outcomes", collect)
+    monkeypatch.setattr(outcomes, "fit_gear_initiation", fit)
+
+
+def _outcomes_folders(tmp_path: Path) -> tuple[Path, Path]:
+    models, out = tmp_path / "models", tmp_path / "outcomes"
+    models.mkdir()
+    (models / "initiation.safetensors").write_bytes(b"the previous initiation")
+    (models / "initiation.json").write_text('{"previous": true}')
+    (out / "data").mkdir(parents=True)
+    (out / "data" / "main_data.hdf5").write_bytes(b"the previous runs")
+    (out / "outcomes.json").write_text('{"previous": true}')
+    return models, out
+
+
+@pytest.mark.parametrize(("failure", "status"), [
+    pytest.param(None, 0, id="ok"), pytest.param("error", 2, id="error"),
+    pytest.param("interrupt", 130, id="interrupt")])
+def test_gear_outcomes_stages_its_dataset_and_the_initiation_together(
+        tmp_path, monkeypatch, capsys, failure, status):
+    from dynoplan.errors import DynoplanError
+    from test_bad_input import invoke
+
+    models, out = _outcomes_folders(tmp_path)
+    before = _snapshot(tmp_path)
+    _fake_outcomes(monkeypatch, {None: None, "error": DynoplanError("the fit failed"),
+                                 "interrupt": KeyboardInterrupt()}[failure])
+    code, _, err = invoke(monkeypatch, capsys, "gear", "outcomes", "--models", str(models),
+                          "--out", str(out), "--runs", "1", "--workers", "1", "--quiet")
+    assert code == status, err
+    assert not leftovers(tmp_path)
+    if failure is not None:
+        assert _snapshot(tmp_path) == before
+        return
+    assert (out / "data" / "main_data.hdf5").read_bytes() == b"the new runs"
+    assert json.loads((out / "outcomes.json").read_text())["dataset"] == str(out)
+    assert (models / "initiation.safetensors").read_bytes() == b"a new initiation"
+    assert json.loads((models / "initiation.json").read_text())["file"] == str(
+        models / "initiation.safetensors")
