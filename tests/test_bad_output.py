@@ -218,6 +218,7 @@ NEWER_MODELS_COMMANDS = {
                      "OUT"],
     "gear outcomes": ["gear", "outcomes", "--runs", "1", "--workers", "1", "--quiet",
                       "--out", "OUT"],
+    "gear figures": ["gear", "figures", "--quiet", "--out", "OUT"],
 }
 
 
