@@ -74,16 +74,19 @@ def read_only() -> Iterator[Callable[[Path], None]]:
             folder.chmod(0o755)
 
 
-WRITERS = {**COMMANDS, "sweep": ["sweep", "CONFIG", "--out", "OUT", "--workers", "1"]}
+WRITERS = {**COMMANDS, "sweep": ["sweep", "CONFIG", "--out", "OUT", "--workers", "1"],
+           "trap-walk": ["trap-walk", "--out", "OUT"],
+           "gear outcomes": ["gear", "outcomes", "--out", "OUT", "--models", "MODELS"]}
+"""Every command that writes a folder (``gear seeds`` writes one file: below)."""
 
 
 def _args(name: str, tmp_path: Path) -> list[str]:
-    if name != "sweep":
+    if name in COMMANDS:
         return command(name, tmp_path) + (["--index", "0"] if name == "gear episode" else [])
     config = tmp_path / "grid.toml"
     config.write_text('models = "m"\n[grid]\nhorizon = [5]\n')
-    return [{"CONFIG": str(config), "OUT": str(tmp_path / "out")}.get(a, a)
-            for a in WRITERS[name]]
+    return [{"CONFIG": str(config), "OUT": str(tmp_path / "out"),
+             "MODELS": str(tmp_path / "models")}.get(a, a) for a in WRITERS[name]]
 
 
 @pytest.mark.parametrize("name", list(WRITERS))
@@ -103,7 +106,7 @@ def test_read_only_output_folder_is_one_line_before_any_work(tmp_path, monkeypat
     assert _snapshot(tmp_path) == before and not leftovers(tmp_path)
 
 
-@pytest.mark.parametrize("name", ["random-walk", "gear train", "pipeline", "sweep"])
+@pytest.mark.parametrize("name", list(WRITERS))
 def test_read_only_parent_is_one_line_before_any_work(tmp_path, monkeypatch, capsys,
                                                       read_only, name):
     """The target does not exist (or does, writable) but its staging folder cannot be
@@ -115,6 +118,34 @@ def test_read_only_parent_is_one_line_before_any_work(tmp_path, monkeypatch, cap
     assert err.strip() == f"dynoplan: error: cannot write to {tmp_path}: permission denied"
     assert_one_line_error(code, err)
     assert _snapshot(tmp_path) == before
+
+
+def test_gear_outcomes_with_read_only_models_is_one_line_before_any_work(
+        tmp_path, monkeypatch, capsys, read_only):
+    """The initiation goes into MODELS after the runs: checked before them."""
+    models = tmp_path / "models"
+    models.mkdir()
+    read_only(models)
+    before = _snapshot(tmp_path)
+    code, stdout, err = invoke(monkeypatch, capsys, "gear", "outcomes", "--models",
+                               str(models), "--out", str(tmp_path / "out"), "--runs", "1",
+                               "--workers", "1", "--quiet")
+    assert err.strip() == f"dynoplan: error: cannot write to {models}: permission denied"
+    assert_one_line_error(code, err)
+    assert stdout == "" and _snapshot(tmp_path) == before
+
+
+def test_gear_seeds_into_a_read_only_folder_is_one_line(tmp_path, monkeypatch, capsys,
+                                                        read_only):
+    folder = tmp_path / "tables"
+    folder.mkdir()
+    read_only(folder)
+    before = _snapshot(tmp_path)
+    code, stdout, err = invoke(monkeypatch, capsys, "gear", "seeds", str(tmp_path / "run"),
+                               "--out", str(folder / "seeds.md"))
+    assert err.strip() == f"dynoplan: error: cannot write to {folder}: permission denied"
+    assert_one_line_error(code, err)
+    assert stdout == "" and _snapshot(tmp_path) == before
 
 
 def test_staged_folder_checks_before_the_block_runs(tmp_path, read_only):
@@ -187,6 +218,7 @@ NEWER_MODELS_COMMANDS = {
                      "OUT"],
     "gear outcomes": ["gear", "outcomes", "--runs", "1", "--workers", "1", "--quiet",
                       "--out", "OUT"],
+    "gear figures": ["gear", "figures", "--quiet", "--out", "OUT"],
 }
 
 

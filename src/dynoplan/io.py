@@ -104,7 +104,10 @@ def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[
     each top-level entry of the staged folder replaces the entry of that name in ``path``
     (other entries of ``path`` stay); with ``keep`` True the staged folder starts as a
     copy of ``path`` and replaces it whole, so ``path`` is the previous folder, complete,
-    until the new one is. The move runs with SIGINT and SIGTERM blocked.
+    until the new one is. The move runs with SIGINT and SIGTERM blocked. Paths under the
+    staged folder recorded in its JSON files (a dataset, a figure named in a summary) are
+    renamed to the same paths under ``path`` before the move (:func:`retarget`: the
+    outputs name where they are, never a staging folder).
 
     Raises:
         DynoplanError: see :func:`check_writable` (checked first: nothing is created then).
@@ -126,6 +129,7 @@ def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[
         if keep and target.is_dir():
             shutil.copytree(target, stage, symlinks=True, dirs_exist_ok=True)
         yield stage
+        _retarget_json_files(stage, target)
         fsync_tree(stage)
         with _signals_blocked():
             _install(stage, target, whole=keep and not Path.cwd().is_relative_to(
@@ -134,6 +138,43 @@ def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[
         shutil.rmtree(stage, ignore_errors=True)
         _remove_empty(created)
         raise
+
+
+def retarget(value: Any, stage: Path, target: Path) -> Any:
+    """``value`` (strings, lists, tuples, dicts of them) with every string that names
+    ``stage`` or a path under it naming the same path under ``target`` instead: what a
+    run into a staged folder (:func:`staged_folder`) recorded, as the outputs will be."""
+    if isinstance(value, str):
+        head = str(stage)
+        if value == head or value.startswith(head + os.sep):
+            return str(target) + value[len(head):]
+        return value
+    if isinstance(value, dict):
+        return {k: retarget(v, stage, target) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(retarget(v, stage, target) for v in value)
+    return value
+
+
+def _retarget_json_files(stage: Path, target: Path) -> None:
+    """:func:`retarget` in the JSON files under ``stage``: a file that names ``stage`` is
+    rewritten with ``target`` in its place (the staging folder's name is unique, so its
+    JSON string form is replaced as text; the rest of the file stays as it was)."""
+    forms = {json.dumps(str(stage), ensure_ascii=a)[1:-1]: json.dumps(str(target),
+                                                                       ensure_ascii=a)[1:-1]
+             for a in (True, False)}
+    for file in sorted(stage.rglob("*.json")):
+        if file.is_symlink() or not file.is_file():
+            continue
+        try:
+            text = file.read_text(encoding="utf-8")
+        except UnicodeDecodeError:  # not one of ours
+            continue
+        changed = text
+        for old, new in forms.items():
+            changed = changed.replace(old, new)
+        if changed != text:
+            write_text(file, changed)
 
 
 def _install(stage: Path, target: Path, whole: bool) -> None:

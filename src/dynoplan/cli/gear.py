@@ -301,7 +301,7 @@ def outcomes(
         transitions_beyond,
     )
     from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.io import check_writable, write_json
+    from dynoplan.io import check_writable, retarget, staged_folder, write_json
     from dynoplan.parallel import parse_workers, ray_session
 
     check_writable(models)  # initiation.json goes there, after the runs
@@ -311,20 +311,27 @@ def outcomes(
     lead_decisions = sizes.lead_decisions if lead_decisions is None else lead_decisions
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
-    if collect:
-        with ray_session(pool):
-            summary = collect_outcomes(models, seed, out, replace(
-                sizes, runs=runs, max_decisions=max_decisions, lead_decisions=lead_decisions),
-                progress=not quiet, workers=pool)
-        write_json(out / "outcomes.json", summary)
-        typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
-            f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
-            for n in summary["starts"]))
-    if merge is not None:
-        merged = transitions_beyond(merge, out, out / "transitions-beyond")
-        typer.echo(f"{merged['episodes']} episodes -> {merged['dataset']}")
-    report = fit_gear_initiation(models, out, seed)
-    write_json(models / "initiation.json", report)
+    # OUT (the runs' dataset, outcomes.json, transitions-beyond) and MODELS (the
+    # initiation) staged: both or neither; --fit-only fits on a copy of OUT as it is
+    with staged_folder(out, keep=not collect) as stage, \
+            staged_folder(models, keep=True) as staged_models:
+        if collect:
+            with ray_session(pool):
+                summary = retarget(collect_outcomes(models, seed, stage, replace(
+                    sizes, runs=runs, max_decisions=max_decisions,
+                    lead_decisions=lead_decisions), progress=not quiet, workers=pool),
+                    stage, out)
+            write_json(stage / "outcomes.json", summary)
+            typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
+                f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
+                for n in summary["starts"]))
+        if merge is not None:
+            merged = retarget(transitions_beyond(merge, stage, stage / "transitions-beyond"),
+                              stage, out)
+            typer.echo(f"{merged['episodes']} episodes -> {merged['dataset']}")
+        report = retarget(fit_gear_initiation(staged_models, stage, seed), staged_models,
+                          models)
+        write_json(staged_models / "initiation.json", report)
     typer.echo(json.dumps(report["options"]))
     typer.echo(f"-> {out}, {report['file']}, {models}/initiation.json")
 

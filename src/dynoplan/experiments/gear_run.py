@@ -11,6 +11,11 @@ variants :data:`VARIANT_ROWS` and the ablation :data:`ABLATION_ROWS` on the same
 episodes; ``results.csv``, ``results.md``), ``faults`` and ``video`` (``episode.mp4``).
 The first five are :mod:`dynoplan.experiments.gear_stages`, shared with the stage commands.
 
+The whole folder is staged (:func:`~dynoplan.io.staged_folder`, starting as a copy of
+the previous ``out``, whose option networks are reused): it replaces ``out`` only when
+every stage has finished; a failure or an interrupt leaves ``out`` as it was. The paths
+recorded in the outputs name ``out``.
+
 On several workers (Ray) the episode stages spread over them, and ``flat_ppo`` (from
 the start) and ``video`` (beside ``faults``) run as one task each: their ``stages_s``
 are their own durations, ``wall_s`` the run's. Results are the same on one worker or many.
@@ -42,7 +47,7 @@ from dynoplan.envs.gear.learning.settings import (
     GearMetricsSettings,
 )
 from dynoplan.experiments.gear_stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
-from dynoplan.io import ensure_writable_dir, write_json, write_text
+from dynoplan.io import retarget, staged_folder, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
@@ -119,14 +124,20 @@ def run_settings(quick: bool) -> GearRunSettings:
 def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = GearRunSettings(),
                       progress: bool = True, log: Callable[[str], None] = lambda _: None,
                       workers: Workers = SERIAL) -> dict[str, Any]:
-    """Run every stage (module docstring) into ``out`` on ``workers`` (one Ray runtime for
-    the run); return ``summary.json``'s content."""
+    """Run every stage (module docstring) into ``out``, staged as a whole, on ``workers``
+    (one Ray runtime for the run); return ``summary.json``'s content.
+
+    Raises:
+        DynoplanError: ``out`` cannot be written (checked before any stage runs).
+    """
     t0 = time.perf_counter()
-    with ray_session(workers):
-        summary = _run_stages(out, seed, settings, progress, log, workers)
-    summary["wall_s"] = round(time.perf_counter() - t0, 2)
-    write_text(out / "results.md", results_markdown(summary))
-    write_json(out / "summary.json", summary)
+    with staged_folder(out, keep=True) as stage:
+        with ray_session(workers):
+            summary = _run_stages(stage, seed, settings, progress, log, workers)
+        summary = retarget(summary, stage, out)
+        summary["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_text(stage / "results.md", results_markdown(summary))
+        write_json(stage / "summary.json", summary)
     return summary
 
 
@@ -146,7 +157,6 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
     from dynoplan.reports.gear_episode import render_video, save_video
 
     torch.set_num_threads(1)
-    ensure_writable_dir(out)
     models_dir = out / "models"
     clock = StageClock(log, "[{}]")
     stage = clock.stage

@@ -14,7 +14,12 @@ sweep loses only its unfinished cells.
 
 Outputs in ``OUT``: ``results.csv`` and ``results.md`` (one row per cell: the swept
 settings, then the task's metric columns, :class:`SweepTask`), ``sweep.png``, and
-``summary.json``.
+``summary.json``, staged as one (:func:`~dynoplan.io.staged_folder`: the four replace the
+previous ones together when the sweep completes, or none does). The cell files are the
+sweep's own record of what is finished, kept as they come so that a sweep stopped in any
+way (Ctrl-C, SIGTERM, SIGKILL, a lost head node) resumes: they are the one thing an
+interrupted sweep adds to ``OUT``, and only once a cell has finished (before that
+``OUT`` and the folder above it stay as they were).
 """
 
 import hashlib
@@ -26,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.errors import DynoplanError
-from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
+from dynoplan.io import check_writable, staged_folder, write_csv, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE, check_format_version
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 from dynoplan.pipeline.evaluate import (
@@ -131,7 +136,8 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
     except OSError:
         raise DynoplanError(f"{config_path}: models: {manifest} not found (train models "
                             "with 'dynoplan gear run' or 'dynoplan gear train')") from None
-    ensure_writable_dir(out / "cells")
+    check_writable(out / "cells")  # before any cell; it is made with the first one
+    check_writable(out)
     cells = config.cells()
     rows: dict[int, dict[str, Any]] = {}
     for i, cell in enumerate(cells):
@@ -151,27 +157,30 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
             tasks.append((job, s))
             owner.append(i)
     buffers: dict[int, dict[int, EpisodeRecord]] = {i: {} for i in todo}
-    for t, metrics in imap_unordered(setup, run, tasks, workers, "sweep episodes", progress):
-        i = owner[t]
-        buffers[i][t] = metrics
-        if len(buffers[i]) == cells[i].episodes:
-            finished = buffers.pop(i)
-            rows[i] = write_cell(out / "cells" / f"{cell_key(cells[i])}.json", cells[i],
-                                 models_sha256, [finished[k] for k in sorted(finished)], sweep)
-    table = [{**_swept(config, cells[i]), **{c: rows[i].get(c) for c in sweep.columns}}
-             for i in range(len(cells))]
-    summary = {"config": str(config_path), "models": str(config.models),
-               "models_sha256": models_sha256, "swept": list(config.swept),
-               "cells": len(cells), "cells_run": len(todo),
-               "cells_reused": len(cells) - len(todo),
-               "episodes_per_cell": config.episodes, "workers": asdict(workers),
-               "wall_s": round(time.perf_counter() - t0, 2), "results": table}
-    write_csv(out / "results.csv", table)
-    write_text(out / "results.md", results_markdown(config, table))
-    from dynoplan.reports.sweep_figures import plot_sweep
+    with staged_folder(out) as stage:  # the results together, or none
+        for t, metrics in imap_unordered(setup, run, tasks, workers, "sweep episodes",
+                                         progress):
+            i = owner[t]
+            buffers[i][t] = metrics
+            if len(buffers[i]) == cells[i].episodes:
+                finished = buffers.pop(i)
+                rows[i] = write_cell(out / "cells" / f"{cell_key(cells[i])}.json", cells[i],
+                                     models_sha256, [finished[k] for k in sorted(finished)],
+                                     sweep)
+        table = [{**_swept(config, cells[i]), **{c: rows[i].get(c) for c in sweep.columns}}
+                 for i in range(len(cells))]
+        summary = {"config": str(config_path), "models": str(config.models),
+                   "models_sha256": models_sha256, "swept": list(config.swept),
+                   "cells": len(cells), "cells_run": len(todo),
+                   "cells_reused": len(cells) - len(todo),
+                   "episodes_per_cell": config.episodes, "workers": asdict(workers),
+                   "wall_s": round(time.perf_counter() - t0, 2), "results": table}
+        write_csv(stage / "results.csv", table)
+        write_text(stage / "results.md", results_markdown(config, table))
+        from dynoplan.reports.sweep_figures import plot_sweep
 
-    plot_sweep(table, config.swept, out / "sweep.png")
-    write_json(out / "summary.json", summary)
+        plot_sweep(table, config.swept, stage / "sweep.png")
+        write_json(stage / "summary.json", summary)
     return summary
 
 
