@@ -132,12 +132,29 @@ class StackedMLPEnsemble:
                                                    self.state_dim, widths)
         return lay
 
+    def block_sampler(self, samples: int, rng: Generator) -> "BlockSampler":
+        """:meth:`trajectory_sampler` in the engine's own row order: the caller keeps the
+        rollouts' states as ``(options, slots, d)`` blocks (:class:`BlockSampler`), so a
+        step neither gathers nor scatters rows. The same draws from ``rng`` as
+        :meth:`trajectory_sampler` and the same next state of every rollout."""
+        lay = self._layout(samples)
+        gather, scatter = lay.draw(rng)
+        return BlockSampler(self, lay, gather, scatter, rng)
+
     def _sample(self, states: FloatArray, lay: "_Layout", gather: np.ndarray,
                 scatter: np.ndarray, rng: Generator) -> FloatArray:
         o, s, d = states.shape
-        rng.standard_normal(dtype=np.float32, out=lay.noise_np)  # (groups, slots, d)
         np.take(states.reshape(o * s, d), gather, axis=0, out=lay.x64)
         lay.x32_np[...] = lay.x64_blocks
+        self._forward(lay, rng)
+        result = np.empty((lay.result_rows, d))
+        result[scatter] = lay.next_np
+        return result[:o * s].reshape(o, s, d)
+
+    def _forward(self, lay: "_Layout", rng: Generator) -> None:
+        """``lay.next`` from ``lay.x32``: one draw of every block row's next state."""
+        d = self.state_dim
+        rng.standard_normal(dtype=np.float32, out=lay.noise_np)  # (groups, slots, d)
         with torch.inference_mode():
             x = lay.x32
             h = x
@@ -150,10 +167,44 @@ class StackedMLPEnsemble:
             std = torch.add(self._log_std_offset, t, alpha=0.5, out=lay.tmp).exp_()
             nxt = torch.addcmul(x, std, lay.noise, out=lay.next)
             nxt.add_(out[..., :d])
-        result = np.empty((lay.result_rows, d))
-        result[scatter] = lay.next_np
         self.rows_computed += self.groups * lay.slots
-        return result[:o * s].reshape(o, s, d)
+
+
+class BlockSampler:
+    """One batch of rollouts of a :class:`StackedMLPEnsemble`, each kept on one member,
+    in the engine's block order.
+
+    Option ``o``'s rollouts live in ``slots = members * ceil(samples / members)``
+    places; place ``j`` holds sample row ``rows[o, j]`` and is run by member
+    ``members[o, j]``. Where ``members`` does not divide ``samples``, the places with
+    ``real[o, j]`` False are padding (they hold a copy of row 0; their results mean
+    nothing). ``self(states)`` maps ``(options, slots, d)`` states (any float dtype) to
+    the next states, a float32 ``(options, slots, d)`` array that the next call
+    overwrites.
+
+    Attributes:
+        rows: ``(options, slots)`` the sample row of every place.
+        real: ``(options, slots)`` False at padding places.
+        members: ``(options, slots)`` the member of every place.
+    """
+
+    def __init__(self, engine: StackedMLPEnsemble, lay: "_Layout", gather: np.ndarray,
+                 scatter: np.ndarray, rng: Generator) -> None:
+        o, s = engine.options, lay.samples
+        self._engine, self._lay, self._rng = engine, lay, rng
+        self.slots = engine.members * lay.slots
+        base = (np.arange(o) * s)[:, None]
+        self.rows = gather.reshape(o, self.slots) - base
+        self.real = scatter.reshape(o, self.slots) < o * s
+        self.members = np.broadcast_to(
+            (np.arange(self.slots) // lay.slots)[None, :], (o, self.slots))
+        self._x32 = lay.x32_np.reshape(o, self.slots, engine.state_dim)
+        self._next = lay.next_np.reshape(o, self.slots, engine.state_dim)
+
+    def __call__(self, states: np.ndarray) -> np.ndarray:
+        self._x32[...] = states
+        self._engine._forward(self._lay, self._rng)
+        return self._next
 
 
 class _Layout:
@@ -247,4 +298,4 @@ def _folded_layers(models: Sequence["MLPEnsembleDynamics"]) -> tuple[list[torch.
             [torch.from_numpy(np.concatenate(b).astype(np.float32)) for b in biases])
 
 
-__all__ = ["MemberStep", "StackedMLPEnsemble"]
+__all__ = ["BlockSampler", "MemberStep", "StackedMLPEnsemble"]

@@ -117,6 +117,34 @@ def member_disagreement(g: FloatArray, members: IntArray | None) -> FloatArray:
     return out
 
 
+class BlockOrder:
+    """The map between rollouts in row order, ``(branches, samples, ...)``, and in an
+    engine's block order, ``(branches, slots, ...)``: place ``j`` of branch ``b`` holds
+    sample ``rows[b, j]``; places with ``real`` False are padding (no sample)."""
+
+    def __init__(self, rows: IntArray, real: BoolArray) -> None:
+        self.rows, self.real = rows, real
+        self.samples = rows.shape[1] - int((~real[0]).sum())
+        self._branch = np.arange(rows.shape[0])[:, None]
+        self._all_real = bool(real.all())
+
+    def to_blocks(self, a: np.ndarray, axis: int = 0) -> np.ndarray:
+        """``a`` with axes ``axis, axis + 1`` = ``(branches, samples)`` in block order."""
+        index: tuple[Any, ...] = (*(slice(None),) * axis, self._branch, self.rows)
+        return a[index]
+
+    def to_rows(self, a: np.ndarray) -> np.ndarray:
+        """``(branches, slots, ...)`` back to ``(branches, samples, ...)``."""
+        if self._all_real:
+            out = np.empty_like(a)
+            out[self._branch, self.rows] = a
+            return out
+        out = np.empty((a.shape[0], self.samples, *a.shape[2:]), dtype=a.dtype)
+        b = np.broadcast_to(self._branch, self.rows.shape)
+        out[b[self.real], self.rows[self.real]] = a[self.real]
+        return out
+
+
 class OptionPlanner:
     """Chooses the option whose imagined future the goal heuristic likes best (Eq. 1).
 
@@ -275,11 +303,19 @@ class OptionPlanner:
         if self.compact and callable(getattr(dynamics, "sample_rows", None)) \
                 and callable(getattr(termination, "probability_rows", None)):
             return self._rollout_rows(idx, dynamics, termination, x, alive, rng, step_offset)
-        valid = np.ones(x.shape[:2], dtype=bool)
-        steps = np.zeros(x.shape[:2], dtype=np.int64)
         regions = self._region_groups(idx) if self.respect_regions else []
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
-        step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
+        blocks = getattr(dynamics, "block_sampler", None)
+        order: BlockOrder | None = None
+        if callable(blocks):  # the rollouts in the ensembles' own row order, no reordering
+            step = blocks(self.samples, rng)  # a member per rollout, as trajectory_sampler
+            order = BlockOrder(step.rows, step.real)
+            x, alive, stop_draws = order.to_blocks(x), order.to_blocks(alive) & step.real, \
+                order.to_blocks(stop_draws, axis=1)
+        else:
+            step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
+        valid = np.ones(x.shape[:2], dtype=bool)
+        steps = np.zeros(x.shape[:2], dtype=np.int64)
         unsafe = None if self.constraint is None else np.zeros_like(alive)
         for t in range(self.horizon):
             if not alive.any():
@@ -306,6 +342,10 @@ class OptionPlanner:
                     x[rows] = np.where(left[..., None], before[rows], x[rows])
                     steps[rows] -= left
         members = getattr(step, "members", None)
+        if order is not None:
+            x, steps, valid = order.to_rows(x), order.to_rows(steps), order.to_rows(valid)
+            unsafe = None if unsafe is None else order.to_rows(unsafe)
+            members = None if members is None else order.to_rows(np.asarray(members))
         return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
                         unsafe)
 
