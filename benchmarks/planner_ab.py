@@ -48,7 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         runs["b"].append(one_run(args.b, args.extra))
     load_after = os.getloadavg()[0]
     ratios = [a["decision_ms_p50"] / b["decision_ms_p50"] for a, b in zip(runs["a"],
-                                                                          runs["b"])]
+                                                                          runs["b"], strict=True)]
     summary = {
         "args": args.extra, "rounds": args.rounds,
         "load_before": load_before, "load_after": load_after,

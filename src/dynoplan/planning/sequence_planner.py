@@ -39,37 +39,9 @@ import numpy as np
 from dynoplan.errors import DynoplanError
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.option import Option, admissible_batch
-from dynoplan.planning.option_planner import OptionPlanner, Plan
+from dynoplan.planning.option_planner import OptionPlanner, Plan, member_disagreements
 from dynoplan.safety.constraint import SafetyConstraint
 from dynoplan.types import BoolArray, FloatArray, Generator, IntArray
-
-
-def member_disagreements(g: FloatArray, members: IntArray | None) -> FloatArray:
-    """:func:`~dynoplan.planning.option_planner.member_disagreement` with no loop over
-    branches: the std over the ensemble members present in each branch of the mean
-    ``G`` of that member's rollouts.
-
-    Args:
-        g: ``(branches, samples)`` goal values of the rollouts' end states.
-        members: ``(branches, samples)`` member index of each rollout, or ``None``.
-
-    Returns:
-        ``(branches,)``; 0 where there is no member information or one member.
-    """
-    b = g.shape[0]
-    if members is None:
-        return np.zeros(b)
-    e = int(members.max()) + 1
-    cell = (np.arange(b)[:, None] * e + members).reshape(-1)
-    counts = np.bincount(cell, minlength=b * e).reshape(b, e)
-    sums = np.bincount(cell, weights=g.reshape(-1), minlength=b * e).reshape(b, e)
-    present = counts > 0
-    means = sums / np.maximum(counts, 1)
-    n = present.sum(axis=1)
-    mu = (means * present).sum(axis=1) / n
-    var = (((means - mu[:, None]) ** 2) * present).sum(axis=1) / n
-    out: FloatArray = np.where(n > 1, np.sqrt(var), 0.0)
-    return out
 
 
 @dataclass(frozen=True)
@@ -135,8 +107,7 @@ class SequencePlanner(OptionPlanner):
             :class:`~dynoplan.planning.OptionPlanner`; ``horizon`` bounds each option of
             a sequence, ``samples`` are the imagined futures of every branch.
         depth: options per sequence; 1 is :class:`~dynoplan.planning.OptionPlanner`'s
-            Eq. 1 (the same choices from the same generator; the disagreement term is
-            summed in another order, so with ``epistemic > 0`` equal up to rounding).
+            Eq. 1 (the same choices and scores from the same generator).
         beam: branches per start state expanded at each level (``None``: all).
     """
 
