@@ -316,3 +316,45 @@ def test_option_end_gap_is_how_far_the_imagined_end_scores_from_the_real_one():
     assert second["imagined"] == pytest.approx(0.7)
     assert option_end_gap(Drifting(), starts[2:], ends[2:], [0], lambda s: s[:, 0], 4,
                           rng) is None
+
+
+class _Unblocked:
+    """A stack without ``block_sampler``: the planner gathers and scatters every step."""
+
+    def __init__(self, stack):
+        self.stack = stack
+
+    def sample(self, states, rng):
+        return self.stack.sample(states, rng)
+
+    def trajectory_sampler(self, samples, rng):
+        return self.stack.trajectory_sampler(samples, rng)
+
+
+@pytest.mark.parametrize(("members", "samples", "end_inside"),
+                         [(2, 10, False), (3, 10, True), (4, 7, False)])
+def test_rollouts_in_block_order_equal_the_reordered_rollouts(members, samples, end_inside):
+    # the same generator gives the same rollouts with and without the block order, also
+    # where members do not divide samples (padding) and where rollouts stop early (beta,
+    # a continuation set, a start state where some rollouts may not run)
+    from dynoplan.options.initiation import InitiationFromCallable
+
+    inside = InitiationFromCallable(lambda s: s[:, 0] < 0.6)
+    options = [Option(f"o{k}", FunctionPolicy(lambda obs, rng: 0),
+                      MLPEnsembleDynamics(3, hidden_sizes=(8, 8), members=members, seed=k),
+                      ConstantTermination(0.1 * k), initiation=inside) for k in range(3)]
+    planner = OptionPlanner(options, _SigmoidGoal(), horizon=6, samples=samples,
+                            end_inside=end_inside)
+    start = np.random.default_rng(5).normal(scale=0.3, size=(4, samples, 3))
+    may = np.random.default_rng(6).random((4, samples)) < 0.8
+    idx = (0, 1, 2, 1)
+    blocked = planner.rollout(idx, start, np.random.default_rng(0), start_alive=may)
+    stack, termination = planner._stack(idx)
+    assert callable(getattr(stack, "block_sampler", None))
+    planner._stacks[idx] = (_Unblocked(stack), termination)
+    plain = planner.rollout(idx, start, np.random.default_rng(0), start_alive=may)
+    for a, b in [(blocked.end_states, plain.end_states), (blocked.steps, plain.steps),
+                 (blocked.valid, plain.valid), (blocked.members, plain.members)]:
+        np.testing.assert_array_equal(a, b)
+    assert (blocked.steps[~may] == 0).all() and (blocked.end_states[~may] == start[~may]).all()
+    assert 0 < blocked.steps.mean() < 6
