@@ -1,0 +1,55 @@
+"""Wall and CPU time of DynoPlan's random-walk episodes in lockstep (one noise level).
+
+``dynoplan random-walk --lockstep`` also runs the baselines and six noise levels; this
+script times only DynoPlan's episodes at one noise level (the CLI's settings otherwise),
+as :func:`~dynoplan.experiments.random_walk.run_lockstep` runs them, and prints one JSON
+object: wall seconds, this process's CPU seconds, the 1-minute load average before, the
+success rate and the planning steps' median and mean.
+
+    python benchmarks/random_walk_lockstep.py --depth 1
+"""
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from dynoplan.experiments.random_walk import (
+    RandomWalkSettings,
+    make_walk_controller,
+    run_lockstep,
+)
+from dynoplan.seeding import episode_seeds
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--depth", type=int, default=1)
+    parser.add_argument("--episodes", type=int, default=1000)
+    parser.add_argument("--noise", type=float, default=0.2)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    settings = RandomWalkSettings(episodes=args.episodes, noise=args.noise, seed=args.seed,
+                                  depth=args.depth, lockstep=True)
+    controller = make_walk_controller("dynoplan", args.noise, settings)
+    seeds = episode_seeds(args.seed, args.episodes)
+    load = os.getloadavg()[0]
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    traces = run_lockstep(controller, args.noise, settings, seeds)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    steps = [t.planning_steps for t in traces]
+    print(json.dumps({"depth": args.depth, "episodes": args.episodes, "noise": args.noise,
+                      "seed": args.seed, "wall_s": round(wall, 3), "cpu_s": round(cpu, 3),
+                      "load_before": round(load, 2),
+                      "success": float(np.mean([t.success for t in traces])),
+                      "planning_steps_median": float(np.median(steps)),
+                      "planning_steps_mean": round(float(np.mean(steps)), 3)}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
