@@ -19,7 +19,7 @@ from dynoplan.limits import (
 
 if TYPE_CHECKING:
     from dynoplan.envs.gear.pipeline_task import GearTask
-    from dynoplan.pipeline.evaluate import ControllerSettings
+    from dynoplan.pipeline.control_settings import ControllerSettings
 
 def _horizon_option() -> Any:
     return typer.Option(None, min=1, max=HORIZON_MAX,

@@ -17,7 +17,8 @@ from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
-from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.jobs import evaluate_rows
 from dynoplan.reports.gear_results import evaluation_markdown, results_rows, write_results
 
 

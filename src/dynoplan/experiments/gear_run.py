@@ -45,8 +45,9 @@ from dynoplan.experiments.gear_stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.collect import OptionRunSettings
-from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
+from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.fit import FitSettings
+from dynoplan.pipeline.jobs import evaluate_rows
 from dynoplan.reports.gear_results import results_markdown, results_rows, summarise, write_results
 from dynoplan.timing import StageClock
 

@@ -11,7 +11,8 @@ from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.evaluation import evaluation_seeds
 from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
 from dynoplan.parallel import SERIAL, Workers
-from dynoplan.pipeline.evaluate import EpisodeRecord, build_runner, runner_episode
+from dynoplan.pipeline.evaluate import EpisodeRecord
+from dynoplan.pipeline.jobs import build_runner, runner_episode
 from dynoplan.pipeline.sweep import SweepTask, cell_key
 from dynoplan.pipeline.sweep import run_sweep as run_task_sweep
 from dynoplan.pipeline.sweep_config import SweepConfig

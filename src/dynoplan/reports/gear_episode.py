@@ -24,7 +24,8 @@ from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
 from dynoplan.io import write_with
-from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRecord
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import ControllerRunner, EpisodeRecord
 from dynoplan.reports.gear_results import human_mode
 from dynoplan.reports.video import video_clip
 from dynoplan.seeding import EpisodeSeed

@@ -33,7 +33,9 @@ from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import OptionPolicy
 from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
-from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRunner
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import ControllerRunner
+from dynoplan.pipeline.jobs import EpisodeRunner
 from dynoplan.safety import AT_REST_SPEED, protective_separation
 from dynoplan.safety.shield import SeparationShield
 from dynoplan.types import BoolArray, FloatArray, Generator
