@@ -580,9 +580,9 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
+    from dynoplan.envs.gear.reports.episode import episode_summary, inspect_episode, save_video
+    from dynoplan.envs.gear.reports.results import seconds
     from dynoplan.io import staged_folder, write_csv, write_json
-    from dynoplan.reports.gear_episode import episode_summary, inspect_episode, save_video
-    from dynoplan.reports.gear_results import seconds
     from dynoplan.reports.video import video_clip
 
     torch.set_num_threads(1)
