@@ -5,13 +5,13 @@ control and evaluate (:mod:`~dynoplan.pipeline.evaluate`); :func:`run_pipeline` 
 all of it in one call.
 """
 
+from dynoplan.control.controller import flat_state
 from dynoplan.pipeline.collect import (
     CallableDemonstrator,
     Demonstrator,
     RandomOptions,
     box_state_dim,
     collect_transitions,
-    flat_state,
     make_env,
     probe_options,
     record_demonstrations,

@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.adapters.spec import OptionSpec, as_spec, check_unique_names
-from dynoplan.control.controller import default_success
+from dynoplan.control.controller import default_success, flat_state
 from dynoplan.data.episodes import FAILURE_KEY, OPTION_KEY, PROGRESS_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import Option, OptionPolicy
@@ -38,11 +38,6 @@ from dynoplan.types import FloatArray, Generator
 
 ObservationFn = Callable[[Any], FloatArray]
 """Maps one observation to the planner state ``(state_dim,)``."""
-
-
-def flat_state(observation: Any) -> FloatArray:
-    """The observation flattened to a ``float64`` vector: the default planner state."""
-    return np.asarray(observation, dtype=np.float64).reshape(-1)
 
 
 def make_env(env_id: str, **kwargs: Any) -> gym.Env[Any, Any]:

@@ -28,6 +28,7 @@ import numpy as np
 
 from dynoplan import __version__
 from dynoplan.adapters.spec import OptionSpec, as_spec
+from dynoplan.control.controller import flat_state
 from dynoplan.data.dataset import Dataset, write_dataset
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.data.metadata import DatasetMetadata
@@ -38,7 +39,6 @@ from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import (
     ObservationFn,
     collect_transitions,
-    flat_state,
     make_env,
     probe_options,
     record_demonstrations,
