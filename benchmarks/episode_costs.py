@@ -25,12 +25,13 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
+from dynoplan.envs.gear.flat_policy import FLAT_POLICY
 from dynoplan.envs.gear.options.catalog import gear_option_names
-from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
+from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.envs.gear.reports.results import seconds
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.pipeline.collect import OptionRunsJob, build_option_runs, option_run
 from dynoplan.pipeline.evaluate import ControllerJob
-from dynoplan.reports.gear_results import seconds
 from dynoplan.seeding import episode_seeds
 
 

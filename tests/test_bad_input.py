@@ -359,7 +359,7 @@ FLAT_CASES = {
 def test_malformed_flat_policy_is_one_line(tmp_path, monkeypatch, capsys, gear_models, case):
     import torch
 
-    from dynoplan.baselines.flat_policy import read_flat_policy
+    from dynoplan.envs.gear.flat_policy import read_flat_policy
 
     meta, message = FLAT_CASES[case]
     tensors = {"w": torch.full((64, 50), float("nan"))} if case == "NaN weights" else None
@@ -375,8 +375,8 @@ def test_malformed_flat_policy_is_one_line(tmp_path, monkeypatch, capsys, gear_m
 
 
 def test_flat_policy_of_another_architecture_is_one_line(tmp_path):
-    from dynoplan.baselines.flat_policy import FlatPolicy
     from dynoplan.envs.gear.env import GearAssemblyEnv
+    from dynoplan.envs.gear.flat_policy import FlatPolicy
 
     flat = _flat_folder(tmp_path, {"format_version": 1, "net_arch": [8]})
     env = GearAssemblyEnv()

@@ -9,6 +9,7 @@ from dynoplan.adapters import make_option
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options import admissible
+from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.diagnostics import (
     constant_dimensions,
     constant_dimensions_warning,
@@ -16,7 +17,7 @@ from dynoplan.pipeline.diagnostics import (
     sole_admissible_warnings,
     weak_dynamics_warnings,
 )
-from dynoplan.pipeline.evaluate import ControllerSettings, make_controller
+from dynoplan.pipeline.evaluate import make_controller
 
 
 class Drift(gym.Env):

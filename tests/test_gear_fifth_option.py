@@ -124,7 +124,7 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
-    from dynoplan.reports.gear_figures import make_gear_figures
+    from dynoplan.envs.gear.reports.figures import make_gear_figures
 
     models = tmp_path / "models"
     models.mkdir()

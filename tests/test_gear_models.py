@@ -25,6 +25,7 @@ from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
 from dynoplan.envs.gear.learning.training import train_gear_models
 from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.options.catalog import network_files
+from dynoplan.envs.gear.reports.figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_stages import learned_models
@@ -32,7 +33,6 @@ from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynam
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.pipeline.fit import fit_regions_cross_validated
-from dynoplan.reports.gear_figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
 
 pytestmark = pytest.mark.slow
 

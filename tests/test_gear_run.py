@@ -25,13 +25,13 @@ from dynoplan.envs.gear.env import CONTROL_DT, HOME_Q, RIGHT_HOLD
 from dynoplan.envs.gear.evaluation import video_episode
 from dynoplan.envs.gear.features import HUMAN_DISTANCE_CAP, RELATIVE, feature_map
 from dynoplan.envs.gear.options.moves import PreInsertionBeta
+from dynoplan.envs.gear.reports.results import RESULT_COLUMNS, failure_table, summarise
 from dynoplan.envs.gear.scene import FINGER_TRAVEL, TABLE_TOP_Z
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
 from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
 from dynoplan.pipeline.evaluate import EpisodeRecord
-from dynoplan.reports.gear_results import RESULT_COLUMNS, failure_table, summarise
 
 REQUIRED = ("controller", "success_rate", "contacts", "min_human_distance",
             "out_of_region_starts", "switches", "decision_ms_p50", "decision_ms_p99")

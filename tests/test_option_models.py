@@ -5,7 +5,8 @@ import numpy as np
 
 from dynoplan.data.episodes import Episode
 from dynoplan.options import ConstantTermination, FunctionPolicy, Option, TerminationFromCallable
-from dynoplan.pipeline.evaluate import ControllerSettings, planning_settings
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import planning_settings
 from dynoplan.pipeline.fit import FittedModels
 from dynoplan.pipeline.fit_data import option_end_pairs
 from dynoplan.planning import OptionPlanner

@@ -252,7 +252,7 @@ def test_arm_points_are_the_arms_joints_as_mujoco_places_them():
 def test_a_robot_held_or_stopped_while_the_hand_pushes_it_is_at_rest():
     from types import SimpleNamespace
 
-    from dynoplan.envs.gear.pipeline_task import episode_metrics
+    from dynoplan.envs.gear.metrics import episode_metrics
 
     env = GearAssemblyEnv()
     env.reset(seed=0, options={"human_mode": "reach"})

@@ -16,7 +16,8 @@ from dynoplan.envs.gear.controllers import GEAR_CONTROL
 from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.parallel import SERIAL, Workers, parallel_map
-from dynoplan.pipeline.evaluate import ControllerJob, build_runner, evaluate_many
+from dynoplan.pipeline.evaluate import ControllerJob
+from dynoplan.pipeline.jobs import build_runner, evaluate_many
 from dynoplan.seeding import episode_seeds
 
 pytestmark = pytest.mark.slow
@@ -151,7 +152,7 @@ def test_option_network_data_is_the_same_on_two_workers_in_any_order(ray_runtime
 
 
 def test_one_map_of_several_jobs_gives_each_job_its_own_results(ray_runtime, job, serial):
-    from dynoplan.pipeline.evaluate import evaluate_many
+    from dynoplan.pipeline.jobs import evaluate_many
 
     seeds = episode_seeds(7, EPISODES)
     script = dataclasses.replace(job, controller="fixed_script")

@@ -19,7 +19,7 @@ from dynoplan.limits import (
 
 if TYPE_CHECKING:
     from dynoplan.envs.gear.pipeline_task import GearTask
-    from dynoplan.pipeline.evaluate import ControllerSettings
+    from dynoplan.pipeline.control_settings import ControllerSettings
 
 def _horizon_option() -> Any:
     return typer.Option(None, min=1, max=HORIZON_MAX,
@@ -587,9 +587,9 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
+    from dynoplan.envs.gear.reports.episode import episode_summary, inspect_episode, save_video
+    from dynoplan.envs.gear.reports.results import seconds
     from dynoplan.io import staged_folder, write_csv, write_json
-    from dynoplan.reports.gear_episode import episode_summary, inspect_episode, save_video
-    from dynoplan.reports.gear_results import seconds
     from dynoplan.reports.video import video_clip
 
     torch.set_num_threads(1)

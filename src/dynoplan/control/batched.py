@@ -27,8 +27,8 @@ from dynoplan.control.choosers import OptionChooser
 from dynoplan.control.controller import (
     Decision,
     EpisodeTrace,
-    default_state,
     default_success,
+    flat_state,
 )
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import Option
@@ -52,7 +52,7 @@ def run_batched(envs: Sequence[gym.Env[Any, Any]], options: Sequence[Option],
                 chooser: BatchChooser | OptionChooser, seeds: Sequence[EpisodeSeed],
                 planner_rng: Generator,
                 max_decisions: int = 50, max_option_steps: int = 1000,
-                state_fn: Callable[[Any], FloatArray] = default_state,
+                state_fn: Callable[[Any], FloatArray] = flat_state,
                 success_fn: Callable[[bool, dict[str, Any]], bool] = default_success
                 ) -> list[EpisodeTrace]:
     """One trace per seed, in order; episode ``i`` runs in ``envs[i]``.

@@ -46,8 +46,9 @@ from dynoplan.planning.option_planner import Plan
 from dynoplan.types import FloatArray, Generator
 
 
-def default_state(observation: Any) -> FloatArray:
-    """The observation itself as a flat float64 vector (works for Box and Discrete)."""
+def flat_state(observation: Any) -> FloatArray:
+    """The observation flattened to a ``float64`` vector: the default planner state (a
+    ``Box`` or a ``Discrete`` observation)."""
     return np.asarray(observation, dtype=np.float64).reshape(-1)
 
 
@@ -146,7 +147,7 @@ class Controller:
         self,
         options: Sequence[Option],
         chooser: OptionChooser,
-        state_fn: Callable[[Any], FloatArray] = default_state,
+        state_fn: Callable[[Any], FloatArray] = flat_state,
         max_decisions: int = 50,
         max_option_steps: int = 1000,
         replan_every: int | None = None,

@@ -13,12 +13,14 @@ from typing import Any
 
 from dynoplan.envs.gear.controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.envs.gear.evaluation import ORACLE_FIRST, controller_rows, evaluation_seeds
-from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
+from dynoplan.envs.gear.flat_policy import FLAT_POLICY
+from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.envs.gear.reports.results import evaluation_markdown, results_rows, write_results
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
-from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
-from dynoplan.reports.gear_results import evaluation_markdown, results_rows, write_results
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.jobs import evaluate_rows
 
 
 def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], episodes: int,
@@ -36,7 +38,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
         DynoplanError: an unknown controller, ``episodes < 1``, unreadable models, or
             ``flat_ppo`` without ``flat_folder``.
     """
-    from dynoplan.baselines.flat_policy import read_flat_policy
+    from dynoplan.envs.gear.flat_policy import read_flat_policy
     from dynoplan.envs.gear.learning.files import load_gear_models
 
     known = (*VARIANTS, FLAT_POLICY)

@@ -46,13 +46,19 @@ from dynoplan.envs.gear.learning.settings import (
     QUICK_SETTINGS,
     GearMetricsSettings,
 )
+from dynoplan.envs.gear.reports.results import (
+    results_markdown,
+    results_rows,
+    summarise,
+    write_results,
+)
 from dynoplan.experiments.gear_stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
 from dynoplan.io import retarget, staged_folder, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.collect import OptionRunSettings
-from dynoplan.pipeline.evaluate import ControllerSettings, evaluate_rows
+from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.fit import FitSettings
-from dynoplan.reports.gear_results import results_markdown, results_rows, summarise, write_results
+from dynoplan.pipeline.jobs import evaluate_rows
 from dynoplan.timing import StageClock
 
 
@@ -145,7 +151,8 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
                 log: Callable[[str], None], workers: Workers) -> dict[str, Any]:
     import torch
 
-    from dynoplan.baselines.flat_policy import fit_flat_policy, save_flat_policy
+    from dynoplan.envs.gear.flat_policy import fit_flat_policy, save_flat_policy
+    from dynoplan.envs.gear.reports.episode import render_video, save_video
     from dynoplan.experiments.gear_stages import (
         demonstrations,
         figures,
@@ -154,7 +161,6 @@ def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
         option_networks,
         option_transitions,
     )
-    from dynoplan.reports.gear_episode import render_video, save_video
 
     torch.set_num_threads(1)
     models_dir = out / "models"

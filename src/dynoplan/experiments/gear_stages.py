@@ -163,7 +163,7 @@ def figures(models: Path, demos: Path, heldout: Path | None, out: Path, seed: in
             progress: bool = False) -> dict[str, Any]:
     """Stage ``figures``: Fig. 3(a) and 3(b) into ``out``, t-SNE on ``points`` states at
     most; the content of ``figures.json``."""
-    from dynoplan.reports.gear_figures import make_gear_figures
+    from dynoplan.envs.gear.reports.figures import make_gear_figures
 
     return make_gear_figures(models, demos, heldout, out, seed=seed, trial=trial,
                              max_points=points, progress=progress)

@@ -23,8 +23,8 @@ from dynoplan.envs.random_walk.options import make_random_walk_options
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_csv, write_json, write_text
 from dynoplan.limits import DEPTH_MAX
+from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import (
-    ControllerSettings,
     controller_names,
     make_controller,
     planning_steps_summary,

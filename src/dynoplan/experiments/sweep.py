@@ -9,13 +9,15 @@ from typing import Any
 
 from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.evaluation import evaluation_seeds
-from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
+from dynoplan.envs.gear.flat_policy import FLAT_POLICY
+from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.envs.gear.reports.results import RESULT_COLUMNS, summarise
 from dynoplan.parallel import SERIAL, Workers
-from dynoplan.pipeline.evaluate import EpisodeRecord, build_runner, runner_episode
+from dynoplan.pipeline.evaluate import EpisodeRecord
+from dynoplan.pipeline.jobs import build_runner, runner_episode
 from dynoplan.pipeline.sweep import SweepTask, cell_key
 from dynoplan.pipeline.sweep import run_sweep as run_task_sweep
 from dynoplan.pipeline.sweep_config import SweepConfig
-from dynoplan.reports.gear_results import RESULT_COLUMNS, summarise
 from dynoplan.seeding import EpisodeSeed
 
 GEAR_SWEEP = SweepTask(GearTask(), tuple(c for c in CONTROLLERS if c != FLAT_POLICY),

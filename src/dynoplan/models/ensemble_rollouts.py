@@ -1,11 +1,12 @@
 """The batched rollout engine of the ensemble dynamics: many options' ensembles, one program.
 
 :class:`StackedMLPEnsemble` advances ``(options, samples, d)`` states of several
-:class:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics` of one architecture by one
-step. Their weights are stacked to ``(options * members, in, out)`` and every layer is
-one ``torch.baddbmm`` over ``(options * members, rows_per_member, in)``. Inside,
-everything is float32 with the normalisation folded into the first and last layers;
-states come in and go out as float64.
+ensembles of one architecture by one step, each given as its :class:`EnsembleLayers`
+(:meth:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics.sampling_layers`). Their
+weights are stacked to ``(options * members, in, out)`` and every layer is one
+``torch.baddbmm`` over ``(options * members, rows_per_member, in)``. Inside, everything
+is float32 with the normalisation folded into the first and last layers; states come in
+and go out as float64.
 
 Sampling (``D_w``) has two modes. A rollout of the planner keeps one member for its whole
 length (PETS's TS-infinity, :meth:`StackedMLPEnsemble.trajectory_sampler`): the spread of
@@ -24,7 +25,7 @@ rows per member is fixed; the per-row distribution is the same.) The next state 
 """
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -32,10 +33,42 @@ from torch.nn import functional as F
 
 from dynoplan.types import FloatArray, Generator
 
-if TYPE_CHECKING:
-    from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
-
 _MAX_LAYOUTS = 8  # work-buffer sets kept per stack (one per batch size seen, newest kept)
+
+
+@dataclass(frozen=True)
+class EnsembleLayers:
+    """One ensemble's sampling parameters, float64, on states in state units.
+
+    Attributes:
+        weights: per layer, ``(members, in, out)``; the input normalisation is folded
+            into the first layer and the mean part of the output denormalisation into
+            the last (outputs: ``d`` state changes, then ``d`` raw log-variances).
+        biases: per layer, ``(members, 1, out)``, folded as the weights.
+        min_logvar, max_logvar: ``(d,)``, the soft bounds of the normalised log-variance.
+        log_std: ``(d,)``, log of the factor from normalised to state-unit standard
+            deviations (the target normalisation times any calibration).
+    """
+
+    weights: tuple[FloatArray, ...]
+    biases: tuple[FloatArray, ...]
+    min_logvar: FloatArray
+    max_logvar: FloatArray
+    log_std: FloatArray
+
+    @property
+    def members(self) -> int:
+        return int(self.weights[0].shape[0])
+
+    @property
+    def state_dim(self) -> int:
+        return int(self.weights[0].shape[1])
+
+    @property
+    def architecture(self) -> tuple[int, tuple[int, ...], int]:
+        """``(state_dim, hidden_sizes, members)``: layers that stack together share it."""
+        return (self.state_dim, tuple(int(w.shape[2]) for w in self.weights[:-1]),
+                self.members)
 
 
 class MemberStep:
@@ -67,7 +100,7 @@ class StackedMLPEnsemble:
             when ``members`` does not divide ``samples``); for FLOP counts.
     """
 
-    def __init__(self, models: Sequence["MLPEnsembleDynamics"]) -> None:
+    def __init__(self, models: Sequence[EnsembleLayers]) -> None:
         if not models or len({m.architecture for m in models}) != 1:
             raise ValueError("stacked ensembles must be non-empty and share one architecture")
         self.options = len(models)
@@ -81,10 +114,9 @@ class StackedMLPEnsemble:
         def per_group(rows: list[np.ndarray]) -> np.ndarray:
             return np.repeat(np.stack(rows), e, axis=0)[:, None, :]  # (groups, 1, d)
 
-        with torch.no_grad():
-            lo = per_group([m.network.min_logvar.numpy()[0].astype(np.float64) for m in models])
-            hi = per_group([m.network.max_logvar.numpy()[0].astype(np.float64) for m in models])
-        log_sd = per_group([np.log(m.delta_std * m.std_scale) for m in models])
+        lo = per_group([m.min_logvar for m in models])
+        hi = per_group([m.max_logvar for m in models])
+        log_sd = per_group([m.log_std for m in models])
         # logvar = lo + softplus((hi - lo) - softplus(hi - raw)), and in state units
         # sigma = exp(0.5 * logvar + log(delta_std)) = exp(0.5 * softplus(.) + offset)
         self._max_logvar = torch.from_numpy(hi.astype(np.float32))
@@ -269,33 +301,14 @@ class _Layout:
                 np.take(self._scatter_ext, idx).reshape(-1))
 
 
-def _folded_layers(models: Sequence["MLPEnsembleDynamics"]) -> tuple[list[torch.Tensor],
-                                                                    list[torch.Tensor]]:
-    """Stack the members of all models to ``(options * members, in, out)`` float32.
-
-    The input normalisation is folded into the first layer and the mean part of the
-    output denormalisation into the last (computed in float64, then rounded once).
-    """
-    n_layers = len(models[0].network.weights)
-    weights: list[list[np.ndarray]] = [[] for _ in range(n_layers)]
-    biases: list[list[np.ndarray]] = [[] for _ in range(n_layers)]
-    with torch.no_grad():
-        for model in models:
-            d = model.state_dim
-            ws = [w.numpy().astype(np.float64) for w in model.network.weights]
-            bs = [b.numpy().astype(np.float64) for b in model.network.biases]
-            # layer 0 on (x - mu) / sd  ==  x @ (W / sd[:, None]) + (b - (mu / sd) @ W)
-            inv = 1.0 / model.input_std
-            bs[0] = bs[0] - np.einsum("i,eio->eo", model.input_mean * inv, ws[0])[:, None, :]
-            ws[0] = ws[0] * inv[None, :, None]
-            # mean outputs: delta = mean_n * delta_std + delta_mean
-            ws[-1][:, :, :d] *= model.delta_std
-            bs[-1][:, :, :d] = bs[-1][:, :, :d] * model.delta_std + model.delta_mean
-            for i in range(n_layers):
-                weights[i].append(ws[i])
-                biases[i].append(bs[i])
-    return ([torch.from_numpy(np.concatenate(w).astype(np.float32)) for w in weights],
-            [torch.from_numpy(np.concatenate(b).astype(np.float32)) for b in biases])
+def _folded_layers(models: Sequence[EnsembleLayers]) -> tuple[list[torch.Tensor],
+                                                              list[torch.Tensor]]:
+    """Stack the members of all models to ``(options * members, in, out)`` float32 (the
+    float64 folded layers rounded once)."""
+    return ([torch.from_numpy(np.concatenate(w).astype(np.float32))
+             for w in zip(*(m.weights for m in models), strict=True)],
+            [torch.from_numpy(np.concatenate(b).astype(np.float32))
+             for b in zip(*(m.biases for m in models), strict=True)])
 
 
-__all__ = ["BlockSampler", "MemberStep", "StackedMLPEnsemble"]
+__all__ = ["BlockSampler", "EnsembleLayers", "MemberStep", "StackedMLPEnsemble"]

@@ -25,7 +25,7 @@ from torch.nn import functional as F
 
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import LoopStackedDynamics, StackedDynamics
-from dynoplan.models.ensemble_rollouts import StackedMLPEnsemble
+from dynoplan.models.ensemble_rollouts import EnsembleLayers, StackedMLPEnsemble
 from dynoplan.models.evaluation import mixture_quantile
 from dynoplan.models.mlp import MLP, truncated_normal_init
 from dynoplan.models.mlp_file import (
@@ -201,7 +201,7 @@ class MLPEnsembleDynamics:
         if x.ndim != 2 or x.shape[1] != self.state_dim:
             raise ValueError(f"states must be (batch, {self.state_dim}), got {x.shape}")
         if self._single is None:
-            self._single = StackedMLPEnsemble([self])
+            self._single = StackedMLPEnsemble([self.sampling_layers()])
         return self._single.sample(x[None], rng)[0]
 
     def predict(self, states: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -273,8 +273,26 @@ class MLPEnsembleDynamics:
         tensor program); mixed architectures fall back to a loop over options.
         """
         if len({m.architecture for m in items}) == 1:
-            return StackedMLPEnsemble(items)
+            return StackedMLPEnsemble([m.sampling_layers() for m in items])
         return LoopStackedDynamics(items)
+
+    def sampling_layers(self) -> EnsembleLayers:
+        """The parameters sampling runs on (float64, normalisation folded in), for the
+        batched engine (:class:`~dynoplan.models.ensemble_rollouts.StackedMLPEnsemble`)."""
+        with torch.no_grad():
+            ws = [w.numpy().astype(np.float64) for w in self.network.weights]
+            bs = [b.numpy().astype(np.float64) for b in self.network.biases]
+            lo = self.network.min_logvar.numpy()[0].astype(np.float64)
+            hi = self.network.max_logvar.numpy()[0].astype(np.float64)
+        d = self.state_dim
+        # layer 0 on (x - mu) / sd  ==  x @ (W / sd[:, None]) + (b - (mu / sd) @ W)
+        inv = 1.0 / self.input_std
+        bs[0] = bs[0] - np.einsum("i,eio->eo", self.input_mean * inv, ws[0])[:, None, :]
+        ws[0] = ws[0] * inv[None, :, None]
+        # mean outputs: delta = mean_n * delta_std + delta_mean
+        ws[-1][:, :, :d] *= self.delta_std
+        bs[-1][:, :, :d] = bs[-1][:, :, :d] * self.delta_std + self.delta_mean
+        return EnsembleLayers(tuple(ws), tuple(bs), lo, hi, np.log(self.delta_std * self.std_scale))
 
     def refresh(self) -> None:
         """Rebuild the float32 sampling snapshot after a change of weights or normalisers."""

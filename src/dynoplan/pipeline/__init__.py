@@ -5,25 +5,24 @@ control and evaluate (:mod:`~dynoplan.pipeline.evaluate`); :func:`run_pipeline` 
 all of it in one call.
 """
 
+from dynoplan.control.controller import flat_state
 from dynoplan.pipeline.collect import (
     CallableDemonstrator,
     Demonstrator,
     RandomOptions,
     box_state_dim,
     collect_transitions,
-    flat_state,
     make_env,
     probe_options,
     record_demonstrations,
     record_episode,
 )
+from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import (
     ControllerJob,
-    ControllerSettings,
     EpisodeRecord,
     controller_names,
     evaluate_controllers,
-    evaluate_many,
     learned_regions,
     make_controller,
     neutral_action,
@@ -45,6 +44,18 @@ from dynoplan.pipeline.fit import (
     option_runs,
     option_transitions,
 )
+from dynoplan.pipeline.gym_task import (
+    EndOnSuccess,
+    GymTask,
+    StateFn,
+    StateObservation,
+    SuccessFn,
+    call_factory,
+    load_function,
+    load_object,
+    task_env,
+)
+from dynoplan.pipeline.jobs import evaluate_many
 from dynoplan.pipeline.run import (
     PipelineResult,
     PipelineSettings,
@@ -53,18 +64,7 @@ from dynoplan.pipeline.run import (
     run_pipeline,
     start_states,
 )
-from dynoplan.pipeline.task import (
-    EndOnSuccess,
-    GymTask,
-    StateFn,
-    StateObservation,
-    SuccessFn,
-    Task,
-    call_factory,
-    load_function,
-    load_object,
-    task_env,
-)
+from dynoplan.pipeline.task import Task
 
 __all__ = [
     "CallableDemonstrator",

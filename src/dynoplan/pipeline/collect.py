@@ -17,7 +17,7 @@ option that chose every action in ``infos["option"]``:
   the outcome runs that initiation sets are learned from.
 """
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, cast
@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.adapters.spec import OptionSpec, as_spec, check_unique_names
-from dynoplan.control.controller import default_success
+from dynoplan.control.controller import default_success, flat_state
 from dynoplan.data.episodes import FAILURE_KEY, OPTION_KEY, PROGRESS_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import Option, OptionPolicy
@@ -38,11 +38,6 @@ from dynoplan.types import FloatArray, Generator
 
 ObservationFn = Callable[[Any], FloatArray]
 """Maps one observation to the planner state ``(state_dim,)``."""
-
-
-def flat_state(observation: Any) -> FloatArray:
-    """The observation flattened to a ``float64`` vector: the default planner state."""
-    return np.asarray(observation, dtype=np.float64).reshape(-1)
 
 
 def make_env(env_id: str, **kwargs: Any) -> gym.Env[Any, Any]:
@@ -429,6 +424,20 @@ OUTCOME_KEY = "outcome"
 observation, ended well (:func:`run_outcomes`)."""
 
 
+def decision_rows(last: int, steps: int, to_end: bool = False) -> Iterator[np.ndarray]:
+    """The decision-rate slices of observations ``0..last`` (``steps`` env steps per
+    decision): per phase offset ``o`` of the decision period, the indices ``o, o + steps,
+    o + 2 steps, ...`` up to ``last``, and with ``to_end`` ``last`` too when the offset
+    misses it (a shorter last decision). Offsets that give no decision (fewer than two
+    indices) are left out."""
+    for offset in range(min(steps, last)):
+        rows = np.arange(offset, last + 1, steps)
+        if to_end and rows[-1] != last:
+            rows = np.r_[rows, last]
+        if len(rows) > 1:
+            yield rows
+
+
 def decision_episodes(episode: Episode, steps: int, to_end: bool = False,
                       summed: Sequence[str] = (), at_start: Sequence[str] = ()
                       ) -> list[Episode]:
@@ -445,16 +454,10 @@ def decision_episodes(episode: Episode, steps: int, to_end: bool = False,
     ``at_start``, the value at its first env step. ``seed`` is kept.
     """
     labels = episode.infos[OPTION_KEY]
-    last = len(episode.observations) - 1
     sums = {key: np.r_[0, np.cumsum(episode.infos[key])] for key in summed}
     out = []
-    for offset in range(min(steps, last)):
-        rows = np.arange(offset, last + 1, steps)
-        if to_end and rows[-1] != last:
-            rows = np.r_[rows, last]
+    for rows in decision_rows(len(episode.observations) - 1, steps, to_end):
         n = len(rows) - 1
-        if n < 1:
-            continue
         label = labels[rows[:-1]]
         infos = {OPTION_KEY: label,
                  **{key: np.diff(c[rows]).astype(episode.infos[key].dtype)

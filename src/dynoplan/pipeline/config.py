@@ -40,7 +40,7 @@ from typing import Any
 
 from dynoplan.errors import DynoplanError
 from dynoplan.limits import SETTING_BOUNDS
-from dynoplan.pipeline.evaluate import ControllerSettings
+from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.fit import FitSettings
 from dynoplan.pipeline.run import PipelineSettings
 

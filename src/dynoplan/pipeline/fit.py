@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.adapters.spec import OptionSpec
+from dynoplan.control.controller import flat_state
 from dynoplan.data.episodes import Episode
 from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.io import staged_folder
@@ -52,7 +53,7 @@ from dynoplan.models.outcome_initiation import OutcomeInitiation, OutcomeInitiat
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
-from dynoplan.pipeline.collect import ObservationFn, flat_state
+from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.diagnostics import constant_dimensions, constant_dimensions_warning
 from dynoplan.pipeline.fit_data import (
     episode_states,

@@ -5,9 +5,10 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 
+from dynoplan.control.controller import flat_state
 from dynoplan.data.episodes import INTERRUPTED_KEY, OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
-from dynoplan.pipeline.collect import ObservationFn, flat_state
+from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.types import FloatArray
 
 

@@ -5,6 +5,7 @@ from typing import Any
 
 import numpy as np
 
+from dynoplan.control.controller import flat_state
 from dynoplan.data.episodes import FAILURE_KEY, Episode
 from dynoplan.models.features import FeatureMap, GoalOnFeatures
 from dynoplan.models.goal_network import (
@@ -14,7 +15,7 @@ from dynoplan.models.goal_network import (
     goal_training_set,
 )
 from dynoplan.models.regions import constant_mask
-from dynoplan.pipeline.collect import ObservationFn, flat_state
+from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.fit_settings import FitSettings
 from dynoplan.types import FloatArray, IntArray
 

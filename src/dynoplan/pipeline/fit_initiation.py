@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from dynoplan.control.controller import flat_state
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.models.features import FeatureMap
@@ -17,7 +18,7 @@ from dynoplan.models.outcome_initiation import (
     OutcomeInitiationOnFeatures,
     fit_report_dict,
 )
-from dynoplan.pipeline.collect import OUTCOME_KEY, ObservationFn, flat_state
+from dynoplan.pipeline.collect import OUTCOME_KEY, ObservationFn
 from dynoplan.pipeline.fit_data import option_runs
 from dynoplan.pipeline.fit_goal import GoalModel
 from dynoplan.pipeline.fit_settings import FitSettings

@@ -8,10 +8,11 @@ from typing import Any
 
 import numpy as np
 
+from dynoplan.control.controller import flat_state
 from dynoplan.data.episodes import Episode
 from dynoplan.models.features import FeatureMap, RegionsOnFeatures
 from dynoplan.models.regions import SafetyRegions
-from dynoplan.pipeline.collect import ObservationFn, flat_state
+from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.fit_data import labelled_states
 from dynoplan.pipeline.fit_settings import FitSettings
 from dynoplan.types import FloatArray, IntArray

@@ -28,6 +28,7 @@ import numpy as np
 
 from dynoplan import __version__
 from dynoplan.adapters.spec import OptionSpec, as_spec
+from dynoplan.control.controller import flat_state
 from dynoplan.data.dataset import Dataset, write_dataset
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.data.metadata import DatasetMetadata
@@ -38,11 +39,11 @@ from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import (
     ObservationFn,
     collect_transitions,
-    flat_state,
     make_env,
     probe_options,
     record_demonstrations,
 )
+from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.diagnostics import (
     seeded_reset_warning,
     sole_admissible_warnings,
@@ -50,7 +51,6 @@ from dynoplan.pipeline.diagnostics import (
 )
 from dynoplan.pipeline.evaluate import (
     DYNOPLAN,
-    ControllerSettings,
     composition_ratio,
     controller_names,
     evaluate_controllers,
@@ -67,8 +67,9 @@ from dynoplan.pipeline.fit import (
     episode_states,
     fit_models,
 )
+from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
 from dynoplan.pipeline.improve import own_episodes
-from dynoplan.pipeline.task import StateFn, SuccessFn, Task, task_env
+from dynoplan.pipeline.task import Task
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
 from dynoplan.timing import StageClock
@@ -307,7 +308,7 @@ def run_pipeline(
             the pipeline then sees, the options included; default: a ``Box`` observation
             as it is, a ``Dict`` flattened with a warning (:func:`task_env`).
         success: ``success(observation, info) -> bool`` after every step; the episode
-            ends at the first success (:class:`~dynoplan.pipeline.task.EndOnSuccess`);
+            ends at the first success (:class:`~dynoplan.pipeline.gym_task.EndOnSuccess`);
             default: the environment's ``info["is_success"]`` at the last step, else
             ``terminated``.
         fitter: learns each option's dynamics; default: an MLP ensemble.

@@ -34,13 +34,9 @@ from dynoplan.errors import DynoplanError
 from dynoplan.io import check_writable, staged_folder, write_csv, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE, check_format_version
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
-from dynoplan.pipeline.evaluate import (
-    ControllerJob,
-    ControllerSettings,
-    EpisodeRecord,
-    build_runner,
-    runner_episode,
-)
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import ControllerJob, EpisodeRecord
+from dynoplan.pipeline.jobs import build_runner, runner_episode
 from dynoplan.pipeline.sweep_config import Cell, SweepConfig, load_sweep_config
 from dynoplan.pipeline.task import Task
 from dynoplan.reports.tables import markdown_table
@@ -120,8 +116,8 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
     """Run (or finish) the sweep of ``config_path`` (of ``sweep``) into ``out``; return
     the summary.
 
-    ``setup``/``run`` are the job's functions (:func:`~dynoplan.pipeline.evaluate.build_runner`,
-    :func:`~dynoplan.pipeline.evaluate.runner_episode`);
+    ``setup``/``run`` are the job's functions (:func:`~dynoplan.pipeline.jobs.build_runner`,
+    :func:`~dynoplan.pipeline.jobs.runner_episode`);
     tests replace them.
 
     Raises:

@@ -15,7 +15,7 @@ from TOML or JSON.
     dynamics_noise = [0.0, 0.02]
     seed = [0, 1]
 
-Grid keys: fields of :class:`~dynoplan.pipeline.evaluate.ControllerSettings`
+Grid keys: fields of :class:`~dynoplan.pipeline.control_settings.ControllerSettings`
 (``horizon``, ``samples``, ``oracle_horizon``, ``oracle_samples``, ``margin``,
 ``dynamics_noise``, ``epistemic``), ``controller`` (one of the task's controllers) and
 ``seed``; the settings not swept are the task's. Any mistake is one
@@ -34,7 +34,7 @@ from typing import Any
 
 from dynoplan.errors import DynoplanError
 from dynoplan.limits import CELLS_MAX, EPISODES_MAX, HORIZON_MAX, SAMPLES_MAX, SEED_MAX
-from dynoplan.pipeline.evaluate import ControllerSettings
+from dynoplan.pipeline.control_settings import ControllerSettings
 
 INT_KEYS = ("horizon", "samples", "oracle_horizon", "oracle_samples")
 """Grid keys of positive integers (at most :data:`~dynoplan.limits.HORIZON_MAX` for the

@@ -62,7 +62,8 @@ from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion, Nowhere
 from dynoplan.options.option import Option
 from dynoplan.options.termination import ConstantTermination
-from dynoplan.pipeline.evaluate import ControllerSettings, with_dynamics_noise
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import with_dynamics_noise
 from dynoplan.pipeline.fit import FittedModels
 from dynoplan.planning import OptionPlanner, SimulatorOracle
 from dynoplan.safety.constraint import ConstantVelocityHuman, SeparationConstraint

@@ -2,8 +2,8 @@
 
 Every row of ``gear run``'s and ``gear evaluate``'s tables is a
 :class:`~dynoplan.pipeline.evaluate.ControllerJob` of a :class:`GearTask` with its
-episodes; :func:`~dynoplan.pipeline.evaluate.evaluate_rows` runs the rows as one map and
-:func:`~dynoplan.reports.gear_results.results_rows` makes the table. Episode ``i`` of
+episodes; :func:`~dynoplan.pipeline.jobs.evaluate_rows` runs the rows as one map and
+:func:`~dynoplan.envs.gear.reports.results.results_rows` makes the table. Episode ``i`` of
 every row resets the env with the same seed (gear pose and human schedule), and an
 episode depends on its seed alone, so the metrics are the same on one worker or many.
 """
@@ -14,9 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.envs.gear.controllers import CONTROLLERS
-from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, GearTask
-from dynoplan.pipeline.evaluate import ControllerJob, ControllerSettings, EpisodeRecord
-from dynoplan.reports.gear_results import human_mode, seconds
+from dynoplan.envs.gear.flat_policy import FLAT_POLICY
+from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.envs.gear.reports.results import human_mode, seconds
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import ControllerJob, EpisodeRecord
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 EVAL_SEED_OFFSET = 7

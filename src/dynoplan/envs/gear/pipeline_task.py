@@ -21,25 +21,23 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
-from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.controllers import VARIANTS, StopWhereItIs
 from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.flat_policy import FLAT_POLICY, FlatPolicy, FlatPolicyRunner
 from dynoplan.envs.gear.human import BEHAVIOURS
 from dynoplan.envs.gear.learning.files import TASK_NAME
+from dynoplan.envs.gear.metrics import episode_metrics
 from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import OptionPolicy
 from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
-from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRunner
-from dynoplan.safety import AT_REST_SPEED, protective_separation
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import ControllerRunner
+from dynoplan.pipeline.jobs import EpisodeRunner
 from dynoplan.safety.shield import SeparationShield
-from dynoplan.types import BoolArray, FloatArray, Generator
-
-FLAT_POLICY = "flat_ppo"
-"""The flat end-to-end baseline's controller name (it needs ``GearTask.flat_folder``)."""
+from dynoplan.types import BoolArray, Generator
 
 FAULTS = ("observation_noise", "grasp_slip")
 """Environment faults a :class:`GearTask` can wrap around the env (dynamics noise is a
@@ -122,8 +120,6 @@ class GearTask:
         gear_env = env.unwrapped
         assert isinstance(gear_env, GearAssemblyEnv)
         if controller == FLAT_POLICY:
-            from dynoplan.baselines.flat_policy import FlatPolicy, FlatPolicyRunner
-
             if self.flat_folder is None:
                 raise DynoplanError(f"{FLAT_POLICY} needs the flat policy's folder")
             return FlatPolicyRunner(gear_env, FlatPolicy(self.flat_folder, gear_env).act)
@@ -176,49 +172,4 @@ class GearTask:
         return ended_well(policy, recording)
 
 
-def gear_metrics(env: GearAssemblyEnv, infos: list[dict[str, Any]],
-                 min_distance: float = np.inf, held: FloatArray | None = None) -> dict[str, Any]:
-    """The gear's own measurements of an episode from its steps' ``infos``:
-
-    - ``human_mode``: the human's behaviour;
-    - ``contacts``: env steps' physics steps with a robot-human contact, split into
-      ``contacts_moving`` (the robot's fastest point at :data:`AT_REST_SPEED` or more after
-      the step, and the step neither a protective stop nor, ``held`` (bool per step), a
-      step in which the controller held the arm because no option was admissible: a
-      stopped arm that the hand pushes moves, but is not driven) and ``contacts_at_rest``;
-    - ``sp_violations_moving``: steps after which the robot moves closer to the hand than
-      the protective separation distance ``S_p`` of ISO/TS 15066 for the robot's and the
-      hand's measured speeds (:func:`~dynoplan.safety.protective_separation`);
-    - ``protective_stops``: steps the runtime monitor stopped (:attr:`GearTask.shield`);
-    - ``min_human_distance``: the smallest robot-human distance (m; also over
-      ``min_distance``, for example the distance at the reset).
-    """
-    contacts = np.array([int(i["human_contacts"]) for i in infos], dtype=np.int64)
-    stopped = np.array([bool(i.get("protective_stop", False)) for i in infos], dtype=bool)
-    at_rest = stopped if held is None else stopped | np.asarray(held, dtype=bool)
-    moving = np.array([float(i["robot_speed"]) >= AT_REST_SPEED for i in infos],
-                      dtype=bool) & ~at_rest
-    distance = np.array([float(i["min_human_distance"]) for i in infos])
-    s_p = protective_separation(np.array([float(i["robot_speed"]) for i in infos]),
-                                np.array([float(i["human_speed"]) for i in infos]))
-    return {"human_mode": env.schedule.mode,
-            "contacts": int(contacts.sum()),
-            "contacts_moving": int(contacts[moving].sum()),
-            "contacts_at_rest": int(contacts[~moving].sum()),
-            "sp_violations_moving": int(np.sum(moving & (distance < s_p))),
-            "protective_stops": int(stopped.sum()),
-            "min_human_distance": float(min([min_distance, *distance.tolist()]))}
-
-
-def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, Any]:
-    """:func:`gear_metrics` of a controller's episode (recorded with ``record_infos``)."""
-    gear_env = env.unwrapped
-    assert isinstance(gear_env, GearAssemblyEnv)
-    held = np.zeros(len(trace.infos), dtype=bool)
-    for decision in trace.decisions:
-        if decision.option is None:  # the controller's hold
-            held[decision.env_step:decision.env_step + decision.steps] = True
-    return gear_metrics(gear_env, trace.infos, held=held)
-
-
-__all__ = ["FAULTS", "FLAT_POLICY", "GearTask", "episode_metrics", "gear_metrics"]
+__all__ = ["FAULTS", "GearTask"]

@@ -31,6 +31,7 @@ from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
+from dynoplan.pipeline.collect import decision_rows
 from dynoplan.types import FloatArray, Generator, IntArray
 
 HELDOUT_SEED_OFFSET = 1000
@@ -58,10 +59,8 @@ def demonstration_transitions(demos: Iterable[Episode],
         ends = np.r_[starts[1:], len(labels)]
         for a, b in zip(starts, ends, strict=True):
             k = int(labels[a])
-            for offset in range(decision_steps):
-                idx = np.arange(a + offset, b + 1, decision_steps)
-                if len(idx) < 2:
-                    continue
+            for rows in decision_rows(int(b - a), decision_steps):
+                idx = a + rows
                 steps = len(idx) - 1
                 out.append(Episode(
                     observations=episode.observations[idx],

@@ -9,7 +9,8 @@ Controllers (rows of ``results.csv``):
 - ``fixed_script``: pick, fast move, insert, each run to its end, ignoring the human
   and the regions;
 - ``random``: a uniformly random admissible option at every decision;
-- ``flat_ppo``: one PPO network from observation to action (:mod:`dynoplan.baselines`).
+- ``flat_ppo``: one PPO network from observation to action
+  (:mod:`dynoplan.envs.gear.flat_policy`).
 
 Every controller runs on the same episodes: episode ``i`` resets the env with the same
 seed (gear pose and human schedule: none, crossing or blocking). An episode depends on
@@ -26,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.env import CONTROL_DT, MAX_EPISODE_STEPS
-from dynoplan.envs.gear.pipeline_task import FLAT_POLICY
+from dynoplan.envs.gear.flat_policy import FLAT_POLICY
 from dynoplan.io import write_csv, write_json
 from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
 from dynoplan.reports.tables import markdown_table

@@ -21,11 +21,12 @@ from dynoplan.envs.gear.controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.evaluation import evaluation_seeds
 from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.envs.gear.reports.results import human_mode
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
 from dynoplan.io import write_with
-from dynoplan.pipeline.evaluate import ControllerRunner, ControllerSettings, EpisodeRecord
-from dynoplan.reports.gear_results import human_mode
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import ControllerRunner, EpisodeRecord
 from dynoplan.reports.video import video_clip
 from dynoplan.seeding import EpisodeSeed
 

@@ -29,6 +29,7 @@ from gymnasium import spaces
 
 from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.metrics import gear_metrics
 from dynoplan.errors import DynoplanError
 from dynoplan.io import read_json_object, write_json, write_with
 from dynoplan.options.option import FunctionPolicy
@@ -39,6 +40,8 @@ from dynoplan.seeding import EpisodeSeed
 from dynoplan.timing import without_wall_clock
 from dynoplan.types import FloatArray, Generator
 
+FLAT_POLICY = "flat_ppo"
+"""The flat end-to-end baseline's controller name (it needs ``GearTask.flat_folder``)."""
 JOINT_STEP = 0.05  # rad per decision at |a| = 1
 MAX_STEPS = 400
 FORMAT_VERSION = 1
@@ -243,7 +246,7 @@ class FlatPolicy:
 
 METRIC_KEYS = ("human_contacts", "min_human_distance", "robot_speed", "human_speed")
 """Step ``info`` entries a flat policy's episode records: what
-:func:`~dynoplan.envs.gear.pipeline_task.gear_metrics` reads."""
+:func:`~dynoplan.envs.gear.metrics.gear_metrics` reads."""
 
 
 @dataclass
@@ -256,8 +259,6 @@ class FlatPolicyRunner:
     act: Callable[[FloatArray], FloatArray]
 
     def episode(self, seed: EpisodeSeed) -> EpisodeRecord:
-        from dynoplan.envs.gear.pipeline_task import FLAT_POLICY, gear_metrics
-
         ms: list[float] = []
 
         def timed(observation: FloatArray, _: Generator) -> FloatArray:
@@ -280,5 +281,5 @@ class FlatPolicyRunner:
                              (), metrics)
 
 
-__all__ = ["METRIC_KEYS", "FlatGearTask", "FlatPolicy", "FlatPolicyRunner", "fit_flat_policy",
-           "read_flat_policy", "save_flat_policy", "train_flat_policy"]
+__all__ = ["FLAT_POLICY", "METRIC_KEYS", "FlatGearTask", "FlatPolicy", "FlatPolicyRunner",
+           "fit_flat_policy", "read_flat_policy", "save_flat_policy", "train_flat_policy"]

@@ -1,1 +1,0 @@
-"""Baselines that are not option choosers: a flat end-to-end RL policy (Stable-Baselines3)."""
