@@ -17,6 +17,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.options.initiation import Everywhere, Initiation
 from dynoplan.options.option import Option, OptionPolicy
+from dynoplan.options.state_map import StateMap
 from dynoplan.options.termination import Termination
 
 
@@ -34,6 +35,9 @@ class OptionSpec:
     termination: Termination
     initiation: Initiation = field(default_factory=Everywhere)
     continuation: Initiation | None = None
+    state_map: StateMap | None = None
+    """The option's own state (:mod:`dynoplan.options.state_map`; ``None``: the planner
+    state): its dynamics are fitted on, and rolled in, ``state_map.to_option(s)``."""
 
     @property
     def continuation_set(self) -> Initiation:
@@ -45,7 +49,7 @@ class OptionSpec:
         """The full option with ``D_w = dynamics`` (and optionally another ``I_w``)."""
         return Option(self.name, self.policy, dynamics, self.termination,
                       self.initiation if initiation is None else initiation,
-                      self.continuation)
+                      self.continuation, state_map=self.state_map)
 
 
 def check_option_name(name: Any) -> str:
@@ -57,7 +61,8 @@ def check_option_name(name: Any) -> str:
 
 
 def option_spec(name: str, policy: Any, termination: Any = None,
-                initiation: Any = None, continuation: Any = None) -> OptionSpec:
+                initiation: Any = None, continuation: Any = None,
+                state_map: StateMap | None = None) -> OptionSpec:
     """An :class:`OptionSpec` from whatever the user has.
 
     Args:
@@ -71,10 +76,14 @@ def option_spec(name: str, policy: Any, termination: Any = None,
         continuation: where a running option may go on, in the same forms; ``None``:
             its initiation set (give one when a condition only matters at the start, for
             example "a move may not start at its goal").
+        state_map: the option's own state and its map from and to the planner state
+            (:class:`~dynoplan.options.state_map.StateMap`, e.g. ``CoordinateMap``);
+            ``None``: the planner state.
     """
     return OptionSpec(check_option_name(name), policy_from(policy), termination_from(termination),
                       initiation_from(initiation, name),
-                      None if continuation is None else initiation_from(continuation, name))
+                      None if continuation is None else initiation_from(continuation, name),
+                      state_map)
 
 
 def make_option(name: str, policy: Any, dynamics: DynamicsModel, termination: Any = None,
@@ -98,7 +107,7 @@ def as_spec(item: Option | OptionSpec) -> OptionSpec:
         return item
     if isinstance(item, Option):
         return OptionSpec(item.name, item.policy, item.termination, item.initiation,
-                          item.continuation)
+                          item.continuation, item.state_map)
     raise DynoplanError(f"expected an Option or OptionSpec, got {type(item).__name__}")
 
 

@@ -1,5 +1,5 @@
-"""The ``dynoplan`` command tree (typer): the top-level commands and the ``gear`` and
-``pipeline`` groups.
+"""The ``dynoplan`` command tree (typer): the top-level commands and the ``gear``,
+``pipeline`` and ``task`` groups.
 
 Importing it imports no simulator, no torch and no pipeline: every command imports what
 it runs inside its function, so that ``--help`` and usage errors answer at once.
@@ -13,6 +13,7 @@ import typer
 from dynoplan.cli.gear import gear_app
 from dynoplan.cli.generic import generic_app
 from dynoplan.cli.params import out_folder, require_gear
+from dynoplan.cli.task import task_app
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
     DEPTH_MAX,
@@ -136,3 +137,4 @@ def sweep(
 
 app.add_typer(gear_app, name="gear")
 app.add_typer(generic_app, name="pipeline")
+app.add_typer(task_app, name="task")

@@ -23,6 +23,7 @@ import numpy as np
 
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.options.initiation import Everywhere, Initiation
+from dynoplan.options.state_map import StateMap, planner_dynamics
 from dynoplan.options.termination import Termination
 from dynoplan.types import BoolArray, Generator
 
@@ -79,7 +80,8 @@ class Option:
     Attributes:
         name: unique, used in traces, reports and on the command line.
         policy: ``pi_w``, acts on raw environment observations.
-        dynamics: ``D_w``, predicts the next planner state under ``pi_w``.
+        dynamics: ``D_w``, predicts the next planner state under ``pi_w`` (the next
+            option state with a ``state_map``).
         termination: ``beta_w`` on planner states.
         initiation: ``I_w`` on planner states (default: everywhere).
         continuation: where a running option may go on (default: ``initiation``); the
@@ -113,6 +115,17 @@ class Option:
     runs: RunMemory = field(default_factory=RunMemory, repr=False, compare=False)
     """Where the option's last run ended without effect; a copy made with
     ``dataclasses.replace`` (a planner's option with other dynamics) shares it."""
+    state_map: StateMap | None = None
+    """The option's own state (:mod:`dynoplan.options.state_map`): ``None``, the planner
+    state; else ``dynamics`` model the option's state ``state_map.to_option(s)`` and the
+    planner rolls the option in that space (:attr:`planner_dynamics`)."""
+
+    @property
+    def planner_dynamics(self) -> DynamicsModel:
+        """``D_w`` on planner states ``(batch, state_dim)``: ``dynamics`` itself, or, with a
+        ``state_map``, each step taken in the option's own state
+        (:class:`~dynoplan.options.state_map.MappedDynamics`)."""
+        return planner_dynamics(self.dynamics, self.state_map)
 
     @property
     def continuation_set(self) -> Initiation:

@@ -109,12 +109,13 @@ def probe_options(env: gym.Env[Any, Any], items: Sequence[Option | OptionSpec],
                     f"expected (2,): its state dimension disagrees with the environment's "
                     f"({d})")
         if isinstance(item, Option):
-            model_dim = getattr(item.dynamics, "state_dim", d)
+            model = item.planner_dynamics
+            model_dim = getattr(model, "state_dim", d)
             if model_dim != d:
                 raise DynoplanError(
                     f"{where}: dynamics model has state_dim {model_dim}, the environment's "
                     f"states have {d}")
-            nxt = np.asarray(_call(where, "dynamics", states, item.dynamics.sample, states, rng))
+            nxt = np.asarray(_call(where, "dynamics", states, model.sample, states, rng))
             if nxt.shape != states.shape:
                 raise DynoplanError(
                     f"{where}: dynamics returned shape {nxt.shape} for states {states.shape}")

@@ -53,6 +53,7 @@ from dynoplan.models.outcome_initiation import OutcomeInitiation, OutcomeInitiat
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
+from dynoplan.options.state_map import planner_dynamics
 from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.diagnostics import constant_dimensions, constant_dimensions_warning
 from dynoplan.pipeline.fit_data import (
@@ -89,6 +90,9 @@ from dynoplan.pipeline.fit_regions import (
 )
 from dynoplan.pipeline.fit_settings import REGION_FITS, UNDEMONSTRATED, FitSettings
 from dynoplan.types import FloatArray
+
+OPTION_STATE_DIMS = "option_state_dims"
+"""Manifest field: ``{option: size of its own state}`` for options with a state map."""
 
 
 @dataclass
@@ -141,6 +145,13 @@ class FittedModels:
     def state_dim(self) -> int:
         """Size of the planner states every model is queried with."""
         return int(self.goal.state_dim)
+
+    @property
+    def option_state_dims(self) -> dict[str, int]:
+        """Per option on its own state space (:mod:`dynoplan.options.state_map`), the size
+        of that state (its dynamics read it, not the planner state)."""
+        dims = self.extra.get(OPTION_STATE_DIMS) or {}
+        return {str(k): int(v) for k, v in dims.items()}
 
     def region(self, name: str) -> Initiation | None:
         """Option ``name``'s learned region, or ``None`` (no region, or regions unused)."""
@@ -197,8 +208,18 @@ class FittedModels:
                 raise DynoplanError(f"no dynamics model for option '{spec.name}'")
             initiation, continuation = self.initiation(spec), self.continuation(spec)
             model = self.dynamics[spec.name]
+            own = self.option_state_dims.get(spec.name)
+            mapped = None if spec.state_map is None else spec.state_map.option_dim
+            if own != mapped:
+                raise DynoplanError(
+                    f"option '{spec.name}': its dynamics model "
+                    + (f"reads its own state of {own} values" if own is not None
+                       else "reads the planner state")
+                    + (f", its state map gives {mapped}" if mapped is not None
+                       else ", and it has no state map"))
             run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
-                              continuation, fallback=spec.initiation))
+                              continuation, fallback=spec.initiation,
+                              state_map=spec.state_map))
             # the planner's option shares where the controller's last run ended without
             # effect (Option.runs); an option model's one step ends the option anyway
             plan.append(replace(run[-1], termination=spec.termination
@@ -301,14 +322,21 @@ class FittedModels:
                                     f"not in the manifest's {manifest.option_names}")
             regions = fitted if region_map is None else RegionsOnFeatures(fitted, region_map)
         dynamics: dict[str, DynamicsModel] = {}
+        own_dims = manifest.extra.get(OPTION_STATE_DIMS) or {}
+        if not isinstance(own_dims, dict) or not all(
+                isinstance(v, int) and not isinstance(v, bool) and v > 0
+                and k in manifest.option_names for k, v in own_dims.items()):
+            raise DynoplanError(f"{index}: field '{OPTION_STATE_DIMS}' must map options of "
+                                "'option_names' to positive state sizes")
         for name, file in manifest.dynamics.items():
             if file is None:
                 raise DynoplanError(f"{index}: option '{name}' has no dynamics model file")
             model = MLPEnsembleDynamics.load(file)
-            if model.state_dim != manifest.state_dim or model.option != name:
+            expected = own_dims.get(name, manifest.state_dim)
+            if model.state_dim != expected or model.option != name:
                 raise DynoplanError(f"{file}: a model of option '{model.option}' on "
                                     f"{model.state_dim} values, expected '{name}' on "
-                                    f"{manifest.state_dim}")
+                                    f"{expected}")
             dynamics[name] = model
         learned: OutcomeModel | None = None
         if manifest.initiation is not None:
@@ -367,12 +395,17 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     pairs = (option_end_pairs([*transitions, *demos], names, state_fn)
              if settings.option_model == "end" else
              option_transitions([*transitions, *demos], names, state_fn, settings.stride))
+    maps = {s.name: s.state_map for s in specs if s.state_map is not None}
+    for name, state_map in maps.items():  # each such option's dynamics on its own state
+        start, end = pairs[name]
+        pairs[name] = (state_map.to_option(start), state_map.to_option(end))
     dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
     say("goal heuristic")
     goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map, transitions)
-    goal_report["end_gap"] = goal_end_gaps(dynamics, goal, [*transitions, *demos], state_fn,
-                                           settings.stride, seed,
-                                           to_end=settings.option_model == "end")
+    goal_report["end_gap"] = goal_end_gaps(
+        {n: planner_dynamics(m, maps.get(n)) for n, m in dynamics.items()}, goal,
+        [*transitions, *demos], state_fn, settings.stride, seed,
+        to_end=settings.option_model == "end")
     regions = None
     region_report: dict[str, Any] | None = None
     if settings.regions:
@@ -390,7 +423,7 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                                                          seed, state_fn)
     every_state = np.concatenate([episode_states(e, state_fn) for e in [*transitions, *demos]])
     constant = constant_dimensions(every_state)
-    note = constant_dimensions_warning(constant, pairs[names[0]][0].shape[1],
+    note = constant_dimensions_warning(constant, every_state.shape[1],
                                        settings.constant_dimensions_still)
     if note is not None:
         warnings.warn(note, DynoplanWarning, stacklevel=2)
@@ -398,8 +431,9 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
               "regions": region_report, "outcome_initiation": outcome_report,
               "constant_dimensions": constant, "state_scale": every_state.std(axis=0).tolist(),
               "warnings": [] if note is None else [note]}
+    extra = {OPTION_STATE_DIMS: {n: m.option_dim for n, m in maps.items()}} if maps else {}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
-                        settings.regions, task, learned_initiation=learned)
+                        settings.regions, task, extra, learned)
 
 
 def named_feature_map(name: str | None,

@@ -435,6 +435,6 @@ class OptionPlanner:
             if len(self._stacks) >= 256:  # batches over many states: each key is new
                 self._stacks.clear()
             chosen = [self.options[i] for i in idx]
-            self._stacks[idx] = (stack_dynamics([o.dynamics for o in chosen]),
+            self._stacks[idx] = (stack_dynamics([o.planner_dynamics for o in chosen]),
                                  stack_terminations([o.termination for o in chosen]))
         return self._stacks[idx]

@@ -1,0 +1,352 @@
+"""A new task on option models learned once: fit only the task's goal heuristic.
+
+The paper: "The dynamics can be learned independently of the task, and can be used to
+solve a downstream task." An *options folder* is the output of one ``dynoplan
+pipeline`` run (its ``models/``: every option's dynamics ``D_w``; its ``transitions/``:
+the option runs they were fitted on), or a bare models folder. :func:`run_task` reuses
+those dynamics unchanged and fits, from the new task's own demonstrations,
+
+- its goal heuristic ``G_K`` (always),
+- its own initiation regions (Eq. 5; unless ``settings.fit.regions`` is off),
+
+then evaluates the controllers as :func:`~dynoplan.pipeline.run.run_pipeline` does, on the
+same seed streams. The result's ``models/`` is a complete models folder (the reused
+dynamics files are written into it, byte for byte the models of the options folder, and
+``models.json`` records where they came from), so it loads like any other, never reading
+outside itself.
+
+What the options folder's first task learned beside the dynamics (its goal, its regions,
+its initiation learned from outcomes, which judged runs by that task's goal) is not used.
+"""
+
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from dynoplan import __version__
+from dynoplan.adapters.spec import OptionSpec, as_spec
+from dynoplan.data.dataset import Dataset, read_dataset, write_dataset
+from dynoplan.data.episodes import OPTION_KEY, Episode
+from dynoplan.data.metadata import DatasetMetadata
+from dynoplan.errors import DynoplanError, DynoplanWarning
+from dynoplan.io import ensure_writable_dir, write_json, write_text
+from dynoplan.models.folder import MANIFEST_FILE, file_sha256, read_manifest
+from dynoplan.options.option import Option
+from dynoplan.parallel import SERIAL, Workers
+from dynoplan.pipeline.collect import flat_state, probe_options, record_demonstrations
+from dynoplan.pipeline.evaluate import (
+    composition_ratio,
+    controller_names,
+    evaluate_controllers,
+    learned_regions,
+    option_share_table,
+    planning_settings,
+    results_table,
+)
+from dynoplan.pipeline.fit import FittedModels
+from dynoplan.pipeline.fit_dynamics import goal_end_gaps
+from dynoplan.pipeline.fit_goal import fit_goal
+from dynoplan.pipeline.fit_regions import fit_option_regions
+from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
+from dynoplan.pipeline.run import (
+    PipelineSettings,
+    _jsonable,
+    _seeds,
+    admissibility,
+    admissibility_table,
+    demos_from_dataset,
+    start_states,
+)
+from dynoplan.pipeline.task import Task
+from dynoplan.timing import StageClock
+
+RUNS_FOLDER = "transitions"
+"""The option runs beside ``models/`` in a pipeline run's folder."""
+
+
+@dataclass
+class OptionModels:
+    """The options' dynamics and the runs they were fitted on (an options folder).
+
+    Attributes:
+        folder: the models folder the dynamics come from.
+        models: that folder, loaded (only ``dynamics``, ``stride``, ``option_model`` and
+            ``state_scale`` are reused).
+        runs: the option runs (exploration episodes) beside it, labels indexing
+            ``models.option_names``; empty when the folder has none.
+        sha256: per option, the SHA-256 of its dynamics file in ``folder``.
+    """
+
+    folder: Path
+    models: FittedModels
+    runs: list[Episode]
+    sha256: dict[str, str]
+
+    @property
+    def option_names(self) -> list[str]:
+        return list(self.models.option_names)
+
+    def check_task(self, names: Sequence[str], state_dim: int | None = None) -> None:
+        """Refuse a task whose options are not all in the folder, or whose planner state
+        has another size than the dynamics read.
+
+        Raises:
+            DynoplanError: one line naming the missing options and the folder's.
+        """
+        index = self.folder / MANIFEST_FILE
+        missing = [n for n in names if n not in self.models.dynamics]
+        if missing:
+            raise DynoplanError(
+                f"{index}: the options folder has no dynamics for option(s) "
+                f"{', '.join(map(repr, missing))} of this task (it has "
+                f"{', '.join(self.option_names)}); fit them first: dynoplan pipeline with "
+                "options that include them")
+        if state_dim is not None and state_dim != self.models.state_dim:
+            raise DynoplanError(
+                f"{index}: the option dynamics read states of {self.models.state_dim} "
+                f"values, this task's planner state has {state_dim}")
+
+
+def load_option_models(path: str | Path) -> OptionModels:
+    """An options folder: a pipeline run's folder (``models/`` and ``transitions/``) or a
+    models folder (no runs).
+
+    Raises:
+        DynoplanError: one line: not a models folder, a damaged model file or manifest
+            (:func:`~dynoplan.models.folder.read_manifest`), an unreadable runs dataset.
+    """
+    root = Path(path)
+    if root.exists() and not root.is_dir():
+        raise DynoplanError(f"{root}: is a file, expected an options folder")
+    models_dir = root / "models" if (root / "models" / MANIFEST_FILE).is_file() else root
+    retrain = "make one with dynoplan pipeline --out DIR, then pass DIR"
+    manifest = read_manifest(models_dir, retrain)
+    models = FittedModels.load(models_dir, retrain=retrain)
+    sha = {name: file_sha256(file) for name, file in manifest.dynamics.items()
+           if file is not None}
+    runs: list[Episode] = []
+    runs_dir = root / RUNS_FOLDER
+    if models_dir != root and runs_dir.is_dir():
+        runs = demos_from_dataset(read_dataset(runs_dir), models.option_names)
+    return OptionModels(models_dir, models, runs, sha)
+
+
+def relabel(episodes: Sequence[Episode], names: Sequence[str],
+            to: Sequence[str]) -> list[Episode]:
+    """The episodes with option labels that index ``names`` made to index ``to`` (every
+    name of ``names`` must be in ``to``)."""
+    if list(names) == list(to):
+        return list(episodes)
+    mapping = np.array([list(to).index(n) for n in names])
+    out = []
+    for e in episodes:
+        infos = dict(e.infos)
+        infos[OPTION_KEY] = mapping[np.asarray(e.infos[OPTION_KEY])]
+        out.append(Episode(e.observations, e.actions, e.rewards, e.terminations,
+                           e.truncations, infos, e.seed))
+    return out
+
+
+def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence[Episode],
+             settings: PipelineSettings, seed: int, task: str = "",
+             say: Callable[[str], None] | None = None) -> FittedModels:
+    """The task's models: the options' dynamics unchanged, its own goal heuristic (and
+    regions, with ``settings.fit.regions``) from ``demos`` (labels index ``specs``).
+
+    The goal and regions are fitted as ``settings.fit`` says; its stride and option
+    model are the options folder's (properties of the dynamics).
+    """
+    names = [s.name for s in specs]
+    options.check_task(names)
+    say = say or (lambda _m: None)
+    folder_names = options.option_names
+    own = options.models
+    fit = replace(settings.fit, stride=own.stride, option_model=own.option_model)
+    fit.validate()
+    demos_f = relabel(demos, names, folder_names)
+    say("goal heuristic")
+    goal, goal_report = fit_goal(demos_f, fit, seed, flat_state, None, options.runs)
+    goal_report["end_gap"] = goal_end_gaps(
+        {n: own.dynamics[n] for n in names}, goal, [*options.runs, *demos_f], flat_state,
+        own.stride, seed, to_end=own.option_model == "end")
+    regions = None
+    region_report: dict[str, Any] | None = None
+    if fit.regions:
+        say("safety regions")
+        regions, region_report = fit_option_regions(demos_f, options.runs, folder_names, fit,
+                                                    seed, flat_state)
+        region_report["options"] = regions.option_names
+        for message in region_report["warnings"]:
+            warnings.warn(message, DynoplanWarning, stacklevel=2)
+    report: dict[str, Any] = {"settings": asdict(fit), "dynamics": own.report.get("dynamics"),
+              "goal": goal_report, "regions": region_report, "outcome_initiation": None,
+              "constant_dimensions": own.report.get("constant_dimensions"),
+              "state_scale": own.report.get("state_scale"), "warnings": []}
+    extra = {"options_models": {"folder": str(options.folder.resolve()),
+                                "task": own.task, "dynamics_sha256": options.sha256}}
+    return FittedModels(folder_names, dict(own.dynamics), goal, regions, own.stride, report,
+                        fit.regions, task, extra)
+
+
+@dataclass
+class TaskResult:
+    """What :func:`run_task` produced (as :class:`~dynoplan.pipeline.run.PipelineResult`)."""
+
+    options: list[Option]
+    planner_options: list[Option]
+    models: FittedModels
+    demos: list[Episode]
+    evaluation: dict[str, dict[str, Any]]
+    summary: dict[str, Any]
+
+    @property
+    def table(self) -> str:
+        return results_table(self.evaluation)
+
+
+def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
+             options: Sequence[OptionSpec | Option], demonstrator: Any = None,
+             demos: Dataset | Sequence[Episode] | None = None,
+             settings: PipelineSettings | None = None, out: str | Path | None = None,
+             state_fn: StateFn | None = None, success: SuccessFn | None = None,
+             progress: bool = False, status: Callable[[str], None] | None = None,
+             command: str | None = None, workers: Workers = SERIAL,
+             task: Task | None = None) -> TaskResult:
+    """A new task on the option dynamics of ``options_models`` (:func:`load_option_models`):
+    record ``settings.demos`` demonstrations (or use ``demos``), fit the goal heuristic
+    and regions (:func:`fit_task`), evaluate the controllers; arguments as
+    :func:`~dynoplan.pipeline.run.run_pipeline` (``settings.exploration_*`` are not used:
+    the options' runs are the folder's).
+
+    ``summary["task_fit"]`` says what the new task needed: its demonstrations (episodes,
+    steps), the seconds to record them and to fit its models, and which options'
+    dynamics it reused.
+
+    Raises:
+        DynoplanError: a task option the folder has no dynamics for, a planner state of
+            another size, and what :func:`~dynoplan.pipeline.run.run_pipeline` refuses.
+    """
+    from dynoplan.pipeline.collect import make_env
+
+    settings = settings or PipelineSettings()
+    settings.validate()
+    if workers.parallel and (task is None or out is None or state_fn is not None
+                             or success is not None):
+        raise DynoplanError("a task on several workers needs a task and an output folder; "
+                            "the success function and state_fn come from the task")
+    clock = StageClock(status)
+    say = clock.switch
+    started = time.perf_counter()
+    say("options")
+    option_models = load_option_models(options_models)
+    environment = task_env(make_env(env) if isinstance(env, str) else env, success, state_fn)
+    specs = [as_spec(o) for o in options]
+    names = [s.name for s in specs]
+    option_models.check_task(names)
+    seeds = _seeds(settings.seed)
+    state_dim = probe_options(environment, options, flat_state, seeds["demos"])
+    option_models.check_task(names, state_dim)
+    folder = ensure_writable_dir(out) if out is not None else None
+    known = controller_names(specs, demonstrator is not None)
+    unknown = [c for c in settings.controllers or () if c not in known]
+    if unknown:
+        raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
+                            f"{', '.join(known)})")
+    t0 = time.perf_counter()
+    if demos is not None:
+        demo_episodes = demos_from_dataset(demos, names)
+    elif demonstrator is not None:
+        say("demonstrations")
+        demo_episodes = record_demonstrations(environment, specs, demonstrator, settings.demos,
+                                              seeds["demos"], progress=progress)
+    else:
+        raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
+    demo_seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    name = task.name if task is not None else (
+        environment.spec.id if environment.spec is not None else "")
+    models = fit_task(option_models, specs, demo_episodes, settings, seeds["fit"], name, say)
+    fit_seconds = time.perf_counter() - t0
+    run_options, planner_options = models.build(specs)
+    say("admissibility")
+    starts = start_states(environment, seeds["evaluation"], settings.episodes)
+    admissible, notes = admissibility(run_options, starts, demo_episodes)
+    for note in notes:
+        warnings.warn(note, DynoplanWarning, stacklevel=2)
+    models_dir = models.save(folder / "models") if folder is not None else None
+    say("evaluation")
+    evaluation = evaluate_controllers(environment, run_options, models.goal,
+                                      planning_settings(settings.control, models),
+                                      settings.episodes, seeds["evaluation"], planner_options,
+                                      settings.controllers, progress, workers, task,
+                                      models_dir, learned_regions(models), demonstrator,
+                                      models.state_scale)
+    say("")
+    task_fit = {
+        "options_models": str(option_models.folder),
+        "reused_dynamics": names,
+        "demonstrations": len(demo_episodes),
+        "demonstration_steps": sum(len(e) for e in demo_episodes),
+        "demonstration_seconds": demo_seconds,
+        "fit_seconds": fit_seconds,
+    }
+    region_warnings = (models.report.get("regions") or {}).get("warnings", [])
+    summary = {
+        "dynoplan_version": __version__,
+        "env_id": environment.spec.id if environment.spec is not None else None,
+        "state_dim": state_dim,
+        "options": names,
+        "settings": _jsonable(asdict(settings)),
+        "seeds": seeds,
+        "task_fit": task_fit,
+        "demonstrations": {"episodes": len(demo_episodes),
+                           "steps": sum(len(e) for e in demo_episodes)},
+        "models": models.report,
+        "admissibility": admissible,
+        "warnings": [*region_warnings, *notes],
+        "controllers": evaluation,
+        "composition_ratio": composition_ratio(evaluation),
+        "stage_seconds": clock.rounded(3),
+        "seconds": time.perf_counter() - started,
+        "command": command,
+    }
+    if folder is not None:
+        _write(folder, environment, names, demo_episodes, summary, settings)
+    return TaskResult(run_options, planner_options, models, demo_episodes, evaluation, summary)
+
+
+def _write(folder: Path, env: gym.Env[Any, Any], names: list[str], demos: list[Episode],
+           summary: dict[str, Any], settings: PipelineSettings) -> None:
+    env_id = env.spec.id if env.spec is not None else None
+    slug = "".join(c if c.isalnum() or c in "-_" else "-" for c in (env_id or "env"))
+    write_dataset(folder / "demos", demos,
+                  DatasetMetadata(f"dynoplan/{slug}/task-demos-v0", env_id=env_id,
+                                  option_names=names, seed=settings.seed))
+    write_json(folder / "summary.json", summary)
+    fit = summary["task_fit"]
+    command = summary.get("command")
+    head = f"Produced by `{command}`" if command else "Produced by run_task"
+    write_text(folder / "results.md",
+               f"{head} ({settings.episodes} seeded episodes per controller, seed "
+               f"{settings.seed}).\n\n"
+               f"The option dynamics of `{fit['options_models']}`, unchanged; this task's "
+               f"goal heuristic{' and regions' if settings.fit.regions else ''} from "
+               f"{fit['demonstrations']} demonstrations ({fit['demonstration_steps']} steps, "
+               f"recorded in {fit['demonstration_seconds']:.1f} s), fitted in "
+               f"{fit['fit_seconds']:.1f} s.\n\n"
+               f"{results_table(summary['controllers'])}\n\n"
+               "Which options each controller ran (share of its environment steps):\n\n"
+               f"{option_share_table(summary['controllers'])}\n\n"
+               "Where each option may start (share of states inside its initiation set):"
+               f"\n\n{admissibility_table(summary['admissibility'])}\n"
+               + "".join(f"\n- warning: {w}" for w in summary["warnings"]))
+
+
+__all__ = ["RUNS_FOLDER", "OptionModels", "TaskResult", "fit_task", "load_option_models",
+           "relabel", "run_task"]

@@ -1,0 +1,166 @@
+"""Tasks over option models learned once (``dynoplan task fit``), and options on their own
+state spaces (``Option.state_map``)."""
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dynoplan.envs.random_walk import NoisyWalkGoal, make_random_walk_options
+from dynoplan.envs.random_walk.tasks import (
+    make_demonstrator,
+    make_options,
+    reach_10,
+    reach_15,
+    reach_20,
+    walk_state,
+)
+from dynoplan.models.folder import file_sha256, read_manifest
+from dynoplan.options.state_map import CoordinateMap, IdentityMap, MappedDynamics
+from dynoplan.pipeline import ControllerSettings, FitSettings, PipelineSettings, run_pipeline
+from dynoplan.pipeline.fit import FittedModels
+from dynoplan.pipeline.task_fit import run_task
+from dynoplan.planning import OptionPlanner
+
+WALK = "dynoplan/RandomWalk19-v0"
+TASKS = "dynoplan.envs.random_walk.tasks"
+SMALL = PipelineSettings(
+    demos=3, exploration_episodes=10, exploration_option_steps=30, episodes=10, seed=1,
+    fit=FitSettings(dynamics_hidden=(32, 32), dynamics_members=2, dynamics_epochs=20,
+                    dynamics_min_updates=200, goal_hidden=32, goal_epochs=150, regions=False),
+    control=ControllerSettings(samples=16, max_decisions=200),
+    controllers=("dynoplan",))
+
+
+@pytest.fixture(scope="module")
+def options_folder(tmp_path_factory):
+    """The walk's option dynamics fitted once, on the task "reach 20"."""
+    out = tmp_path_factory.mktemp("walk") / "options"
+    run_pipeline(WALK, make_options(), demonstrator=make_demonstrator(), settings=SMALL,
+                 out=out, state_fn=walk_state, success=reach_20)
+    return out
+
+
+@pytest.fixture(scope="module")
+def two_tasks(options_folder, tmp_path_factory):
+    """Two tasks, "reach 10" and "reach 15", on those dynamics: ``{goal: (result, out)}``."""
+    root = tmp_path_factory.mktemp("tasks")
+    return {goal: (run_task(WALK, options_folder, make_options(),
+                            demonstrator=make_demonstrator(), settings=SMALL,
+                            out=root / f"reach-{goal}", state_fn=walk_state, success=success),
+                   root / f"reach-{goal}")
+            for goal, success in ((10, reach_10), (15, reach_15))}
+
+
+def test_one_options_folder_serves_two_tasks(options_folder, two_tasks):
+    source = read_manifest(options_folder / "models")
+    sha = {n: file_sha256(p) for n, p in source.dynamics.items() if p is not None}
+    assert len(sha) == 5
+    for goal, (result, out) in two_tasks.items():
+        needed = result.summary["task_fit"]
+        # the task needed only its own demonstrations, and says how many and how long
+        assert needed["demonstrations"] == SMALL.demos
+        assert needed["fit_seconds"] > 0
+        manifest = read_manifest(out / "models")
+        # the options' dynamics, byte for byte, in a folder that loads on its own
+        assert {n: file_sha256(p) for n, p in manifest.dynamics.items()
+                if p is not None} == sha
+        assert manifest.extra["options_models"]["dynamics_sha256"] == sha
+        # and each task is solved on them
+        assert result.evaluation["dynoplan"]["success_rate"] >= 0.9, goal
+    # each task has its own goal heuristic: state 10 is the end of the first task only
+    at_10 = {goal: float(FittedModels.load(out / "models").goal.mean_std(
+        np.array([[10.0]]))[0][0]) for goal, (_, out) in two_tasks.items()}
+    assert at_10[10] > at_10[15] + 0.1, at_10
+
+
+def test_a_task_with_an_option_the_folder_lacks_is_one_line(options_folder, tmp_path):
+    module = tmp_path / "more_options.py"
+    module.write_text(
+        "from dynoplan.adapters import option_spec\n"
+        f"from {TASKS} import make_options as walk_options, make_demonstrator\n"
+        "def make_options():\n"
+        "    return [*walk_options(), option_spec('jump', lambda s: 1, termination=1.0)]\n")
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [sys.executable, "-c", "from dynoplan.cli.main import main; main()", "task", "fit",
+         "--options-models", str(options_folder), "--env", WALK,
+         "--options", f"{module}:make_options", "--state-fn", f"{TASKS}:walk_state",
+         "--success", f"{TASKS}:reach_10", "--no-regions", "--workers", "1", "--quiet",
+         "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("dynoplan: error: ") and "'jump'" in lines[0], lines[0]
+    assert "right_0.9" in lines[0]  # says which options the folder has
+    assert not out.exists()
+
+
+def test_coordinate_map_round_trips():
+    state_map = CoordinateMap(4, (2, 0))
+    s = np.random.default_rng(0).normal(size=(5, 4))
+    z = state_map.to_option(s)
+    assert z.shape == (5, 2) and np.array_equal(z, s[:, [2, 0]])
+    assert np.array_equal(state_map.to_planner(s, z), s)  # planner -> option -> planner
+    new = z + 1.0
+    back = state_map.to_planner(s, new)
+    assert np.array_equal(state_map.to_option(back), new)  # option -> planner -> option
+    assert np.array_equal(back[:, [1, 3]], s[:, [1, 3]])  # the rest is not the option's
+    with pytest.raises(ValueError):
+        CoordinateMap(3, (0, 3))
+
+
+def test_identity_map_rolls_out_as_without():
+    options = make_random_walk_options(0.2)
+    mapped = [replace(o, state_map=IdentityMap(1)) for o in options]
+    goal = NoisyWalkGoal(0.2)
+    for state in (0.0, 7.0, 18.0):
+        plain = OptionPlanner(options, goal, horizon=20, samples=64).plan(
+            np.array([state]), np.random.default_rng(5))
+        same = OptionPlanner(mapped, goal, horizon=20, samples=64).plan(
+            np.array([state]), np.random.default_rng(5))
+        assert same.chosen == plain.chosen
+        np.testing.assert_array_equal(same.end_states, plain.end_states)
+        np.testing.assert_array_equal(same.scores, plain.scores)
+
+
+def test_an_option_is_rolled_in_its_own_state_and_scored_in_the_task():
+    """A 2-D planner state ``(position, battery)``: the walk's option knows only the
+    position; the battery, which it does not change, stays as it is in its rollouts."""
+    walk = make_random_walk_options(0.0)[2]  # right, beta 0.2
+    option = replace(walk, state_map=CoordinateMap(2, (0,)))
+    assert isinstance(option.planner_dynamics, MappedDynamics)
+    assert option.planner_dynamics.state_dim == 2
+
+    class PositionGoal:
+        def sample(self, states, rng):
+            return np.clip(states[:, 0] / 20.0, 0, 1)
+
+        def mean_std(self, states):
+            return np.clip(states[:, 0] / 20.0, 0, 1), np.zeros(len(states))
+
+    plan = OptionPlanner([option], PositionGoal(), horizon=5, samples=32).plan(
+        np.array([3.0, 0.7]), np.random.default_rng(0))
+    ends = plan.end_states[0]
+    assert np.all(ends[:, 1] == 0.7)
+    assert np.all(ends[:, 0] == 3.0 + plan.steps[0])  # one step right per model step
+    assert plan.scores[0] > 3.0 / 20.0
+
+
+def test_options_on_their_own_state_are_fitted_saved_and_solve_the_task(tmp_path):
+    """A planner state (position, 0.5): each option's dynamics are fitted on the position
+    alone, the models folder says so and loads, and the task is solved."""
+    mapped = [replace(spec, state_map=CoordinateMap(2, (0,))) for spec in make_options()]
+
+    def with_flag(observation):
+        return np.array([float(observation), 0.5])
+
+    result = run_pipeline(WALK, mapped, demonstrator=make_demonstrator(), settings=SMALL,
+                          out=tmp_path / "run", state_fn=with_flag, success=reach_20)
+    assert all(m.state_dim == 1 for m in result.models.dynamics.values())
+    loaded = FittedModels.load(tmp_path / "run" / "models")
+    assert loaded.option_state_dims == {spec.name: 1 for spec in mapped}
+    assert all(o.planner_dynamics.state_dim == 2 for o in loaded.build(mapped)[1])
+    assert result.evaluation["dynoplan"]["success_rate"] >= 0.9
