@@ -61,6 +61,10 @@ class ControllerSettings:
             controller can hold, DynoPlan starts one there only if it scores at least the
             goal heuristic at the present state (``fallback_must_gain``); ``False``: the
             controller holds (``hold_action``) or ends the episode there.
+        fallback_must_gain: with ``fallback_own_sets``, where the controller can hold,
+            DynoPlan starts an option under its own set only if it scores at least the
+            goal heuristic at the present state, and holds otherwise; ``False``: it starts
+            the best-scoring one.
         start_where_done: an option may start where its termination is certain
             (``False``, the default: it may not, :meth:`~dynoplan.options.Option.done_at`;
             every controller but the demonstrator follows the rule).
@@ -87,6 +91,7 @@ class ControllerSettings:
     loop_share: float | None = 0.05
     start_where_done: bool = False
     fallback_own_sets: bool = True
+    fallback_must_gain: bool = True
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:

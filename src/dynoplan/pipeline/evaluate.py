@@ -156,7 +156,7 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                           end_inside=settings.end_inside,
                           # holding is a way to wait only where there is a hold
                           fallback_must_gain=settings.fallback_own_sets
-                          and hold is not None)
+                          and settings.fallback_must_gain and hold is not None)
     elif kind == RANDOM:
         chooser = RandomChoice(options)
     elif kind.startswith(OPTION_PREFIX):
