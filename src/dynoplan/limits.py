@@ -70,6 +70,7 @@ SETTING_BOUNDS: dict[str, tuple[float, float]] = {
     "control.max_option_steps": (1, STEPS_MAX), "control.dynamics_noise": (0.0, math.inf),
     "control.epistemic": (0.0, 1e6), "control.no_effect_tolerance": (0.0, math.inf),
     "control.no_effect_share": (0.0, math.inf), "control.loop_share": (0.0, math.inf),
+    "control.stall_progress": (0.0, math.inf),
 }
 """Smallest and largest value of every numeric setting of the generic pipeline
 (:mod:`dynoplan.pipeline.config`; ``section.field`` keys); the command line's flags have

@@ -28,6 +28,10 @@ comes back to a state at which it made an earlier decision (every coordinate wit
 tolerance), the options chosen there did not get it anywhere, and none of them starts there again
 until the state leaves that spot (two options that undo each other: go behind a cube and
 retreat, reach and grasp at one spot).
+
+Where the controller held and the hold changed nothing, far from the goal
+(``stall_progress``), it does not hold again for want of an option that gains: the best
+option it may start runs instead.
 """
 
 import itertools
@@ -141,6 +145,12 @@ class Controller:
             state at which an earlier decision of the episode started an option, that
             option may not start again while the state stays that close (``None``: no
             such rule); a number, or one per coordinate ``(state_dim,)``.
+        stall_progress: where the controller held and the hold left the state where it
+            was (every coordinate within ``no_effect_tolerance``; exactly, without one),
+            and the chooser holds again only because its best option under its own set
+            would not gain on a goal heuristic below this value (the chooser's
+            ``Plan.gain_floor``), that option starts: a hold that changes nothing, far
+            from the goal, waits forever (``None``: no such rule).
     """
 
     def __init__(
@@ -158,6 +168,7 @@ class Controller:
         termination_every: int = 1,
         no_effect_tolerance: float | FloatArray | None = None,
         loop_tolerance: float | FloatArray | None = None,
+        stall_progress: float | None = None,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
@@ -182,6 +193,7 @@ class Controller:
         self.termination_every = termination_every
         self.no_effect_tolerance = no_effect_tolerance
         self.loop_tolerance = loop_tolerance
+        self.stall_progress = stall_progress
 
     def run(self, env: gym.Env[Any, Any], rng: Generator, seed: int | None = None,
             reset_options: dict[str, Any] | None = None) -> EpisodeTrace:
@@ -203,6 +215,8 @@ class Controller:
             plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
             chosen = self._keep_running(plan, running)
+            if chosen is None:
+                chosen = self._unstall(plan, trace, state)
             if chosen is None:
                 trace.no_admissible += 1
                 if self.hold_action is None:
@@ -268,6 +282,19 @@ class Controller:
             if d.option is not None and np.all(np.abs(state - d.state) <= self.loop_tolerance):
                 next(o for o in self.options if o.name == d.option).ended_without_effect(
                     state, self.loop_tolerance)
+
+    def _unstall(self, plan: Plan, trace: EpisodeTrace, state: FloatArray) -> int | None:
+        """The best-scoring admissible option where the last decision held without moving
+        the state and the chooser holds again below ``stall_progress``; else ``None``."""
+        if (self.stall_progress is None or plan.gain_floor is None
+                or plan.gain_floor >= self.stall_progress or not trace.decisions):
+            return None
+        last = trace.decisions[-1]
+        tolerance = 0.0 if self.no_effect_tolerance is None else self.no_effect_tolerance
+        if last.option is not None or not np.all(np.abs(state - last.state) <= tolerance):
+            return None
+        finite = np.flatnonzero(np.isfinite(plan.scores))
+        return int(finite[np.argmax(plan.scores[finite])]) if finite.size else None
 
     def _keep_running(self, plan: Plan, running: int | None) -> int | None:
         """The margin rule: keep an interrupted option unless beaten by ``margin``.

@@ -22,8 +22,8 @@ Every key is a field of :class:`~dynoplan.pipeline.PipelineSettings`, of
 :class:`~dynoplan.pipeline.ControllerSettings` (``[control]``), or one of
 :data:`TASK_KEYS`; paths and references are read from the current folder, as on the
 command line. A key left out keeps its default; ``replan_every = 0`` means "only when
-the option stops", ``no_effect_share = 0`` and ``loop_share = 0`` "no such rule". Any
-mistake (an unknown key, a value of the wrong kind or out of range) is one
+the option stops", ``no_effect_share = 0``, ``loop_share = 0`` and
+``stall_progress = 0`` "no such rule". Any mistake (an unknown key, a value of the wrong kind or out of range) is one
 :class:`~dynoplan.errors.DynoplanError` naming the file and the key.
 """
 
@@ -196,7 +196,7 @@ def _convert(key: str, shown: str, hint: Any, value: Any) -> Any:
     raise bad(f"a {hint}")  # pragma: no cover - every field's type is handled above
 
 
-_ZERO_IS_NONE = ("control.no_effect_share", "control.loop_share")
+_ZERO_IS_NONE = ("control.no_effect_share", "control.loop_share", "control.stall_progress")
 """Settings whose 0 means "no such rule" (``None``; TOML has no ``None``)."""
 _LISTS = ("fit.dynamics_hidden", "control.hold_action")
 """Settings whose value a command line gives as comma-separated numbers."""

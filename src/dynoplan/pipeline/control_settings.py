@@ -65,6 +65,10 @@ class ControllerSettings:
             DynoPlan starts an option under its own set only if it scores at least the
             goal heuristic at the present state, and holds otherwise; ``False``: it starts
             the best-scoring one.
+        stall_progress: where DynoPlan held, the hold changed nothing and it would hold
+            again (``fallback_must_gain``) at a state whose goal heuristic is below this,
+            it starts the best-scoring option instead (:class:`~dynoplan.control.Controller`;
+            ``None``: it holds).
         start_where_done: an option may start where its termination is certain
             (``False``, the default: it may not, :meth:`~dynoplan.options.Option.done_at`;
             every controller but the demonstrator follows the rule).
@@ -92,6 +96,7 @@ class ControllerSettings:
     start_where_done: bool = False
     fallback_own_sets: bool = True
     fallback_must_gain: bool = True
+    stall_progress: float | None = 0.5
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:
@@ -118,6 +123,9 @@ class ControllerSettings:
                 f"no_effect_share must be >= 0 or None, got {self.no_effect_share}")
         if self.loop_share is not None and not self.loop_share >= 0.0:
             raise DynoplanError(f"loop_share must be >= 0 or None, got {self.loop_share}")
+        if self.stall_progress is not None and not self.stall_progress >= 0.0:
+            raise DynoplanError(
+                f"stall_progress must be >= 0 or None, got {self.stall_progress}")
         if self.no_effect_tolerance is not None and not self.no_effect_tolerance >= 0.0:
             raise DynoplanError(
                 f"no_effect_tolerance must be >= 0 or None, got {self.no_effect_tolerance}")

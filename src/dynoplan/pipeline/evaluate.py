@@ -171,7 +171,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                       margin=settings.margin, hold_action=hold,
                       no_effect_tolerance=no_effect_tolerance(settings, state_scale),
                       loop_tolerance=None if settings.loop_share is None or state_scale is None
-                      else settings.loop_share * np.asarray(state_scale, dtype=np.float64))
+                      else settings.loop_share * np.asarray(state_scale, dtype=np.float64),
+                      stall_progress=settings.stall_progress)
 
 
 def no_effect_tolerance(settings: ControllerSettings, state_scale: FloatArray | None

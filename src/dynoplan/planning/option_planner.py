@@ -79,6 +79,9 @@ class Plan:
         sequences: ``(options,)`` the best option sequence each option starts, by name
             (:class:`SequencePlanner`; an empty tuple for an option not admissible;
             ``None`` from a planner that looks one option ahead).
+        gain_floor: where the best option was a fallback that did not score the goal
+            heuristic at the present state (``fallback_must_gain``), that value ``G(s)``,
+            and ``chosen`` is ``None``; else ``None``.
     """
 
     option_names: tuple[str, ...]
@@ -91,6 +94,7 @@ class Plan:
     disagreements: FloatArray | None = None
     unsafe_shares: FloatArray | None = None
     sequences: tuple[tuple[str, ...], ...] | None = None
+    gain_floor: float | None = None
 
     @property
     def chosen_name(self) -> str | None:
@@ -268,6 +272,7 @@ class OptionPlanner:
         steps = np.zeros((n_opt, self.samples), dtype=np.int64)
         idx = tuple(int(i) for i in np.flatnonzero(may_run))
         chosen: int | None = None
+        floor: float | None = None
         shares = None if self.constraint is None else np.full(n_opt, np.nan)
         if idx:
             if self.constraint is not None:
@@ -289,11 +294,12 @@ class OptionPlanner:
             best = int(np.argmax(scores[list(idx)]))
             unsafe_everywhere = shares is not None and scores[idx[best]] == -np.inf
             chosen = None if unsafe_everywhere else idx[best]
-            if chosen is not None and self.fallback_must_gain and self._falls_back(s, running) \
-                    and scores[chosen] < float(self.goal.mean_std(s[None])[0][0]):
-                chosen = None
+            if chosen is not None and self.fallback_must_gain and self._falls_back(s, running):
+                here = float(self.goal.mean_std(s[None])[0][0])
+                if scores[chosen] < here:
+                    chosen, floor = None, here
         return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen,
-                    disagreements, shares)
+                    disagreements, shares, gain_floor=floor)
 
     def _falls_back(self, state: FloatArray, running: int | None) -> bool:
         """Whether no option may run at ``state`` under its own sets (the admissible ones

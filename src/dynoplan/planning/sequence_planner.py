@@ -280,13 +280,16 @@ class SequencePlanner(OptionPlanner):
         plans = []
         for r in range(n_root):
             chosen: int | None = int(best[r])
+            floor: float | None = None
             if not may_run[:, r].any() or scores[r, best[r]] == -np.inf:
                 chosen = None
             elif self.fallback_must_gain and self._falls_back(states[r], running[r]):
                 # a fallback is a way on, not a way back (OptionPlanner's rule)
                 here = float(self.goal.mean_std(states[r][None])[0][0])
-                chosen = None if scores[r, best[r]] < here else chosen
+                if scores[r, best[r]] < here:
+                    chosen, floor = None, here
             plans.append(Plan(option_names, may_run[:, r], scores[r], spreads[r],
                               end_states[r], steps[r], chosen, disagreements[r],
-                              None if shares is None else shares[r], tuple(names[r])))
+                              None if shares is None else shares[r], tuple(names[r]),
+                              gain_floor=floor))
         return plans
