@@ -23,8 +23,9 @@ Every key is a field of :class:`~dynoplan.pipeline.PipelineSettings`, of
 :data:`TASK_KEYS`; paths and references are read from the current folder, as on the
 command line. A key left out keeps its default; ``replan_every = 0`` means "only when
 the option stops", ``no_effect_share = 0``, ``loop_share = 0`` and
-``stall_progress = 0`` "no such rule". Any mistake (an unknown key, a value of the wrong kind or out of range) is one
-:class:`~dynoplan.errors.DynoplanError` naming the file and the key.
+``stall_progress = 0`` "no such rule". Any mistake (an unknown key, a value of the
+wrong kind or out of range) is one :class:`~dynoplan.errors.DynoplanError` naming the
+file and the key.
 """
 
 import difflib
