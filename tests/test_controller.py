@@ -261,6 +261,43 @@ class _Shift(_Identity):
         return states + self.by
 
 
+class _Progress:
+    """G(x) = 0.2 + x / 100, exact."""
+
+    def mean_std(self, states):
+        mean = 0.2 + np.asarray(states, dtype=float)[:, 0] / 100
+        return mean, np.zeros_like(mean)
+
+    def sample(self, states, rng):
+        return self.mean_std(states)[0]
+
+
+def test_a_hold_that_changes_nothing_far_from_the_goal_is_not_held_for_good():
+    # no learned set holds anywhere; "up" may start under its own set, but its (wrong)
+    # model says it goes down, so the planner would hold rather than lose progress: on a
+    # line that does not move under the hold, for good
+    from dynoplan.planning import OptionPlanner
+
+    nowhere = InitiationFromCallable(lambda s: np.zeros(len(s), bool))
+    anywhere = InitiationFromCallable(lambda s: s[:, 0] < 100)
+    up = Option("up", FunctionPolicy(lambda o, r: np.array([1.0])), _Shift(-1.0),
+                ConstantTermination(0.0), initiation=AllOf(anywhere, nowhere),
+                fallback=anywhere)
+    planner = OptionPlanner([up], _Progress(), fallback_must_gain=True)
+
+    def run(stall_progress):
+        return Controller([up], planner, max_decisions=20, hold_action=np.array([0.0]),
+                          stall_progress=stall_progress).run(
+            Line(), np.random.default_rng(0), seed=0)
+
+    assert planner.choose(np.array([0.0]), np.random.default_rng(0)).gain_floor == 0.2
+    for held in (run(None), run(0.2)):  # no rule; G(0) = 0.2 is not below 0.2
+        assert not held.success and held.no_admissible == 20 and held.env_steps == 20
+    moved = run(0.5)  # one hold changed nothing at G = 0.2 < 0.5: "up" starts
+    assert moved.success and moved.no_admissible == 1
+    assert [d.option for d in moved.decisions] == [None, "up"]
+
+
 def test_an_option_that_ends_where_it_started_is_not_chosen_there_again():
     # "stay" ends at once without moving, but its model promises +5 a step: Eq. 1 prefers
     # it to "up", whose learned initiation rules it out (only its fallback region holds)
