@@ -235,7 +235,7 @@ def test_gear_option_that_fails_while_writing_keeps_the_previous_outputs(
 @pytest.mark.parametrize("failure", FAILURES)
 def test_gear_figures_interrupted_between_the_figures_keep_the_previous_ones(
         tmp_path, monkeypatch, failure):
-    import dynoplan.reports.gear_figures as gear_figures
+    import dynoplan.envs.gear.reports.figures as gear_figures
 
     out = tmp_path / "figures"
     out.mkdir()

@@ -232,6 +232,15 @@ def pipeline(
         None, "--fallback-own-sets/--no-fallback-own-sets",
         help="Where no option may start under its learned initiation set, the options "
              "whose own sets hold may (--no-fallback-own-sets: hold or end there) [on]."),
+    fallback_must_gain: bool | None = typer.Option(
+        None, "--fallback-must-gain/--no-fallback-must-gain",
+        help="DynoPlan starts an option under its own set only where it scores at least "
+             "the goal heuristic at the present state, and holds otherwise [on]."),
+    stall_progress: float | None = typer.Option(
+        None, "--stall-progress", **_bounds("control.stall_progress"),
+        help="Where a hold changed nothing and DynoPlan would hold again at a state whose "
+             "goal heuristic is below this, the best option under its own set starts "
+             "(0: no such rule) [0.5]."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
