@@ -469,6 +469,34 @@ def test_staged_folder_replaces_entries_only_when_complete(tmp_path):
     assert not (tmp_path / "a").exists()  # the folders made for it are gone too
 
 
+
+@pytest.mark.parametrize("keep", [False, True])
+@pytest.mark.parametrize("cwd", ["parent", "target"])
+def test_staged_folder_drops_the_previous_outputs_the_block_did_not_write(
+        tmp_path, monkeypatch, keep, cwd):
+    """``drop``: a previous run's outputs go at the move unless written anew (the target
+    replaced whole, or entry by entry when the working folder is inside it); the other
+    entries stay; nothing changes until the block completes."""
+    from dynoplan.io import staged_folder
+
+    out = tmp_path / "out"
+    (out / "beyond" / "data").mkdir(parents=True)
+    (out / "beyond" / "data" / "main_data.hdf5").write_text("the previous run's")
+    (out / "runs.json").write_text("the previous run's")
+    (out / "notes.txt").write_text("the user's")
+    monkeypatch.chdir(out if cwd == "target" else tmp_path)
+    with pytest.raises(RuntimeError), staged_folder(out, keep, drop=("beyond",
+                                                                     "runs.json")) as stage:
+        assert not (stage / "beyond").exists()  # not copied with keep
+        raise RuntimeError("failed")
+    assert (out / "beyond" / "data" / "main_data.hdf5").is_file() and not leftovers(tmp_path)
+    with staged_folder(out, keep, drop=("beyond", "runs.json", "missing")) as stage:
+        (stage / "runs.json").write_text("this run's")
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "runs.json"]
+    assert (out / "runs.json").read_text() == "this run's"
+    assert (out / "notes.txt").read_text() == "the user's" and not leftovers(tmp_path)
+
+
 def _dead_pid() -> int:
     pid = 2**22 - 1
     while True:

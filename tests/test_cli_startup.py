@@ -71,17 +71,42 @@ def _torch_loading(pid: int) -> bool:
     return "libtorch" in Path(f"/proc/{pid}/maps").read_text()
 
 
+def _snapshot(folder: Path) -> dict[str, bytes | None]:
+    """Every entry under ``folder`` (hidden ones too), with a file's bytes."""
+    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(folder.rglob("*"))}
+
+
+def _command(name: str, tmp_path: Path) -> list[str]:
+    """The arguments of command ``name`` writing into ``tmp_path/out``: commands that
+    import torch and the pipeline (or the gear) before they run."""
+    out = str(tmp_path / "out")
+    if name == "gear evaluate":
+        return ["gear", "evaluate", "--models", str(tmp_path / "models"), "--out", out,
+                "--quiet", "--workers", "1"]
+    if name == "random-walk":
+        return ["random-walk", "--episodes", "5", "--out", out, "--quiet"]
+    config = tmp_path / "grid.toml"
+    config.write_text('models = "m"\n[grid]\nhorizon = [5]\n')
+    return ["sweep", str(config), "--out", out, "--workers", "1", "--quiet"]
+
+
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux's /proc")
+@pytest.mark.parametrize("name", ["gear evaluate", "random-walk", "sweep"])
 @pytest.mark.parametrize("moment", ["start-up", "torch import"])
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_signal_while_modules_import_prints_aborted(tmp_path, sig, status, moment):
-    """``gear evaluate`` imports torch and the gear before it runs: the signal lands in
-    those imports (as soon as the handler is installed, or once torch's library is
-    mapped, torch's import under way: the handler must be there before)."""
-    out = tmp_path / "eval"
-    proc = subprocess.Popen([sys.executable, "-c", CLI_CODE, "gear", "evaluate", "--models",
-                             str(tmp_path / "models"), "--out", str(out), "--quiet",
-                             "--workers", "1"],
+def test_signal_while_modules_import_prints_aborted(tmp_path, sig, status, moment, name):
+    """``gear evaluate``, ``random-walk`` and ``sweep`` import torch and the pipeline (or
+    the gear) before they run: the signal lands in those imports (as soon as the handler
+    is installed, or once torch's library is mapped, torch's import under way: the
+    handler must be there before). The previous output and its parent stay as they
+    were."""
+    args = _command(name, tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text('{"previous": true}')
+    before = _snapshot(tmp_path)
+    proc = subprocess.Popen([sys.executable, "-c", CLI_CODE, *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=_env())
     if moment == "torch import":  # whether or not the handler is installed by then
@@ -92,7 +117,7 @@ def test_signal_while_modules_import_prints_aborted(tmp_path, sig, status, momen
     _, err = proc.communicate(timeout=120)
     assert err.strip().splitlines() == ["dynoplan: aborted"], err
     assert proc.returncode == status
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    assert _snapshot(tmp_path) == before
 
 
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])

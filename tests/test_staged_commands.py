@@ -330,3 +330,54 @@ def test_gear_outcomes_stages_its_dataset_and_the_initiation_together(
     assert (models / "initiation.safetensors").read_bytes() == b"a new initiation"
     assert json.loads((models / "initiation.json").read_text())["file"] == str(
         models / "initiation.safetensors")
+
+
+def test_gear_outcomes_run_again_into_its_out_replaces_the_previous_outcomes(
+        tmp_path, monkeypatch, capsys):
+    """A second ``gear outcomes`` into the same OUT (a dataset folder with outcomes.json,
+    and transitions-beyond from ``--merge``) is not refused as "not a dataset folder": the
+    new runs' dataset (written by :func:`~dynoplan.data.dataset.write_dataset`) and
+    outcomes.json replace the previous ones, whose transitions-beyond, made of the previous
+    runs, goes with them; the user's files stay."""
+    import dynoplan.envs.gear.learning.outcomes as outcomes
+    from dynoplan.data.dataset import read_dataset, write_dataset
+    from test_bad_input import invoke
+    from test_data import make_episode, make_metadata
+
+    def collect(models: Path, seed: int, out: Path, settings, progress, workers) -> dict:
+        write_dataset(out, [make_episode(np.random.default_rng(seed))],
+                      make_metadata(seed=seed))
+        return {"dataset": str(out), "seed": seed, "runs": 1, "starts": {"pick": 1},
+                "ended_well": {"pick": 1}}
+
+    def beyond(transitions: Path, runs: Path, out: Path) -> dict:
+        write_dataset(out, [make_episode(np.random.default_rng(0))], make_metadata())
+        return {"dataset": str(out), "episodes": 1}
+
+    def fit(models: Path, runs: Path, seed: int) -> dict:
+        assert read_dataset(runs).metadata.seed == seed  # this run's dataset
+        (models / "initiation.safetensors").write_bytes(b"seed %d" % seed)
+        return {"options": {"pick": 1}, "file": str(models / "initiation.safetensors")}
+
+    monkeypatch.setattr(outcomes, "collect_outcomes", collect)
+    monkeypatch.setattr(outcomes, "transitions_beyond", beyond)
+    monkeypatch.setattr(outcomes, "fit_gear_initiation", fit)
+    models, out = tmp_path / "models", tmp_path / "outcomes"
+    models.mkdir()
+    args = ["gear", "outcomes", "--models", str(models), "--out", str(out), "--runs", "1",
+            "--workers", "1", "--quiet"]
+    code, _, err = invoke(monkeypatch, capsys, *args, "--seed", "1", "--merge",
+                          str(tmp_path / "collected"))
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["data", "outcomes.json",
+                                                     "transitions-beyond"]
+    (out / "notes.txt").write_text("the user's")
+    code, _, err = invoke(monkeypatch, capsys, *args, "--seed", "2")
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["data", "notes.txt", "outcomes.json"]
+    assert read_dataset(out).metadata.seed == 2
+    assert json.loads((out / "outcomes.json").read_text()) == {
+        "dataset": str(out), "seed": 2, "runs": 1, "starts": {"pick": 1},
+        "ended_well": {"pick": 1}}
+    assert (models / "initiation.safetensors").read_bytes() == b"seed 2"
+    assert (out / "notes.txt").read_text() == "the user's" and not leftovers(tmp_path)

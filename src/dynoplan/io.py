@@ -94,7 +94,8 @@ def _running(pid: int) -> bool:
 
 
 @contextmanager
-def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[Path]:
+def staged_folder(path: str | os.PathLike[str], keep: bool = False,
+                  drop: Sequence[str] = ()) -> Iterator[Path]:
     """Yield a new folder beside ``path`` to write into; move its content onto ``path``
     only when the block completes.
 
@@ -104,7 +105,10 @@ def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[
     each top-level entry of the staged folder replaces the entry of that name in ``path``
     (other entries of ``path`` stay); with ``keep`` True the staged folder starts as a
     copy of ``path`` and replaces it whole, so ``path`` is the previous folder, complete,
-    until the new one is. The move runs with SIGINT and SIGTERM blocked. Paths under the
+    until the new one is. The entries of ``path`` named in ``drop`` (a previous run's
+    outputs, which the block's replace together) go at the move when the block did not
+    write them anew (with ``keep``, they are not copied). The move runs with SIGINT and
+    SIGTERM blocked. Paths under the
     staged folder recorded in its JSON files (a dataset, a figure named in a summary) are
     renamed to the same paths under ``path`` before the move (:func:`retarget`: the
     outputs name where they are, never a staging folder).
@@ -127,13 +131,14 @@ def staged_folder(path: str | os.PathLike[str], keep: bool = False) -> Iterator[
     try:
         os.chmod(stage, 0o777 & ~current_umask())  # mkdtemp makes 0700
         if keep and target.is_dir():
-            shutil.copytree(target, stage, symlinks=True, dirs_exist_ok=True)
+            shutil.copytree(target, stage, symlinks=True, dirs_exist_ok=True,
+                            ignore=lambda folder, _: drop if folder == str(target) else ())
         yield stage
         _retarget_json_files(stage, target)
         fsync_tree(stage)
         with _signals_blocked():
             _install(stage, target, whole=keep and not Path.cwd().is_relative_to(
-                target.resolve()))
+                target.resolve()), drop=drop)
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         _remove_empty(created)
@@ -177,19 +182,27 @@ def _retarget_json_files(stage: Path, target: Path) -> None:
             write_text(file, changed)
 
 
-def _install(stage: Path, target: Path, whole: bool) -> None:
-    """Move ``stage`` onto ``target`` (whole: replace it; else entry by entry)."""
+def _install(stage: Path, target: Path, whole: bool, drop: Sequence[str] = ()) -> None:
+    """Move ``stage`` onto ``target`` (whole: replace it; else entry by entry, and the
+    entries named in ``drop`` that ``stage`` does not hold are removed from ``target``)."""
     if not target.exists():
         os.rename(stage, target)
     elif whole:
         _swap(stage, target)
     else:
+        staged = set(os.listdir(stage))
         for entry in sorted(stage.iterdir()):
             dest = target / entry.name
             if dest.is_dir() and not dest.is_symlink():
                 _swap(entry, dest)
             else:
                 os.replace(entry, dest)
+        for name in set(drop) - staged:
+            gone = target / name
+            if gone.is_dir() and not gone.is_symlink():
+                shutil.rmtree(gone)
+            elif gone.exists() or gone.is_symlink():
+                gone.unlink()
         stage.rmdir()
     fsync_dir(target.parent)
 

@@ -295,6 +295,7 @@ def outcomes(
 
     import torch
 
+    from dynoplan.data.dataset import DATA_DIR
     from dynoplan.envs.gear.learning.outcomes import (
         collect_outcomes,
         fit_gear_initiation,
@@ -312,8 +313,11 @@ def outcomes(
     pool = parse_workers(workers, ray_address)
     torch.set_num_threads(1)
     # OUT (the runs' dataset, outcomes.json, transitions-beyond) and MODELS (the
-    # initiation) staged: both or neither; --fit-only fits on a copy of OUT as it is
-    with staged_folder(out, keep=not collect) as stage, \
+    # initiation) staged: both or neither; --fit-only fits on a copy of OUT as it is, new
+    # runs replace a previous run's outputs together (its transitions-beyond too, made of
+    # its runs, goes without --merge); other files of OUT stay
+    previous = (DATA_DIR, "outcomes.json", "transitions-beyond") if collect else ()
+    with staged_folder(out, keep=not collect, drop=previous) as stage, \
             staged_folder(models, keep=True) as staged_models:
         if collect:
             with ray_session(pool):
