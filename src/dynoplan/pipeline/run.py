@@ -274,6 +274,40 @@ def admissibility_table(rows: dict[str, dict[str, float | None]]) -> str:
          "at its own demonstration states"])
 
 
+def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
+                    run_options: Sequence[Option], planner_options: Sequence[Option],
+                    demo_episodes: Sequence[Episode], settings: PipelineSettings,
+                    evaluation_seed: int, folder: Path | None, notes: Sequence[str],
+                    say: Callable[[str], None], progress: bool, workers: Workers,
+                    task: Task | None, demonstrator: Any, later_notes: Sequence[str] = (),
+                    ) -> tuple[dict[str, Any], list[str], dict[str, dict[str, Any]]]:
+    """The stages after a fit, the same for every run: where the options may start (its
+    notes, with ``notes``, as warnings), the models saved to ``folder/models`` (when
+    given) and every controller on the evaluation episodes.
+
+    Returns:
+        ``(admissibility, notes, evaluation)``: :func:`admissibility`'s shares, ``notes``
+        and its notes (every warning given), and
+        :func:`~dynoplan.pipeline.evaluate.evaluate_controllers`' summaries.
+    """
+    say("admissibility")
+    starts = start_states(environment, evaluation_seed, settings.episodes)
+    admissible, where = admissibility(run_options, starts, demo_episodes)
+    notes = [*notes, *where, *later_notes]
+    for note in notes:
+        warnings.warn(note, DynoplanWarning, stacklevel=3)
+    models_dir = models.save(folder / "models") if folder is not None else None
+    say("evaluation")
+    evaluation = evaluate_controllers(environment, run_options, models.goal,
+                                      planning_settings(settings.control, models),
+                                      settings.episodes, evaluation_seed, planner_options,
+                                      settings.controllers, progress, workers, task,
+                                      models_dir, learned_regions(models), demonstrator,
+                                      models.state_scale)
+    say("")
+    return admissible, notes, evaluation
+
+
 def run_pipeline(
     env: str | gym.Env[Any, Any],
     options: Sequence[OptionSpec | Option],
@@ -388,23 +422,12 @@ def run_pipeline(
         models = fit_models(specs, fit_transitions, fit_demos, settings.fit, seeds["fit"],
                             flat_state, fitter, say, name)
         run_options, planner_options = models.build(specs)
-    say("admissibility")
-    starts = start_states(environment, seeds["evaluation"], settings.episodes)
-    admissible, where = admissibility(run_options, starts, demo_episodes)
     demo_states = np.concatenate([episode_states(e, flat_state)[:-1] for e in demo_episodes])
-    notes += [*where, *weak_dynamics_warnings(models.report["dynamics"]),
-              *sole_admissible_warnings(run_options, demo_states)]
-    for note in notes:
-        warnings.warn(note, DynoplanWarning, stacklevel=2)
-    models_dir = models.save(folder / "models") if folder is not None else None
-    say("evaluation")
-    evaluation = evaluate_controllers(environment, run_options, models.goal,
-                                      planning_settings(settings.control, models),
-                                      settings.episodes, seeds["evaluation"], planner_options,
-                                      settings.controllers, progress, workers, task,
-                                      models_dir, learned_regions(models), demonstrator,
-                                      models.state_scale)
-    say("")
+    admissible, notes, evaluation = evaluate_fitted(
+        environment, models, run_options, planner_options, demo_episodes, settings,
+        seeds["evaluation"], folder, notes, say, progress, workers, task, demonstrator,
+        [*weak_dynamics_warnings(models.report["dynamics"]),
+         *sole_admissible_warnings(run_options, demo_states)])
     region_warnings = (models.report.get("regions") or {}).get("warnings", [])
     summary = {
         "dynoplan_version": __version__,

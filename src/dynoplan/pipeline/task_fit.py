@@ -43,10 +43,7 @@ from dynoplan.pipeline.collect import flat_state, probe_options, record_demonstr
 from dynoplan.pipeline.evaluate import (
     composition_ratio,
     controller_names,
-    evaluate_controllers,
-    learned_regions,
     option_share_table,
-    planning_settings,
     results_table,
 )
 from dynoplan.pipeline.fit import FittedModels
@@ -58,10 +55,9 @@ from dynoplan.pipeline.run import (
     PipelineSettings,
     _jsonable,
     _seeds,
-    admissibility,
     admissibility_table,
     demos_from_dataset,
-    start_states,
+    evaluate_fitted,
 )
 from dynoplan.pipeline.task import Task
 from dynoplan.timing import StageClock
@@ -274,20 +270,9 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     models = fit_task(option_models, specs, demo_episodes, settings, seeds["fit"], name, say)
     fit_seconds = time.perf_counter() - t0
     run_options, planner_options = models.build(specs)
-    say("admissibility")
-    starts = start_states(environment, seeds["evaluation"], settings.episodes)
-    admissible, notes = admissibility(run_options, starts, demo_episodes)
-    for note in notes:
-        warnings.warn(note, DynoplanWarning, stacklevel=2)
-    models_dir = models.save(folder / "models") if folder is not None else None
-    say("evaluation")
-    evaluation = evaluate_controllers(environment, run_options, models.goal,
-                                      planning_settings(settings.control, models),
-                                      settings.episodes, seeds["evaluation"], planner_options,
-                                      settings.controllers, progress, workers, task,
-                                      models_dir, learned_regions(models), demonstrator,
-                                      models.state_scale)
-    say("")
+    admissible, notes, evaluation = evaluate_fitted(
+        environment, models, run_options, planner_options, demo_episodes, settings,
+        seeds["evaluation"], folder, (), say, progress, workers, task, demonstrator)
     task_fit = {
         "options_models": str(option_models.folder),
         "reused_dynamics": names,
