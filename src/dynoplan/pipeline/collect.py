@@ -399,23 +399,62 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
 def collect_transitions(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], episodes: int,
                         seed: int, state_fn: ObservationFn = flat_state,
                         max_option_steps: int = 100, max_steps: int | None = None,
-                        progress: bool = False) -> list[Episode]:
+                        progress: bool = False, demos: Sequence[Episode] = (),
+                        from_demos: float = 0.0) -> list[Episode]:
     """Episodes of randomly chosen options (see :class:`RandomOptions`), labelled with
     their options and ``infos["failure"]`` (True at the last step of an episode that
-    terminated without success)."""
+    terminated without success).
+
+    The first ``round(from_demos * episodes)`` episodes branch off the demonstrations
+    ``demos`` (those with a reset seed): each starts where a demonstration drawn at random
+    was after a step drawn at random (:func:`branch_start`), so that the options are also
+    tried along the way the demonstrations went, in their episodes, and not only from
+    ``env.reset``. The rest start at ``env.reset``. With ``from_demos`` 0 (or no seeded
+    demonstration) every episode starts at a reset.
+    """
     if episodes < 1:
         raise DynoplanError(f"the number of exploration episodes must be >= 1, got {episodes}")
+    if not 0.0 <= from_demos <= 1.0:
+        raise DynoplanError(f"the share of exploration episodes that branch off the "
+                            f"demonstrations must be in [0, 1], got {from_demos}")
     explorer = RandomOptions(specs, state_fn, max_option_steps)
+    seeded = [d for d in demos if d.seed is not None]
+    branching = round(from_demos * episodes) if seeded else 0
     out = []
-    for s in track(episode_seeds(seed, episodes), "option transitions", total=episodes,
-                   enabled=progress):
-        recording = record_episode(env, specs, explorer, s.env_seed, s.rng(), max_steps)
+    for i, s in enumerate(track(episode_seeds(seed, episodes), "option transitions",
+                                total=episodes, enabled=progress)):
+        rng = s.rng()
+        start = None
+        if i < branching:
+            demo = seeded[int(rng.integers(len(seeded)))]
+            start = branch_start(env, demo, int(rng.integers(len(demo))))
+        recording = record_episode(env, specs, explorer, s.env_seed, rng, max_steps,
+                                   start=start)
         episode = recording.episode
         failure = np.zeros(len(episode), dtype=bool)
         failure[-1] = bool(episode.terminations[-1]) and not recording.success
         episode.infos[FAILURE_KEY] = failure
         out.append(episode)
     return out
+
+
+def branch_start(env: gym.Env[Any, Any], demo: Episode, step: int) -> RunStart:
+    """Where an exploration episode branches off the demonstration ``demo``: the env
+    reset with the demonstration's seed and driven by its first ``step`` actions
+    (``0 <= step < len(demo)``), which reproduces its state after ``step`` steps where
+    ``reset(seed=s)`` reproduces its episode (the pipeline checks this once per run)."""
+    if demo.seed is None or not 0 <= step < len(demo):
+        raise DynoplanError(f"cannot branch off a demonstration of {len(demo)} steps "
+                            f"with seed {demo.seed} after {step} steps")
+    obs, info = env.reset(seed=demo.seed)
+    discrete = isinstance(env.action_space, gym.spaces.Discrete)
+    for action in demo.actions[:step]:
+        obs, _, terminated, truncated, info = env.step(
+            int(action.reshape(-1)[0]) if discrete else action)
+        if terminated or truncated:  # the env did not follow the demonstration
+            obs, info = env.reset(seed=demo.seed)
+            break
+    return RunStart(obs, info, demo.seed)
 
 
 # --- option runs -------------------------------------------------------------------------
