@@ -1,5 +1,7 @@
 """OptionPlanner (Eq. 1): argmax, admissibility, termination, batching, NaN handling."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.stats import ks_2samp
@@ -12,7 +14,7 @@ from dynoplan.options import (
     InitiationFromCallable,
     Option,
 )
-from dynoplan.planning import OptionPlanner
+from dynoplan.planning import OptionPlanner, SequencePlanner
 
 
 class Drift:
@@ -56,6 +58,31 @@ def test_argmax_picks_the_option_whose_future_scores_best():
     np.testing.assert_allclose(plan.scores, [0.15, 0.25, 0.05])
     np.testing.assert_allclose(plan.end_states[1, :, 0], 25.0)
     assert (plan.steps == 5).all()
+
+
+class FailsAbove:
+    """P(fail | s): certain above ``limit``, never below."""
+
+    def __init__(self, limit: float) -> None:
+        self.limit = limit
+
+    def probability(self, states):
+        return (states[:, 0] > self.limit).astype(float)
+
+
+def test_an_option_whose_runs_fail_from_here_is_scored_as_no_progress():
+    # the fast option's imagined end scores best, but a run of it fails from above 5
+    fast = _option("fast", Drift(3.0))
+    options = [_option("slow", Drift(1.0)), replace(fast, failure=FailsAbove(5.0))]
+    planner = OptionPlanner(options, Linear(), horizon=5, samples=8)
+    plan = planner.plan(np.array([10.0]), np.random.default_rng(0))
+    assert plan.chosen_name == "slow"
+    np.testing.assert_allclose(plan.scores, [0.15, 0.0])
+    assert planner.plan(np.array([2.0]), np.random.default_rng(0)).chosen_name == "fast"
+    # depth 2: a sequence through a failing option is worth nothing either
+    deep = SequencePlanner(options, Linear(), horizon=5, samples=8, depth=2)
+    plan = deep.plan(np.array([10.0]), np.random.default_rng(0))
+    assert plan.chosen_name == "slow" and plan.sequences[0] == ("slow", "slow")
 
 
 def test_termination_stops_rollouts_and_inadmissible_options_are_skipped():

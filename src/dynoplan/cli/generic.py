@@ -245,6 +245,11 @@ def pipeline(
         help="Where a hold changed nothing and DynoPlan would hold again at a state whose "
              "goal heuristic is below this, the best option under its own set starts "
              "(0: no such rule) [0.5]."),
+    score_failures: bool | None = typer.Option(
+        None, "--score-failures/--no-score-failures",
+        help="DynoPlan weighs each option's imagined future by its chance not to end the "
+             "episode in failure from here, learned from the exploration runs that "
+             "failed [on]."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),

@@ -13,7 +13,9 @@ says what the folder holds and how to read it back::
      ...}
 
 ``initiation`` (optional, ``null`` or absent when not learned) is the initiation learned
-from the options' own outcomes (:mod:`dynoplan.models.outcome_initiation`).
+from the options' own outcomes (:mod:`dynoplan.models.outcome_initiation`); ``failure``
+(absent when no run failed) the chance that an option's run ends its episode in failure
+(:mod:`dynoplan.pipeline.fit_failure`).
 
 ``features`` names the feature map a model reads (``null``: the planner state itself);
 any further top-level field (the seed, the settings, what fitting measured) is kept as
@@ -41,8 +43,9 @@ kind; 2: ``gear_models``) are rejected: train the models again."""
 GOAL_FILE = "goal.safetensors"
 REGIONS_FILE = "regions.safetensors"
 INITIATION_FILE = "initiation.safetensors"
+FAILURE_FILE = "failure.safetensors"
 _CORE = ("kind", "format_version", "task", "state_dim", "option_names", "stride",
-         "use_regions", "goal", "regions", "dynamics", "initiation")
+         "use_regions", "goal", "regions", "dynamics", "initiation", "failure")
 
 
 def dynamics_file(option: str) -> str:
@@ -88,6 +91,7 @@ class Manifest:
         dynamics: per option its dynamics file (``None``: a model that cannot be saved).
         extra: every other top-level field (seed, settings, report, ...).
         initiation: the initiation learned from outcomes (``None``: not learned).
+        failure: the options' chance to fail (``None``: no run failed).
     """
 
     folder: Path
@@ -101,6 +105,7 @@ class Manifest:
     dynamics: dict[str, Path | None]
     extra: dict[str, Any] = field(default_factory=dict)
     initiation: ModelEntry | None = None
+    failure: ModelEntry | None = None
 
 
 def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
@@ -108,7 +113,8 @@ def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
                    goal: tuple[str, str | None], regions: tuple[str, str | None] | None,
                    dynamics: Mapping[str, str | None],
                    extra: Mapping[str, Any] | None = None,
-                   initiation: tuple[str, str | None] | None = None) -> dict[str, Any]:
+                   initiation: tuple[str, str | None] | None = None,
+                   failure: str | None = None) -> dict[str, Any]:
     """Write ``folder/models.json`` for model files already in ``folder``; return it.
 
     Args:
@@ -118,6 +124,8 @@ def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
         extra: further top-level fields (JSON-serialisable; not one of the core fields).
         initiation: ``(file, features)`` of the initiation learned from outcomes, or
             ``None``.
+        failure: the file of the options' chance to fail (``None``: the field is left
+            out).
     """
     root = Path(folder)
 
@@ -144,6 +152,7 @@ def write_manifest(folder: str | os.PathLike[str], *, task: str, state_dim: int,
         "dynamics": {name: None if file is None else entry(file, with_features=False)
                      for name, file in dynamics.items()},
         "initiation": None if initiation is None else entry(*initiation),
+        **({} if failure is None else {"failure": entry(failure)}),
         **(extra or {}),
     }
     write_json(root / MANIFEST_FILE, manifest)
@@ -237,9 +246,10 @@ def read_manifest(folder: str | os.PathLike[str], retrain: str = "train the mode
                 for name in names}
     initiation = (None if doc.get("initiation") is None or not with_initiation
                   else model("initiation", "the learned initiation"))
+    failure = None if doc.get("failure") is None else model("failure", "the failure model")
     return Manifest(root, task, state_dim, [str(n) for n in names], stride, use_regions,
                     goal, regions, dynamics, {k: v for k, v in doc.items() if k not in _CORE},
-                    initiation)
+                    initiation, failure)
 
 
 def check_format_version(folder: str | os.PathLike[str],
@@ -278,9 +288,10 @@ def set_initiation(folder: str | os.PathLike[str], file: str,
         goal=(m.goal.path.name, m.goal.features),
         regions=None if m.regions is None else (m.regions.path.name, m.regions.features),
         dynamics={n: None if p is None else p.name for n, p in m.dynamics.items()},
-        extra=m.extra, initiation=(file, features))
+        extra=m.extra, initiation=(file, features),
+        failure=None if m.failure is None else m.failure.path.name)
 
 
-__all__ = ["FORMAT_VERSION", "GOAL_FILE", "INITIATION_FILE", "KIND", "MANIFEST_FILE",
-           "REGIONS_FILE", "Manifest", "ModelEntry", "check_format_version", "dynamics_file",
-           "file_sha256", "read_manifest", "set_initiation", "write_manifest"]
+__all__ = ["FAILURE_FILE", "FORMAT_VERSION", "GOAL_FILE", "INITIATION_FILE", "KIND",
+           "MANIFEST_FILE", "REGIONS_FILE", "Manifest", "ModelEntry", "check_format_version",
+           "dynamics_file", "file_sha256", "read_manifest", "set_initiation", "write_manifest"]

@@ -136,7 +136,7 @@ class OutcomeInitiation:
     def fit(cls, starts: Mapping[str, FloatArray], outcomes: Mapping[str, BoolArray], *,
             hidden: int = 32, epochs: int = 400, lr: float = 1e-2,
             weight_decay: float = 1e-3, threshold: float = 0.5,
-            seed: int = 0) -> tuple["OutcomeInitiation", OutcomeFitReport]:
+            seed: int = 0, balanced: bool = True) -> tuple["OutcomeInitiation", OutcomeFitReport]:
         """Fit one classifier per option on its runs.
 
         Args:
@@ -149,6 +149,9 @@ class OutcomeInitiation:
             weight_decay: AdamW decoupled weight decay.
             threshold: ``P(ok | s)`` from which a state is in the set.
             seed: seeds every classifier's initialisation (a private generator).
+            balanced: weigh both outcomes the same in total (a rare outcome is not
+                ignored, and ``P`` is not a calibrated chance); ``False``: every run
+                weighs the same (``P`` estimates the chance of ``ok``).
 
         Raises:
             DynoplanError: no options, mismatched names or shapes, non-finite states.
@@ -181,7 +184,8 @@ class OutcomeInitiation:
                 kinds[name] = "always" if y.all() else "never"
                 report.kind[name], report.train_accuracy[name] = kinds[name], None
                 continue
-            net = _fit_classifier(x, y, hidden, epochs, lr, weight_decay, seed + k)
+            net = _fit_classifier(x, y, hidden, epochs, lr, weight_decay, seed + k,
+                                  balanced)
             kinds[name] = "network"
             classifiers[name] = net
             with torch.inference_mode():
@@ -271,7 +275,7 @@ class OutcomeInitiationOnFeatures:
 
 
 def _fit_classifier(x: FloatArray, y: BoolArray, hidden: int, epochs: int, lr: float,
-                    weight_decay: float, seed: int) -> _Classifier:
+                    weight_decay: float, seed: int, balanced: bool = True) -> _Classifier:
     generator = torch.Generator().manual_seed(seed)
     net = _Classifier(x.shape[1], hidden, generator)
     xt = torch.as_tensor(x, dtype=torch.float32)
@@ -284,8 +288,9 @@ def _fit_classifier(x: FloatArray, y: BoolArray, hidden: int, epochs: int, lr: f
     positive, negative = 0.5 / yt.mean(), 0.5 / (1.0 - yt.mean())
 
     def loss(inputs: torch.Tensor, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        value = nn.functional.binary_cross_entropy_with_logits(
-            net(inputs), targets, weight=torch.where(targets > 0.5, positive, negative))
+        weight = torch.where(targets > 0.5, positive, negative) if balanced else None
+        value = nn.functional.binary_cross_entropy_with_logits(net(inputs), targets,
+                                                               weight=weight)
         return value, value
 
     optimiser = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
@@ -297,6 +302,23 @@ def _fit_classifier(x: FloatArray, y: BoolArray, hidden: int, epochs: int, lr: f
     return net
 
 
+class RunFailure:
+    """One option's ``P(fail | s) = 1 - P(ok | s)`` from an :class:`OutcomeInitiation`
+    fitted on whether its runs did *not* end their episode in failure (``balanced``
+    off, so that it is a chance): the option's
+    :class:`~dynoplan.options.option.FailureModel`."""
+
+    def __init__(self, model: OutcomeInitiation, option: str) -> None:
+        model.option_index(option)  # refuses an option without a classifier
+        self.model = model
+        self.option = option
+
+    def probability(self, states: FloatArray) -> FloatArray:
+        """``(batch, d)`` -> ``(batch,)`` the chance that a run started there fails."""
+        out: FloatArray = 1.0 - self.model.probability(states, self.option)
+        return out
+
+
 def fit_report_dict(report: OutcomeFitReport) -> dict[str, Any]:
     """The report as a JSON-ready dict, per option name."""
     return {name: {"runs": report.runs[name], "positives": report.positives[name],
@@ -305,4 +327,4 @@ def fit_report_dict(report: OutcomeFitReport) -> dict[str, Any]:
 
 
 __all__ = ["OutcomeFitReport", "OutcomeInitiation", "OutcomeInitiationOnFeatures",
-           "fit_report_dict"]
+           "RunFailure", "fit_report_dict"]

@@ -17,7 +17,7 @@ Lifecycle (like a behaviour tree's ``initialise / update / terminate``):
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -62,6 +62,14 @@ PolicyFactory = Callable[[EnvT], PolicyT]
 """``factory(env) -> policy``: builds an option's policy bound to one environment (a
 policy may keep per-environment state, so every environment gets its own). Generic in
 the environment and policy types: ``PolicyFactory[GearAssemblyEnv, GearOptionPolicy]``."""
+
+
+class FailureModel(Protocol):
+    """``P(fail | s)``: the chance that a run of an option started at each state ends
+    its episode in failure (terminated without success), ``(batch, state_dim)`` ->
+    ``(batch,)`` in ``[0, 1]``."""
+
+    def probability(self, states: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass
@@ -119,6 +127,11 @@ class Option:
     """The option's own state (:mod:`dynoplan.options.state_map`): ``None``, the planner
     state; else ``dynamics`` model the option's state ``state_map.to_option(s)`` and the
     planner rolls the option in that space (:attr:`planner_dynamics`)."""
+    failure: FailureModel | None = None
+    """``P(fail | s)`` on planner states, learned from the option's runs that ended their
+    episode in failure (``None``: it is not known to fail). A run that fails leaves no
+    progress, so the planner weighs each rollout's goal score by ``1 - P(fail | s)`` at
+    the state the option starts from."""
 
     @property
     def planner_dynamics(self) -> DynamicsModel:

@@ -69,6 +69,10 @@ class ControllerSettings:
             again (``fallback_must_gain``) at a state whose goal heuristic is below this,
             it starts the best-scoring option instead (:class:`~dynoplan.control.Controller`;
             ``None``: it holds).
+        score_failures: DynoPlan weighs each rollout's goal score by its option's chance
+            not to end the episode in failure from where it starts (the options'
+            ``failure``, fitted where exploration runs failed; ``False``: a failing run is
+            scored by where it ends, as any other).
         start_where_done: an option may start where its termination is certain
             (``False``, the default: it may not, :meth:`~dynoplan.options.Option.done_at`;
             every controller but the demonstrator follows the rule).
@@ -97,6 +101,7 @@ class ControllerSettings:
     fallback_own_sets: bool = True
     fallback_must_gain: bool = True
     stall_progress: float | None = 0.5
+    score_failures: bool = True
 
     def validate(self) -> None:
         if self.horizon < 1 or self.samples < 1:

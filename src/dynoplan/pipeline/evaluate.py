@@ -138,7 +138,8 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
     settings.validate()
     def as_run(o: Option) -> Option:
         return replace(o, start_where_done=settings.start_where_done,
-                       fallback=o.fallback if settings.fallback_own_sets else None)
+                       fallback=o.fallback if settings.fallback_own_sets else None,
+                       failure=o.failure if settings.score_failures else None)
 
     options = [as_run(o) for o in options]
     if planner_options is not None:

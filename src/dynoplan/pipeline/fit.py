@@ -39,6 +39,7 @@ from dynoplan.io import staged_folder
 from dynoplan.models.dynamics import DynamicsModel, StackedDynamics
 from dynoplan.models.features import FeatureMap, GoalOnFeatures, RegionsOnFeatures
 from dynoplan.models.folder import (
+    FAILURE_FILE,
     GOAL_FILE,
     INITIATION_FILE,
     MANIFEST_FILE,
@@ -49,7 +50,11 @@ from dynoplan.models.folder import (
 )
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
-from dynoplan.models.outcome_initiation import OutcomeInitiation, OutcomeInitiationOnFeatures
+from dynoplan.models.outcome_initiation import (
+    OutcomeInitiation,
+    OutcomeInitiationOnFeatures,
+    RunFailure,
+)
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
@@ -74,6 +79,7 @@ from dynoplan.pipeline.fit_dynamics import (
     goal_end_gaps,
     strided,
 )
+from dynoplan.pipeline.fit_failure import fit_failure
 from dynoplan.pipeline.fit_goal import GoalModel, fit_goal, fit_goal_network
 from dynoplan.pipeline.fit_initiation import (
     OutcomeModel,
@@ -115,6 +121,9 @@ class FittedModels:
         extra: further manifest fields (seed, settings, ...), kept as they are.
         learned_initiation: per option ``P(ok | s)`` learned from its runs' outcomes
             (:mod:`dynoplan.models.outcome_initiation`), or ``None``.
+        failure: per option ``P(ok | s)``, the chance that its run does not end the
+            episode in failure (:mod:`~dynoplan.pipeline.fit_failure`), or ``None`` (no
+            run failed).
     """
 
     option_names: list[str]
@@ -127,6 +136,7 @@ class FittedModels:
     task: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
     learned_initiation: OutcomeModel | None = None
+    failure: OutcomeInitiation | None = None
 
     @property
     def option_model(self) -> str:
@@ -217,9 +227,11 @@ class FittedModels:
                        else "reads the planner state")
                     + (f", its state map gives {mapped}" if mapped is not None
                        else ", and it has no state map"))
+            failure = (RunFailure(self.failure, spec.name) if self.failure is not None
+                       and spec.name in self.failure.option_names else None)
             run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
                               continuation, fallback=spec.initiation,
-                              state_map=spec.state_map))
+                              state_map=spec.state_map, failure=failure))
             # the planner's option shares where the controller's last run ended without
             # effect (Option.runs); an option model's one step ends the option anyway
             plan.append(replace(run[-1], termination=spec.termination
@@ -260,11 +272,14 @@ class FittedModels:
                 else (self.learned_initiation, None))
             outcome.save(out / INITIATION_FILE)
             initiation = (INITIATION_FILE, outcome_features)
+        if self.failure is not None:
+            self.failure.save(out / FAILURE_FILE)
         write_manifest(out, task=self.task, state_dim=self.state_dim,
                        option_names=self.option_names, stride=self.stride,
                        use_regions=self.use_regions, goal=(GOAL_FILE, goal_features),
                        regions=regions, dynamics=files,
-                       extra={"report": self.report, **self.extra}, initiation=initiation)
+                       extra={"report": self.report, **self.extra}, initiation=initiation,
+                       failure=None if self.failure is None else FAILURE_FILE)
 
     @classmethod
     def load(cls, folder: str | os.PathLike[str],
@@ -345,11 +360,15 @@ class FittedModels:
             reads(manifest.initiation.path, outcome.state_dim, outcome_map)
             learned = (outcome if outcome_map is None
                        else OutcomeInitiationOnFeatures(outcome, outcome_map))
+        failure = None
+        if manifest.failure is not None:
+            failure = OutcomeInitiation.load(manifest.failure.path)
+            reads(manifest.failure.path, failure.state_dim, None)
         extra = dict(manifest.extra)
         report = extra.pop("report", {})
         return cls(manifest.option_names, dynamics, goal, regions, manifest.stride,
                    report if isinstance(report, dict) else {}, manifest.use_regions,
-                   manifest.task, extra, learned)
+                   manifest.task, extra, learned, failure)
 
     def stacked_dynamics(self) -> StackedDynamics:
         """All options' ensembles as one ``(options, samples, state_dim)`` sampler."""
@@ -427,13 +446,15 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                                        settings.constant_dimensions_still)
     if note is not None:
         warnings.warn(note, DynoplanWarning, stacklevel=2)
+    failure, failure_report = fit_failure([*transitions, *demos], names, seed, state_fn)
     report = {"settings": asdict(settings), "dynamics": dyn_report, "goal": goal_report,
               "regions": region_report, "outcome_initiation": outcome_report,
+              **({"failure": failure_report} if failure is not None else {}),
               "constant_dimensions": constant, "state_scale": every_state.std(axis=0).tolist(),
               "warnings": [] if note is None else [note]}
     extra = {OPTION_STATE_DIMS: {n: m.option_dim for n, m in maps.items()}} if maps else {}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
-                        settings.regions, task, extra, learned)
+                        settings.regions, task, extra, learned, failure)
 
 
 def named_feature_map(name: str | None,

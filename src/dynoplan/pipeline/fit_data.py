@@ -6,7 +6,7 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from dynoplan.control.controller import flat_state
-from dynoplan.data.episodes import INTERRUPTED_KEY, OPTION_KEY, Episode
+from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.types import FloatArray
@@ -82,7 +82,7 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
     found: dict[str, tuple[list[FloatArray], list[FloatArray], list[int]]] = {
         n: ([], [], []) for n in option_names}
     d = 0
-    for name, rows, start, end, _ in _runs(episodes, option_names, state_fn):
+    for name, rows, start, end, _, _ in _runs(episodes, option_names, state_fn):
         d = rows.shape[1]
         steps = int(end - start) // stride
         found[name][0].append(rows[start])
@@ -93,18 +93,22 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
 
 
 def _runs(episodes: Sequence[Episode], option_names: Sequence[str], state_fn: ObservationFn,
-          ) -> Iterator[tuple[str, FloatArray, int, int, bool]]:
+          ) -> Iterator[tuple[str, FloatArray, int, int, bool, bool]]:
     """Every run (a maximal stretch of steps with one option label) of ``episodes``: its
-    option, its episode's states ``(T+1, d)``, its steps ``start:end`` and whether a
-    controller cut it short (``infos["interrupted"]`` at its last step)."""
+    option, its episode's states ``(T+1, d)``, its steps ``start:end``, whether a
+    controller cut it short (``infos["interrupted"]`` at its last step) and whether it
+    ended its episode in failure (``infos["failure"]`` at the episode's last step)."""
     for index, episode in enumerate(episodes):
         labels = option_labels(episode, index, len(option_names))
         rows = episode_states(episode, state_fn)
         interrupted = episode.infos.get(INTERRUPTED_KEY)
+        failure = episode.infos.get(FAILURE_KEY)
+        failed_end = failure is not None and len(failure) > 0 and bool(failure[-1])
         cuts = np.flatnonzero(np.diff(labels)) + 1
         for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
             cut = interrupted is not None and bool(interrupted[end - 1])
-            yield option_names[int(labels[start])], rows, int(start), int(end), cut
+            yield (option_names[int(labels[start])], rows, int(start), int(end), cut,
+                   failed_end and end == len(labels))
 
 def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
                      state_fn: ObservationFn = flat_state,
@@ -125,7 +129,7 @@ def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
     found: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {
         n: ([], []) for n in option_names}
     d = 0
-    for name, rows, start, end, cut in _runs(episodes, option_names, state_fn):
+    for name, rows, start, end, cut, _ in _runs(episodes, option_names, state_fn):
         d = rows.shape[1]
         if cut:
             continue
@@ -133,6 +137,31 @@ def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
         found[name][1].append(np.repeat(rows[end][None], end - start, axis=0))
     return {n: (np.concatenate(a) if a else np.zeros((0, d)),
                 np.concatenate(b) if b else np.zeros((0, d))) for n, (a, b) in found.items()}
+
+
+def option_run_failures(episodes: Sequence[Episode], option_names: Sequence[str],
+                        state_fn: ObservationFn = flat_state,
+                        ) -> dict[str, tuple[FloatArray, np.ndarray]]:
+    """Per option, every state of every run (the states of :func:`option_end_pairs`) and
+    whether that run ended its episode in failure: it ran to the episode's last step and
+    ``infos["failure"]`` is True there (an exploration episode that terminated without
+    success). An episode without ``infos["failure"]`` (a demonstration) did not fail.
+
+    Returns:
+        ``{name: (states (N, d), failed (N,) bool)}``, ``N`` possibly 0.
+    """
+    found: dict[str, tuple[list[FloatArray], list[np.ndarray]]] = {
+        n: ([], []) for n in option_names}
+    d = 0
+    for name, rows, start, end, cut, failed in _runs(episodes, option_names, state_fn):
+        d = rows.shape[1]
+        if cut:
+            continue
+        found[name][0].append(rows[start:end])
+        found[name][1].append(np.full(end - start, failed))
+    return {n: (np.concatenate(a) if a else np.zeros((0, d)),
+                np.concatenate(b) if b else np.zeros(0, dtype=bool))
+            for n, (a, b) in found.items()}
 
 
 def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
@@ -150,4 +179,4 @@ def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: Obser
 
 
 __all__ = ["episode_states", "labelled_states", "option_end_pairs", "option_labels",
-           "option_runs", "option_transitions"]
+           "option_run_failures", "option_runs", "option_transitions"]

@@ -19,7 +19,7 @@ horizon step; the only Python loop is over the horizon.
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -47,6 +47,9 @@ class Rollouts:
             ``None`` when the dynamics are not ensembles that say so.
         unsafe: ``(options, samples)``, True where the safety constraint found an unsafe
             step of the rollout (``None`` without a constraint).
+        survival: ``(options, samples)``, ``1 - P(fail | s)`` of each rollout's option at
+            its start state (:attr:`~dynoplan.options.option.Option.failure`; 1 for a
+            rollout that does not run), or ``None`` when no option has a failure model.
     """
 
     end_states: FloatArray
@@ -54,6 +57,7 @@ class Rollouts:
     valid: BoolArray
     members: IntArray | None = None
     unsafe: BoolArray | None = None
+    survival: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -66,7 +70,9 @@ class Plan:
     Attributes:
         option_names: ``(options,)``.
         admissible: ``(options,)``, ``1_{I_w}(s_t)``.
-        scores: ``(options,)``, ``E[G] - risk * std[G] - epistemic * disagreement``.
+        scores: ``(options,)``, ``E[G] - risk * std[G] - epistemic * disagreement``,
+            where a rollout's ``G`` is weighed by its option's chance not to fail
+            (:attr:`Rollouts.survival`).
         spreads: ``(options,)``, ``std[G]`` over rollouts.
         disagreements: ``(options,)``, std over ensemble members of each member's mean
             ``G`` (0 without member information).
@@ -280,6 +286,8 @@ class OptionPlanner:
             roll = self.rollout(idx, s, rng)
             g = self.goal.sample(roll.end_states.reshape(-1, d), rng).reshape(len(idx), -1)
             g = np.where(roll.valid, g, 0.0)
+            if roll.survival is not None:  # a run that fails leaves no progress
+                g = g * roll.survival
             mean, std = g.mean(axis=1), g.std(axis=1)
             split = member_disagreements(g, roll.members)
             scores[list(idx)] = mean - self.risk * std - self.epistemic * split
@@ -334,9 +342,11 @@ class OptionPlanner:
         x = np.broadcast_to(state, (len(idx), self.samples, state.shape[-1])).copy()
         alive = np.ones(x.shape[:2], dtype=bool) if start_alive is None \
             else np.array(start_alive, dtype=bool)
+        survival = self._survival(idx, np.asarray(state), x, alive)
         if self.compact and callable(getattr(dynamics, "sample_rows", None)) \
                 and callable(getattr(termination, "probability_rows", None)):
-            return self._rollout_rows(idx, dynamics, termination, x, alive, rng, step_offset)
+            return replace(self._rollout_rows(idx, dynamics, termination, x, alive, rng,
+                                              step_offset), survival=survival)
         regions = self._region_groups(idx) if self.respect_regions else []
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
         blocks = getattr(dynamics, "block_sampler", None)
@@ -384,7 +394,29 @@ class OptionPlanner:
             unsafe = None if unsafe is None else order.to_rows(unsafe)
             members = None if members is None else order.to_rows(np.asarray(members))
         return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
-                        unsafe)
+                        unsafe, survival)
+
+    def _survival(self, idx: tuple[int, ...], state: FloatArray, x: FloatArray,
+                  alive: BoolArray) -> FloatArray | None:
+        """``(branches, samples)`` ``1 - P(fail | s)`` of each rollout's option at its start
+        state ``x`` (``state`` ``(d,)`` when every rollout starts there), 1 where a rollout
+        does not run; ``None`` when no option of ``idx`` has a failure model."""
+        if all(self.options[i].failure is None for i in idx):
+            return None
+        branches = np.asarray(idx, dtype=np.int64)
+        out = np.ones(x.shape[:2])
+        for i in dict.fromkeys(idx):
+            model = self.options[i].failure
+            if model is None:
+                continue
+            rows = np.flatnonzero(branches == i)
+            if state.ndim == 1:  # one start state for all: one query
+                p = np.asarray(model.probability(state[None]), dtype=np.float64).reshape(1, 1)
+            else:
+                p = np.asarray(model.probability(x[rows].reshape(-1, x.shape[-1])),
+                               dtype=np.float64).reshape(len(rows), -1)
+            out[rows] = 1.0 - np.clip(p, 0.0, 1.0)
+        return np.where(alive, out, 1.0)
 
     def _rollout_rows(self, idx: tuple[int, ...], dynamics: Any, termination: Any,
                       x: FloatArray, alive: BoolArray, rng: Generator,

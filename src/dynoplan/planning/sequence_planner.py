@@ -62,6 +62,9 @@ class Level:
             (``None`` without a safety constraint).
         members: ``(branches, samples)`` ensemble member of this level's rollouts, or
             ``None``.
+        survival: ``(branches, samples)`` the chance that no option of the sequence
+            failed (the product of each option's ``1 - P(fail | s)`` at its start), or
+            ``None`` when no option has a failure model.
     """
 
     options: IntArray
@@ -73,6 +76,7 @@ class Level:
     valid: BoolArray
     unsafe: BoolArray | None
     members: IntArray | None
+    survival: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -160,7 +164,7 @@ class SequencePlanner(OptionPlanner):
         start = x[0] if len(x) == 1 else x[roots][:, None, :]
         roll = self.rollout(tuple(firsts.tolist()), start, rng)
         levels = [Level(firsts, roots, roots, roll.end_states, roll.steps, roll.steps, roll.valid,
-                        roll.unsafe, roll.members)]
+                        roll.unsafe, roll.members, roll.survival)]
         kept: list[IntArray] = []
         for _ in range(1, self.depth):
             parents = self._expand(levels[-1], len(x), rng)
@@ -176,6 +180,8 @@ class SequencePlanner(OptionPlanner):
         b, s, d = level.end_states.shape
         g = self.goal.sample(level.end_states.reshape(-1, d), rng).reshape(b, s)
         g = np.where(level.valid, g, 0.0)
+        if level.survival is not None:  # a sequence that fails leaves no progress
+            g = g * level.survival
         mean, std = g.mean(axis=1), g.std(axis=1)
         split = member_disagreements(g, level.members)
         values = mean - self.risk * std - self.epistemic * split
@@ -214,11 +220,15 @@ class SequencePlanner(OptionPlanner):
         unsafe = None
         if roll.unsafe is not None and level.unsafe is not None:
             unsafe = roll.unsafe | np.repeat(level.unsafe[parents], n_opt, axis=0)
+        survival = roll.survival
+        if level.survival is not None:
+            above = np.repeat(level.survival[parents], n_opt, axis=0)
+            survival = above if survival is None else survival * above
         return Level(options, np.repeat(parents, n_opt),
                      np.repeat(level.roots[parents], n_opt), roll.end_states, roll.steps,
                      before + roll.steps,
                      roll.valid & np.repeat(level.valid[parents], n_opt, axis=0), unsafe,
-                     roll.members)
+                     roll.members, survival)
 
     def _back_up(self, levels: list[Level], kept: list[IntArray],
                  leaf_values: FloatArray) -> tuple[FloatArray, list[IntArray]]:
