@@ -74,7 +74,7 @@ def pipeline(
         None, "--exploration-option-steps", **_bounds("exploration_option_steps"),
         help="Most steps an option runs while exploring [100]."),
     exploration_from_demos: float | None = typer.Option(
-        None, "--explore-from-demos", **_bounds("exploration_from_demos"),
+        None, "--exploration-from-demos", **_bounds("exploration_from_demos"),
         help="Share of the exploration episodes that branch off a demonstration (start "
              "where it was after a random step, its reset seed replayed) [0.5]."),
     episodes: int | None = typer.Option(None, "--episodes", **_bounds("episodes"),
