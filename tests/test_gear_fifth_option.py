@@ -29,10 +29,9 @@ from dynoplan.envs.gear.options import (
     register_gear_option,
     temporary_gear_options,
 )
-from dynoplan.envs.gear.options.catalog import INSERT_FILE, RECOGNIZER_FILE
+from dynoplan.envs.gear.options.catalog import INSERT_FILE, PAPER_OPTIONS, RECOGNIZER_FILE
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
-from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 from dynoplan.seeding import episode_seeds
 
