@@ -34,6 +34,8 @@ from dynoplan.envs.gear.trajectory import JointPath
 from dynoplan.options import Termination, TerminationFromCallable
 from dynoplan.types import BoolArray, FloatArray, Generator
 
+LIFT_NAME = "lift"
+"""The option's name, written here only: code elsewhere imports it."""
 LIFT_Z = TABLE_TOP_Z + 0.33
 """m: the height the tool point is lifted to (the pick leaves it about 0.27 m above the
 table)."""
@@ -57,7 +59,7 @@ class LiftPolicy(GearOptionPolicy):
     """Move the left tool point straight up to :data:`LIFT_Z` (inverse kinematics, then a
     joint-space path), keep the gripper closed, hold ``hold_time`` s, then be done."""
 
-    name = "lift"
+    name = LIFT_NAME
 
     def __init__(self, env: GearAssemblyEnv, speed: float = 0.5, hold_time: float = 0.5) -> None:
         super().__init__(env)
@@ -92,4 +94,5 @@ class LiftPolicy(GearOptionPolicy):
         return int(info["pads_on_gear"]) >= 2 and position[2] >= LIFT_Z - 0.01
 
 
-LIFT = register_gear_option(GearOption("lift", LiftPolicy, start=after_pick, initiation=may_lift))
+LIFT = register_gear_option(GearOption(LIFT_NAME, LiftPolicy, start=after_pick,
+                                       initiation=may_lift))

@@ -7,7 +7,6 @@ import pytest
 from typer.testing import CliRunner
 
 from dynoplan.cli.gear import gear_app
-from dynoplan.envs.gear import PAPER_OPTIONS
 from dynoplan.envs.gear.demonstrations import (
     record_expert_episodes,
     render_scene,
@@ -16,6 +15,7 @@ from dynoplan.envs.gear.demonstrations import (
 )
 from dynoplan.envs.gear.env import ACT_DIM, OBS_DIM, GearAssemblyEnv
 from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, GearExpert
+from dynoplan.envs.gear.options import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 
 

@@ -1,6 +1,7 @@
 """A fifth gear option is a policy file and one registration (``examples/gear_lift_option.py``),
 and every stage then has it: the option list, standalone trials, collection, a dynamics
-model in ``models.json``, the figures and the DynoPlan controller.
+model in ``models.json``, the figures, the outcome runs and the initiation learned from
+them, and the DynoPlan controllers, the default one (learned sets only) too.
 
 Registrations are undone after every test (:func:`temporary_gear_options`), so the other
 tests see the paper's four options only.
@@ -29,10 +30,9 @@ from dynoplan.envs.gear.options import (
     register_gear_option,
     temporary_gear_options,
 )
-from dynoplan.envs.gear.options.catalog import INSERT_FILE, RECOGNIZER_FILE
+from dynoplan.envs.gear.options.catalog import INSERT_FILE, PAPER_OPTIONS, RECOGNIZER_FILE
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
-from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 from dynoplan.seeding import episode_seeds
 
@@ -125,6 +125,8 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
     from dynoplan.envs.gear.reports.figures import make_gear_figures
+    from dynoplan.experiments.gear_run import run_settings
+    from dynoplan.experiments.gear_stages import learned_initiation
 
     models = tmp_path / "models"
     models.mkdir()
@@ -159,14 +161,36 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     assert figures["fig3b"]["region_share"]["pick"] is not None
 
     # DynoPlan on the options' own conditions plans with it: admissible once the gear is
-    # carried, scored, one episode run (the learned sets would need its outcome runs, the
-    # outcomes stage, to let it start anywhere: it has no region)
-    runner = GearTask().make_runner("dynoplan+rules", models,
+    # carried, scored, one episode run
+    scored = _lift_decisions("dynoplan+rules", models)
+    assert scored and all(np.isfinite(score) for score in scored)
+
+    # the default DynoPlan (learned sets only) has no set for it yet: no region, no
+    # outcomes, so it is never admissible ...
+    assert _lift_decisions("dynoplan", models) == []
+    # ... until the outcomes stage (gear run's, its --quick sizes) has run every registered
+    # option, the lift too, from starts beyond its own, and learned where each may start
+    outcomes = learned_initiation(models, tmp_path / "outcomes", 0, run_settings(True).outcomes,
+                                  progress=False)
+    assert outcomes["starts"]["lift"] > 0 and outcomes["ended_well"]["lift"] > 0
+    assert outcomes["options"]["lift"]["admissible_share"] > 0
+    assert json.loads((models / "initiation.json").read_text())["without_runs"] == []
+    learned = load_gear_models(models).learned_initiation
+    assert learned is not None and learned.option_names == [*PAPER_OPTIONS, "lift"]
+    # the default DynoPlan now plans with it: admissible and scored in a seeded episode
+    scored = _lift_decisions("dynoplan", models)
+    assert scored and all(np.isfinite(score) for score in scored)
+
+
+def _lift_decisions(controller: str, models: Path) -> list[float]:
+    """The planner's scores of the lift in the decisions of one seeded episode of
+    ``controller`` (small planner settings) where it was admissible."""
+    runner = GearTask().make_runner(controller, models,
                                     dataclasses.replace(GEAR_CONTROL, horizon=3, samples=8))
     names = [o.name for o in runner.controller.options]
     assert names == [*PAPER_OPTIONS, "lift"]
+    lift = names.index("lift")
     trace = runner.run(episode_seeds(7, 1)[0])
     runner.env.close()
-    scored = [d for d in trace.decisions if d.plan.admissible[names.index("lift")]]
-    assert scored and all(np.isfinite(d.plan.scores[names.index("lift")]) for d in scored)
     assert trace.env_steps > 0
+    return [float(d.plan.scores[lift]) for d in trace.decisions if d.plan.admissible[lift]]

@@ -1,10 +1,11 @@
 """The two-arm gear assembly of the paper's PR2 experiment, simulated in MuJoCo.
 
 ``GearAssemblyEnv`` is registered as ``dynoplan/GearAssembly-v0`` (see
-``dynoplan.envs``); ``GearExpert`` is the scripted, privileged demonstrator.
+``dynoplan.envs``); ``GearExpert`` is the scripted, privileged demonstrator. The options
+are in :mod:`dynoplan.envs.gear.options` (the paper's four: ``PAPER_OPTIONS`` there).
 """
 
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
-from dynoplan.envs.gear.task import PAPER_OPTIONS, STAGES
+from dynoplan.envs.gear.task import STAGES
 
-__all__ = ["OBS_SLICES", "PAPER_OPTIONS", "STAGES", "GearAssemblyEnv"]
+__all__ = ["OBS_SLICES", "STAGES", "GearAssemblyEnv"]

@@ -41,7 +41,8 @@ from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSeque
 from dynoplan.envs.gear.arm_points import arm_points
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory, gripper_as_it_is
-from dynoplan.envs.gear.options.catalog import gear_option
+from dynoplan.envs.gear.options.catalog import FAST_MOVE, INSERT, PICK, gear_option
+from dynoplan.envs.gear.options.give_way import GIVE_WAY_NAME
 from dynoplan.envs.gear.options.preconditions import (
     CARRIED_GEAR_HEIGHT,
     HELD_GEAR_HEIGHT,
@@ -122,9 +123,9 @@ VARIANTS: dict[str, ControllerVariant] = {
     "dynoplan_safe": ControllerVariant("planner", "learned", end_inside=True, safe=True),
     "dynoplan+rules_safe": ControllerVariant("planner", "rules", safe=True),
     "dynoplan_no_give_way": ControllerVariant("planner", "learned", end_inside=True,
-                                              never=("give_way",)),
+                                              never=(GIVE_WAY_NAME,)),
     "dynoplan_safe_no_give_way": ControllerVariant("planner", "learned", end_inside=True,
-                                                   safe=True, never=("give_way",)),
+                                                   safe=True, never=(GIVE_WAY_NAME,)),
 }
 """Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
 accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe ones.
@@ -134,7 +135,7 @@ accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe 
 dynamics run out of data (measured in ``docs/gear-options.md``, ablation: with the
 fallback of :func:`option_fallback`, 93 % against 80 % on the same 30 episodes)."""
 
-FIXED_SCRIPT = ("pick", "fast_move", "insert")
+FIXED_SCRIPT = (PICK.name, FAST_MOVE.name, INSERT.name)
 """The fixed script's options, each run until its policy reports it is finished."""
 
 MAX_EPISODE_SECONDS = 40.0

@@ -15,6 +15,7 @@ from typing import Any
 
 from dynoplan.envs.gear.controllers import CONTROLLERS
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY
+from dynoplan.envs.gear.options.catalog import CAUTIOUS_MOVE
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.reports.results import human_mode, seconds
 from dynoplan.pipeline.control_settings import ControllerSettings
@@ -104,7 +105,7 @@ def video_episode(episodes: Sequence[EpisodeRecord]) -> int:
     interfering if any; among those, a success if any, and the shortest (the quickest to
     render), the first of equals."""
     return min(range(len(episodes)), key=lambda i: (
-        "cautious_move" not in episodes[i].options, human_mode(episodes[i]) == "away",
+        CAUTIOUS_MOVE.name not in episodes[i].options, human_mode(episodes[i]) == "away",
         not episodes[i].success, seconds(episodes[i]), i))
 
 

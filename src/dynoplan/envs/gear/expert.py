@@ -1,7 +1,8 @@
 """A scripted expert with privileged state that demonstrates the gear assembly.
 
-It solves the task through the paper's four options (:data:`~dynoplan.envs.gear.task.
-PAPER_OPTIONS`) and labels every action with one:
+It solves the task through the paper's four options
+(:data:`~dynoplan.envs.gear.options.catalog.PAPER_OPTIONS`) and labels every action with
+one:
 
 - ``pick`` (0): move above the gear, descend, close the gripper, lift;
 - ``fast_move`` (1): carry the gear to an offset above the peg (a joint-space path,
@@ -30,12 +31,14 @@ from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, HOME_Q, GearAss
 from dynoplan.envs.gear.grasp import ik_gear_at
 from dynoplan.envs.gear.kinematics import ArmKinematics, downward_tool_rotation
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
-from dynoplan.envs.gear.task import PAPER_OPTIONS, STAGE_INDEX
+from dynoplan.envs.gear.task import STAGE_INDEX
 from dynoplan.envs.gear.trajectory import JointPath
 from dynoplan.types import FloatArray
 
-PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT = range(len(PAPER_OPTIONS))
-"""The labels of the paper's options (indices into :data:`PAPER_OPTIONS`)."""
+PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT = range(4)
+"""The labels of the paper's four options: their indices in the option registry, which
+registers them first, in this order (the catalog checks it:
+:data:`~dynoplan.envs.gear.options.catalog.PAPER_OPTIONS`)."""
 
 _STEP_OPTION = {"approach": PICK, "descend": PICK, "close": PICK, "lift": PICK,
                 "transport": FAST_MOVE, "insert": INSERT, "done": INSERT, "failed": PICK}

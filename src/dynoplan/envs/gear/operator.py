@@ -38,10 +38,10 @@ import numpy as np
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, ExpertAction
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
+from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS, PAPER_OPTIONS
 from dynoplan.envs.gear.options.give_way import GIVE_WAY, GIVE_WAY_NEAR, left_arm_hand_distance
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState, tool_human_distance
-from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 from dynoplan.types import FloatArray
 
@@ -64,8 +64,6 @@ class OptionOperator:
 
     def __init__(self, env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory],
                  seed: int = 0) -> None:
-        from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
-
         missing = [n for n in PAPER_OPTIONS if n not in factories]
         if missing:
             raise DynoplanError(f"the operator needs every option; missing {', '.join(missing)}")

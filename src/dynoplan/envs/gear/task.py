@@ -1,4 +1,4 @@
-"""Task geometry: the gear's pose relative to the peg, stages, success, the paper's options.
+"""Task geometry: the gear's pose relative to the peg, stages, success.
 
 Everything here is read from the simulator's state (site and body poses, contacts); no
 flag is ever set by hand.
@@ -33,11 +33,6 @@ STAGES = ("on_table", "in_hand", "near_peg", "on_peg", "seated", "loose")
 - ``loose``: none of the above (falling, tipped over, jammed off the peg, ...).
 """
 STAGE_INDEX = {name: i for i, name in enumerate(STAGES)}
-
-PAPER_OPTIONS = ("pick", "fast_move", "cautious_move", "insert")
-"""The paper's four options, which the demonstrators use, in label order. They are
-registered first, so they keep the labels 0..3; the options the pipeline runs (these and
-any registered after them) are :func:`~dynoplan.envs.gear.options.catalog.gear_option_names`."""
 
 
 @dataclass(frozen=True)

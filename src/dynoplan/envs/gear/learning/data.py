@@ -27,16 +27,16 @@ from dynoplan.data import (
     write_dataset,
 )
 from dynoplan.envs.gear.env import OBS_DIM
-from dynoplan.envs.gear.options.catalog import gear_option_names
+from dynoplan.envs.gear.options.catalog import CAUTIOUS_MOVE, PAPER_OPTIONS, gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
-from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.collect import decision_rows
 from dynoplan.types import FloatArray, Generator, IntArray
 
 HELDOUT_SEED_OFFSET = 1000
 """Held-out trials are recorded from ``seed + HELDOUT_SEED_OFFSET`` (disjoint episodes)."""
-CAUTIOUS = PAPER_OPTIONS.index("cautious_move")
+CAUTIOUS = PAPER_OPTIONS.index(CAUTIOUS_MOVE.name)
+"""The cautious move's label (a held-out trial the human interrupted has it)."""
 TRANSITIONS_ID = "dynoplan/gear-assembly/demo-transitions-v0"
 
 

@@ -7,6 +7,7 @@ A new option is a policy file (a :class:`GearOptionPolicy`) and one call,
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory, start_joints
 from dynoplan.envs.gear.options.catalog import (
     GEAR_OPTIONS,
+    PAPER_OPTIONS,
     gear_option,
     gear_option_names,
     register_gear_option,
@@ -17,6 +18,7 @@ from dynoplan.envs.gear.options.starts import after_pick, at_reset, before_inser
 
 __all__ = [
     "GEAR_OPTIONS",
+    "PAPER_OPTIONS",
     "GearOption",
     "GearOptionPolicy",
     "GearPolicyFactory",

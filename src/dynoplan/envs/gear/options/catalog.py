@@ -28,12 +28,20 @@ from pathlib import Path
 from typing import Any
 
 from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.expert import CAUTIOUS_MOVE as CAUTIOUS_MOVE_LABEL
+from dynoplan.envs.gear.expert import FAST_MOVE as FAST_MOVE_LABEL
+from dynoplan.envs.gear.expert import INSERT as INSERT_LABEL
+from dynoplan.envs.gear.expert import PICK as PICK_LABEL
 from dynoplan.envs.gear.options.base import GearPolicyFactory
+from dynoplan.envs.gear.options.insert import INSERT_NAME
 from dynoplan.envs.gear.options.moves import (
+    CAUTIOUS_MOVE_NAME,
     CAUTIOUS_SAFETY_DISTANCE,
+    FAST_MOVE_NAME,
     CautiousMovePolicy,
     FastMovePolicy,
 )
+from dynoplan.envs.gear.options.pick import PICK_NAME
 from dynoplan.envs.gear.options.preconditions import (
     FarFromGoal,
     hand_clear_of_tool,
@@ -45,7 +53,6 @@ from dynoplan.envs.gear.options.preconditions import (
 )
 from dynoplan.envs.gear.options.registry import GearOption, GearOptionRegistry, OptionNetwork
 from dynoplan.envs.gear.options.starts import after_pick, at_reset, before_insertion
-from dynoplan.envs.gear.task import PAPER_OPTIONS
 from dynoplan.options.initiation import AllOf, AnyOf, InitiationFromCallable
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
 
@@ -120,7 +127,7 @@ _FAR_FROM_GOAL = FarFromGoal()  # one forward-kinematics model for both moves
 _MOVE_GOES_ON = InitiationFromCallable(holding_gear)
 
 PICK = GearOption(
-    "pick", start=at_reset,
+    PICK_NAME, start=at_reset,
     initiation=AllOf(InitiationFromCallable(not_carried),
                      InitiationFromCallable(hand_clear_of_tool)),
     network=OptionNetwork(RECOGNIZER_FILE, _load_pick, _pick_data_actor, _pick_data_episode,
@@ -129,19 +136,19 @@ PICK = GearOption(
 """Paper option 1: OMPL to a pre-grasp pose, approach, close; a recognition network
 decides "grasped". Starts with the gear not carried and the hand clear of the tool."""
 FAST_MOVE = GearOption(
-    "fast_move", FastMovePolicy, start=after_pick,
+    FAST_MOVE_NAME, FastMovePolicy, start=after_pick,
     initiation=AllOf(_MOVE_GOES_ON, _FAR_FROM_GOAL), continuation=_MOVE_GOES_ON,
     color="#2ca02c")
 """Paper option 2: one OMPL plan to the pre-insertion pose that ignores the human."""
 CAUTIOUS_MOVE = GearOption(
-    "cautious_move", CautiousMovePolicy, start=after_pick,
+    CAUTIOUS_MOVE_NAME, CautiousMovePolicy, start=after_pick,
     initiation=AllOf(_MOVE_GOES_ON, AnyOf(_FAR_FROM_GOAL, InitiationFromCallable(hand_near_tool))),
     continuation=_MOVE_GOES_ON, human_mode="block", color="#7fbf3f",
     trial_notes={"safety_distance": CAUTIOUS_SAFETY_DISTANCE})
 """Paper option 3: the same goal, keeping clearance from the human (see
 :data:`~dynoplan.envs.gear.options.moves.CAUTIOUS_SAFETY_DISTANCE`)."""
 INSERT = GearOption(
-    "insert", start=before_insertion,
+    INSERT_NAME, start=before_insertion,
     initiation=insert_may_start, continuation=insert_may_go_on,
     network=OptionNetwork(INSERT_FILE, _load_insert, _insert_data_actor, _insert_data_episode,
                           _fit_insertion),
@@ -150,7 +157,14 @@ INSERT = GearOption(
 
 
 _PAPER = (PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT)
-assert tuple(o.name for o in _PAPER) == PAPER_OPTIONS  # the demonstrators' labels 0..3
+PAPER_OPTIONS = tuple(o.name for o in _PAPER)
+"""The paper's four options' names, which the demonstrators use, in label order. They
+are registered first, so they keep the labels 0..3 (the labels the scripted expert and
+the operator write, :data:`~dynoplan.envs.gear.expert.PICK` ...); the options the
+pipeline runs (these and any registered after them) are :func:`gear_option_names`."""
+# the labels the demonstrators write are these options' indices here
+assert tuple(range(len(_PAPER))) == (PICK_LABEL, FAST_MOVE_LABEL, CAUTIOUS_MOVE_LABEL,
+                                     INSERT_LABEL)
 GEAR_OPTIONS = GearOptionRegistry(_PAPER, plugins=PLUGINS_VARIABLE)
 """The registry the gear pipeline reads; an option's label is its index here."""
 
@@ -257,6 +271,7 @@ __all__ = [
     "GEAR_OPTIONS",
     "INSERT",
     "INSERT_FILE",
+    "PAPER_OPTIONS",
     "PICK",
     "PLUGINS_VARIABLE",
     "RECOGNIZER_FILE",

@@ -38,6 +38,8 @@ from dynoplan.envs.gear.state import STATE_SLICES, PlannerState
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
 
+GIVE_WAY_NAME = "give_way"
+"""The option's name (its registry record, datasets, model files, the command line)."""
 GIVE_WAY_CLEARANCE = 0.3
 """m: the hand this far from the left arm (:func:`left_arm_hand_distance`) ends the
 give-way (``beta = 1``)."""
@@ -77,7 +79,7 @@ class GiveWayPolicy(CautiousMovePolicy):
         clearance, max_time: :data:`GIVE_WAY_CLEARANCE`, :data:`GIVE_WAY_TIME`.
     """
 
-    name = "give_way"
+    name = GIVE_WAY_NAME
 
     def __init__(self, env: GearAssemblyEnv, config: CautiousConfig | None = None,
                  clearance: float = GIVE_WAY_CLEARANCE, max_time: float = GIVE_WAY_TIME) -> None:
@@ -152,11 +154,11 @@ def hand_at_arm(env: GearAssemblyEnv, rng: Generator, config: StartConfig) -> bo
     return False
 
 
-GIVE_WAY = GearOption("give_way", GiveWayPolicy, start=hand_at_arm, human_mode="block",
+GIVE_WAY = GearOption(GIVE_WAY_NAME, GiveWayPolicy, start=hand_at_arm, human_mode="block",
                       color="#d62728", start_sets_human=True)
 """The give-way option's record (no hand-written initiation: where it may start is
 learned, its Eq. 5 region and its outcomes)."""
 
 
-__all__ = ["GIVE_WAY", "GIVE_WAY_CLEARANCE", "GIVE_WAY_NEAR", "GIVE_WAY_TIME", "HAND_AT_REST",
-           "GiveWayPolicy", "hand_at_arm", "left_arm_hand_distance"]
+__all__ = ["GIVE_WAY", "GIVE_WAY_CLEARANCE", "GIVE_WAY_NAME", "GIVE_WAY_NEAR", "GIVE_WAY_TIME",
+           "HAND_AT_REST", "GiveWayPolicy", "hand_at_arm", "left_arm_hand_distance"]

@@ -58,6 +58,9 @@ from dynoplan.models.storage import load_arrays, save_arrays
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
 
+INSERT_NAME = "insert"
+"""The option's name (its registry record, datasets, model files, the command line)."""
+
 MODEL_KIND = "gear_insertion_policy"
 FEATURE_NAMES: tuple[str, ...] = (
     "gear_in_peg_x", "gear_in_peg_y", "gear_in_peg_z",
@@ -320,7 +323,7 @@ class InsertPolicy(GearOptionPolicy):
     ``config.settle_speed`` (at most ``config.settle_steps`` steps).
     """
 
-    name = "insert"
+    name = INSERT_NAME
 
     def __init__(self, env: GearAssemblyEnv, network: InsertionNetwork,
                  config: InsertConfig | None = None) -> None:
@@ -394,7 +397,7 @@ class InsertPolicy(GearOptionPolicy):
         return insert_termination(self._peg, base=self.cfg.termination_base)
 
 
-__all__ = ["DEFAULT_HIDDEN", "FEATURE_DIM", "FEATURE_NAMES", "MODEL_KIND", "OUTPUT_DIM",
-           "OUTPUT_MEANING", "OUTPUT_NAMES", "InsertConfig", "InsertPolicy", "InsertionNetwork",
-           "PegTipModel",
+__all__ = ["DEFAULT_HIDDEN", "FEATURE_DIM", "FEATURE_NAMES", "INSERT_NAME", "MODEL_KIND",
+           "OUTPUT_DIM", "OUTPUT_MEANING", "OUTPUT_NAMES", "InsertConfig", "InsertPolicy",
+           "InsertionNetwork", "PegTipModel",
            "insert_termination", "insertion_features", "observed_relation_seated"]

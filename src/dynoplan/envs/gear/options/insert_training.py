@@ -38,6 +38,7 @@ from dynoplan.envs.gear.options.base import start_joints
 from dynoplan.envs.gear.options.insert import (
     DEFAULT_HIDDEN,
     FEATURE_DIM,
+    INSERT_NAME,
     OUTPUT_DIM,
     OUTPUT_MEANING,
     InsertionNetwork,
@@ -185,7 +186,7 @@ def insertion_episode(env: GearAssemblyEnv, teacher: ScriptedInserter, seed: int
     noise come from ``default_rng([seed, episode])`` alone (no OMPL), so it is the same in
     any process, after any other."""
     rng = np.random.default_rng([int(seed), int(episode)])
-    start = reach_start(env, "insert", rng)
+    start = reach_start(env, INSERT_NAME, rng)
     sigma = noise_std * rng.uniform()
     obs, info = start.observation, start.info
     q_right = start_joints(env, obs)[6:12]  # held where commanded (measured angles sag)
@@ -360,7 +361,7 @@ def train_insertion(out_path: str | os.PathLike[str] | None,
     curves = {k: fit.pop(k) for k in ("train_loss", "held_out_loss")}
     report: dict[str, Any] = {
         "teacher": "ScriptedInserter (the expert's insertion, stateless)",
-        "starts": "reach_start(env, 'insert', default_rng([demo_seed, episode]))",
+        "starts": f"reach_start(env, {INSERT_NAME!r}, default_rng([demo_seed, episode]))",
         "episodes": data.n_episodes,
         "seated_demos": data.seated,
         "samples": len(data),

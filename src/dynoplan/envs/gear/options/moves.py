@@ -41,6 +41,10 @@ from dynoplan.errors import DynoplanError
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
 
+FAST_MOVE_NAME = "fast_move"
+"""The fast move's name (its registry record, datasets, model files, the command line)."""
+CAUTIOUS_MOVE_NAME = "cautious_move"
+"""The cautious move's name."""
 OFFSET_HEIGHT = 0.05
 """m: the gear's bottom above the peg tip, along the peg axis, at the pre-insertion pose
 (the expert's ``offset_height``)."""
@@ -267,7 +271,7 @@ class FastMovePolicy(_CarryMove):
         settle_time: s after the path ends after which it counts as arrived anyway.
     """
 
-    name = "fast_move"
+    name = FAST_MOVE_NAME
 
     def __init__(self, env: GearAssemblyEnv, planner: str = "RRTConnect",
                  time_limit: float = 1.0, speed: float = 0.9, accel_time: float = 0.4,
@@ -353,7 +357,7 @@ class CautiousMovePolicy(_CarryMove):
     has settled at the goal, ``"failed"`` after ``max_time`` s without arriving.
     """
 
-    name = "cautious_move"
+    name = CAUTIOUS_MOVE_NAME
 
     def __init__(self, env: GearAssemblyEnv, config: CautiousConfig | None = None,
                  planner: str = "RRTConnect", offset_height: float = OFFSET_HEIGHT) -> None:
@@ -574,6 +578,6 @@ class CautiousMovePolicy(_CarryMove):
         return goals
 
 
-__all__ = ["CAUTIOUS_SAFETY_DISTANCE", "GOAL_TOLERANCE", "OFFSET_HEIGHT", "CautiousConfig",
-           "CautiousMovePolicy", "FastMovePolicy", "PreInsertionBeta", "pre_insertion_goal",
-           "pre_insertion_target"]
+__all__ = ["CAUTIOUS_MOVE_NAME", "CAUTIOUS_SAFETY_DISTANCE", "FAST_MOVE_NAME", "GOAL_TOLERANCE",
+           "OFFSET_HEIGHT", "CautiousConfig", "CautiousMovePolicy", "FastMovePolicy",
+           "PreInsertionBeta", "pre_insertion_goal", "pre_insertion_target"]

@@ -51,6 +51,9 @@ from dynoplan.envs.gear.trajectory import JointPath
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
 
+PICK_NAME = "pick"
+"""The option's name (its registry record, datasets, model files, the command line)."""
+
 if TYPE_CHECKING:
     from dynoplan.envs.gear.options.recognition import GraspRecognizer
 
@@ -111,7 +114,7 @@ class PickPolicy(GearOptionPolicy):
         grasp_probability: the recogniser's last ``P(grasped)`` (``nan`` before closing).
     """
 
-    name = "pick"
+    name = PICK_NAME
 
     def __init__(self, env: GearAssemblyEnv, recognizer: "GraspRecognizer | None",
                  config: PickConfig | None = None, planner: str = "RRTConnect") -> None:
@@ -306,4 +309,4 @@ class PickPolicy(GearOptionPolicy):
         return bool(err < self.cfg.settle_tolerance)
 
 
-__all__ = ["LIFTED_HEIGHT", "PickConfig", "PickPolicy", "perceived_gear"]
+__all__ = ["LIFTED_HEIGHT", "PICK_NAME", "PickConfig", "PickPolicy", "perceived_gear"]

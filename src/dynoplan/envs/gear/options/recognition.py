@@ -51,7 +51,7 @@ from torch import nn
 from dynoplan.envs.gear.env import GRIPPER_OPEN, OBS_DIM, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.kinematics import ArmKinematics
 from dynoplan.envs.gear.options.motion import reseed_ompl
-from dynoplan.envs.gear.options.pick import PickPolicy
+from dynoplan.envs.gear.options.pick import PICK_NAME, PickPolicy
 from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
@@ -273,7 +273,7 @@ def grasp_episode(env: GearAssemblyEnv, policy: PickPolicy, seed: int, episode: 
     reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
     rng = np.random.default_rng(key)
     kind = str(rng.choice(PERTURBATIONS, p=PERTURBATION_WEIGHTS))
-    start = reach_start(env, "pick", rng)
+    start = reach_start(env, PICK_NAME, rng)
     obs, info = start.observation, start.info
     offset = np.zeros(3)
     if kind == "offset":
