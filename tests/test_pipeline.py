@@ -179,17 +179,18 @@ def test_exploration_branches_off_the_demonstrations_where_they_went():
     specs = line_options()
     demos = record_demonstrations(line_env(), specs, lambda obs: "right", episodes=2, seed=1)
     on_path = {round(float(x), 9) for d in demos for x in d.observations[:, 0]}
-    branched = collect_transitions(line_env(), specs, 4, seed=5, demos=demos,
-                                   from_demos=0.5, max_option_steps=3)
-    # the first two start on a demonstration's path (its seed, its first actions), the
-    # other two at a reset of their own
+    plain = collect_transitions(line_env(), specs, 2, seed=5, max_option_steps=3)
+    branched = collect_transitions(line_env(), specs, 2, seed=5, demos=demos, branches=2,
+                                   max_option_steps=3)
+    # the first two start at a reset of their own, as without branches; the other two
+    # on a demonstration's path (its seed, its first actions)
+    assert all(np.array_equal(a.observations, b.observations)
+               for a, b in zip(plain, branched[:2], strict=True))
     assert [round(float(e.observations[0, 0]), 9) in on_path for e in branched] == [
-        True, True, False, False]
-    assert {e.seed for e in branched[:2]} <= {d.seed for d in demos}
-    plain = collect_transitions(line_env(), specs, 4, seed=5, max_option_steps=3)
-    assert np.array_equal(plain[3].observations, branched[3].observations)
-    with pytest.raises(DynoplanError, match=r"must be in \[0, 1\], got 1.5"):
-        collect_transitions(line_env(), specs, 4, seed=5, demos=demos, from_demos=1.5)
+        False, False, True, True]
+    assert {e.seed for e in branched[2:]} <= {d.seed for d in demos}
+    with pytest.raises(DynoplanError, match="must be >= 0, got -1"):
+        collect_transitions(line_env(), specs, 2, seed=5, demos=demos, branches=-1)
 
 
 # --- bad input ---------------------------------------------------------------------------

@@ -73,10 +73,10 @@ def pipeline(
     exploration_option_steps: int | None = typer.Option(
         None, "--exploration-option-steps", **_bounds("exploration_option_steps"),
         help="Most steps an option runs while exploring [100]."),
-    exploration_from_demos: float | None = typer.Option(
-        None, "--exploration-from-demos", **_bounds("exploration_from_demos"),
-        help="Share of the exploration episodes that branch off a demonstration (start "
-             "where it was after a random step, its reset seed replayed) [0.5]."),
+    exploration_branches: int | None = typer.Option(
+        None, "--exploration-branches", **_bounds("exploration_branches"),
+        help="Further exploration episodes that branch off a demonstration (start where "
+             "it was after a random step, its reset seed replayed) [10]."),
     episodes: int | None = typer.Option(None, "--episodes", **_bounds("episodes"),
                                         help="Evaluation episodes per controller [100]."),
     seed: int | None = typer.Option(None, "--seed", **_bounds("seed"),

@@ -400,32 +400,34 @@ def collect_transitions(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], epi
                         seed: int, state_fn: ObservationFn = flat_state,
                         max_option_steps: int = 100, max_steps: int | None = None,
                         progress: bool = False, demos: Sequence[Episode] = (),
-                        from_demos: float = 0.0) -> list[Episode]:
+                        branches: int = 0) -> list[Episode]:
     """Episodes of randomly chosen options (see :class:`RandomOptions`), labelled with
     their options and ``infos["failure"]`` (True at the last step of an episode that
-    terminated without success).
+    terminated without success): ``episodes`` from ``env.reset``, then ``branches`` that
+    branch off the demonstrations ``demos``.
 
-    The first ``round(from_demos * episodes)`` episodes branch off the demonstrations
-    ``demos`` (those with a reset seed): each starts where a demonstration drawn at random
-    was after a step drawn at random (:func:`branch_start`), so that the options are also
-    tried along the way the demonstrations went, in their episodes, and not only from
-    ``env.reset``. The rest start at ``env.reset``. With ``from_demos`` 0 (or no seeded
-    demonstration) every episode starts at a reset.
+    A branching episode starts where a demonstration drawn at random (of those with a
+    reset seed) was after a step drawn at random (:func:`branch_start`), so that the
+    options are also tried along the way the demonstrations went, in their episodes: the
+    goal heuristic then sees states off a demonstration next to the demonstration, and
+    the option models the states where the demonstrated chain hands over. Without a
+    seeded demonstration they start at a reset too. The first ``episodes`` are the same
+    whatever ``branches`` is.
     """
     if episodes < 1:
         raise DynoplanError(f"the number of exploration episodes must be >= 1, got {episodes}")
-    if not 0.0 <= from_demos <= 1.0:
-        raise DynoplanError(f"the share of exploration episodes that branch off the "
-                            f"demonstrations must be in [0, 1], got {from_demos}")
+    if branches < 0:
+        raise DynoplanError(f"the number of exploration episodes that branch off the "
+                            f"demonstrations must be >= 0, got {branches}")
     explorer = RandomOptions(specs, state_fn, max_option_steps)
     seeded = [d for d in demos if d.seed is not None]
-    branching = round(from_demos * episodes) if seeded else 0
     out = []
-    for i, s in enumerate(track(episode_seeds(seed, episodes), "option transitions",
-                                total=episodes, enabled=progress)):
+    total = episodes + branches
+    for i, s in enumerate(track(episode_seeds(seed, total), "option transitions",
+                                total=total, enabled=progress)):
         rng = s.rng()
         start = None
-        if i < branching:
+        if i >= episodes and seeded:
             demo = seeded[int(rng.integers(len(seeded)))]
             start = branch_start(env, demo, int(rng.integers(len(demo))))
         recording = record_episode(env, specs, explorer, s.env_seed, rng, max_steps,

@@ -90,7 +90,7 @@ class PipelineSettings:
         demos: successful demonstrations to record (when none are given).
         exploration_episodes: episodes of randomly chosen options for the dynamics.
         exploration_option_steps: most steps an option runs while exploring.
-        exploration_from_demos: share of the exploration episodes that branch off a
+        exploration_branches: further exploration episodes that branch off a
             demonstration (start where it was after a random step) instead of starting
             at ``env.reset`` (:func:`~dynoplan.pipeline.collect.collect_transitions`).
         episodes: evaluation episodes per controller.
@@ -107,7 +107,7 @@ class PipelineSettings:
     demos: int = 5
     exploration_episodes: int = 20
     exploration_option_steps: int = 100
-    exploration_from_demos: float = 0.5
+    exploration_branches: int = 10
     episodes: int = 100
     seed: int = 0
     fit: FitSettings = field(default_factory=FitSettings)
@@ -121,9 +121,9 @@ class PipelineSettings:
                      "improve_episodes"):
             if getattr(self, name) < 1:
                 raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not 0.0 <= self.exploration_from_demos <= 1.0:
-            raise DynoplanError("exploration_from_demos must be in [0, 1], got "
-                                f"{self.exploration_from_demos}")
+        if self.exploration_branches < 0:
+            raise DynoplanError("exploration_branches must be >= 0, got "
+                                f"{self.exploration_branches}")
         if self.improve < 0:
             raise DynoplanError(f"improve must be >= 0, got {self.improve}")
         self.fit.validate()
@@ -405,7 +405,7 @@ def run_pipeline(
                                       seeds["exploration"], flat_state,
                                       settings.exploration_option_steps, progress=progress,
                                       demos=demo_episodes,
-                                      from_demos=settings.exploration_from_demos)
+                                      branches=settings.exploration_branches)
     name = task.name if task is not None else _env_id(environment) or ""
     models = fit_models(specs, transitions, demo_episodes, settings.fit, seeds["fit"],
                         flat_state, fitter, say, name)
