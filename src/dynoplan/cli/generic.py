@@ -76,7 +76,7 @@ def pipeline(
     exploration_branches: int | None = typer.Option(
         None, "--exploration-branches", **_bounds("exploration_branches"),
         help="Further exploration episodes that branch off a demonstration (start where "
-             "it was after a random step, its reset seed replayed) [10]."),
+             "it was after a random step, its reset seed replayed) [0]."),
     episodes: int | None = typer.Option(None, "--episodes", **_bounds("episodes"),
                                         help="Evaluation episodes per controller [100]."),
     seed: int | None = typer.Option(None, "--seed", **_bounds("seed"),

@@ -92,7 +92,8 @@ class PipelineSettings:
         exploration_option_steps: most steps an option runs while exploring.
         exploration_branches: further exploration episodes that branch off a
             demonstration (start where it was after a random step) instead of starting
-            at ``env.reset`` (:func:`~dynoplan.pipeline.collect.collect_transitions`).
+            at ``env.reset`` (:func:`~dynoplan.pipeline.collect.collect_transitions`;
+            0, the default: none; a named variant of the composition suite).
         episodes: evaluation episodes per controller.
         seed: the one seed every random choice derives from.
         fit: how the models are learned.
@@ -107,7 +108,7 @@ class PipelineSettings:
     demos: int = 5
     exploration_episodes: int = 20
     exploration_option_steps: int = 100
-    exploration_branches: int = 10
+    exploration_branches: int = 0
     episodes: int = 100
     seed: int = 0
     fit: FitSettings = field(default_factory=FitSettings)
