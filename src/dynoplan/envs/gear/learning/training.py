@@ -32,8 +32,9 @@ regions' capped distance.
 
 This module trains, with the pipeline's region fit
 (:func:`~dynoplan.pipeline.fit.fit_labelled_regions`), goal network
-(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics epochs
-(:func:`~dynoplan.pipeline.fit.dynamics_epochs`); the rest lives in
+(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics ensembles
+(:func:`~dynoplan.pipeline.fit_dynamics.fit_ensemble`, the generic fit's own); the rest
+lives in
 :mod:`.settings` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
 :class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
 (datasets to arrays, splits), :mod:`.metrics` (far-away states) and :mod:`.files` (the
@@ -83,15 +84,14 @@ from dynoplan.models.evaluation import (
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
-from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import deterministic_training
 from dynoplan.pipeline.fit import (
-    DYNAMICS_BATCH,
     FitSettings,
     dynamics_epochs,
     fit_goal_network,
     fit_labelled_regions,
 )
+from dynoplan.pipeline.fit_dynamics import fit_ensemble
 from dynoplan.progress import track
 from dynoplan.timing import StageClock
 from dynoplan.types import FloatArray, IntArray
@@ -342,11 +342,8 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
         raise DynoplanError(f"option '{name}': only {len(s)} transitions to learn its "
                             "dynamics from (need >= 10); record more episodes (an option "
                             "the demonstrations do not show needs `dynoplan gear collect`)")
-    model = MLPEnsembleDynamics(STATE_DIM, cfg.dynamics_hidden, cfg.dynamics_members,
-                                option=name, seed=seed + k)
+    model, report = fit_ensemble(name, s, nxt, seed + k, cfg)
     epochs = dynamics_epochs(len(s), cfg)
-    report = model.fit(s, nxt, epochs=epochs, batch_size=DYNAMICS_BATCH, seed=seed + k,
-                       keep_still=cfg.constant_dimensions_still)
     std_scale = None
     if cal_eps:
         sc, labels_c, nxtc = labelled_transitions(cal_eps, state_fn=planner)
