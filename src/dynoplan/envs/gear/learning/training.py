@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from dynoplan.data import Episode, labelled_transitions
+from dynoplan.data import Episode
 from dynoplan.envs.gear.features import FeatureMap, feature_map
 from dynoplan.envs.gear.learning.data import (
     CAUTIOUS,
@@ -91,6 +91,7 @@ from dynoplan.pipeline.fit import (
     fit_goal_network,
     fit_labelled_regions,
 )
+from dynoplan.pipeline.fit_data import option_transitions
 from dynoplan.pipeline.fit_dynamics import fit_ensemble
 from dynoplan.progress import track
 from dynoplan.timing import StageClock
@@ -334,10 +335,9 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     fit_eps, cal_eps = (split_episodes(own, measure.dynamics_calibration_fraction,
                                         np.random.default_rng([seed, 4, k]))
                         if len({e.seed for e in own}) >= 4 else (own, []))
-    s, labels, nxt = labelled_transitions(fit_eps, state_fn=planner)
-    sh, labels_h, nxth = labelled_transitions(held_eps, state_fn=planner)
-    s, nxt = s[labels == k], nxt[labels == k]
-    sh, nxth = sh[labels_h == k], nxth[labels_h == k]
+    names = gear_option_names()
+    s, nxt = option_transitions(fit_eps, names, planner)[name]
+    sh, nxth = option_transitions(held_eps, names, planner)[name]
     if len(s) < 10:
         raise DynoplanError(f"option '{name}': only {len(s)} transitions to learn its "
                             "dynamics from (need >= 10); record more episodes (an option "
@@ -346,9 +346,9 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     epochs = dynamics_epochs(len(s), cfg)
     std_scale = None
     if cal_eps:
-        sc, labels_c, nxtc = labelled_transitions(cal_eps, state_fn=planner)
-        if (labels_c == k).sum() >= 10:
-            std_scale = model.calibrate(sc[labels_c == k], nxtc[labels_c == k], 0.9)
+        sc, nxtc = option_transitions(cal_eps, names, planner)[name]
+        if len(sc) >= 10:
+            std_scale = model.calibrate(sc, nxtc, 0.9)
     model.save(out / dynamics_file(name))
     row: dict[str, Any] = {
         "transitions_train": len(s),
