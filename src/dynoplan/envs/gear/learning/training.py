@@ -11,8 +11,9 @@ with, and measures it on held-out data:
   assigned to options by their states' labels, and per-option thresholds calibrated on
   the demonstrations by leave-one-demonstration-out
   (:func:`~dynoplan.pipeline.fit.fit_regions_cross_validated`),
-  for the options the demonstrations show (as :func:`~dynoplan.pipeline.fit.fit_regions`;
-  an option registered after the paper's four has no region unless demonstrated);
+  for the options the demonstrations show, by the pipeline's
+  :func:`~dynoplan.pipeline.fit_regions.fit_option_regions` (an option registered after
+  the paper's four has no region unless demonstrated);
 - one dynamics model ``D_w`` per registered option (:class:`~dynoplan.models.neural_dynamics.
   MLPEnsembleDynamics`) on transitions at the decision rate (one step =
   :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps), from the option
@@ -31,7 +32,7 @@ through the dynamics models (which predict all 22 columns), the terminations and
 regions' capped distance.
 
 This module trains, with the pipeline's region fit
-(:func:`~dynoplan.pipeline.fit.fit_labelled_regions`), goal network
+(:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`), goal network
 (:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics ensembles
 (:func:`~dynoplan.pipeline.fit_dynamics.fit_ensemble`, the generic fit's own); the rest
 lives in
@@ -89,10 +90,10 @@ from dynoplan.pipeline.fit import (
     FitSettings,
     dynamics_epochs,
     fit_goal_network,
-    fit_labelled_regions,
 )
-from dynoplan.pipeline.fit_data import option_transitions
+from dynoplan.pipeline.fit_data import labelled_states, option_transitions
 from dynoplan.pipeline.fit_dynamics import fit_ensemble
+from dynoplan.pipeline.fit_regions import fit_option_regions
 from dynoplan.progress import track
 from dynoplan.timing import StageClock
 from dynoplan.types import FloatArray, IntArray
@@ -180,7 +181,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     stages: list[tuple[str, Callable[[], None]]] = [
         ("goal", fit_goal),
         ("regions", lambda: results.update(
-            regions=_train_regions(train, held, out, cfg, measure, seed))),
+            regions=_train_regions(list(train_set), list(held_set), planner, out, cfg,
+                                   measure, seed))),
     ]
     dyn_reports: dict[str, Any] = {}
     for k, name in enumerate(gear_option_names()):
@@ -282,25 +284,24 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
     }, network
 
 
-def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
-                   held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
+def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
+                   planner: PlannerState, out: Path,
                    cfg: FitSettings, measure: GearMetricsSettings, seed: int) -> dict[str, Any]:
+    """The regions of the demonstrated options, fitted by the pipeline
+    (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`; undemonstrated options get
+    none), saved into ``out``; the report of ``metrics.json``'s ``regions``."""
     features = gear_features(cfg.region_features)
     names = gear_option_names()
-    s = np.concatenate([st[:-1] for st, _, _ in train])
-    y = np.concatenate([lab for _, _, lab in train])
-    g = np.concatenate([np.full(len(lab), i) for i, (_, _, lab) in enumerate(train)])
-    # regions for the demonstrated options only (as pipeline.fit.fit_regions); ``column``
-    # maps an option's label to its region, -1 for none
-    shown = [k for k in range(len(names)) if np.any(y == k)]
-    column = np.full(len(names), -1)
-    column[shown] = np.arange(len(shown))
-    fitted, info = fit_labelled_regions(features(s), y, g, [names[k] for k in shown], shown,
-                                        cfg, seed)
+    regions, info = fit_option_regions(train_set, (), names, cfg, seed, state_fn=planner,
+                                       features=features)
+    assert isinstance(regions, RegionsOnFeatures)  # fitted on a feature map
+    fitted = regions.regions
     fitted.save(out / REGIONS_FILE)
-    regions = RegionsOnFeatures(fitted, features)
-    sh = np.concatenate([st[:-1] for st, _, _ in held])
-    yh = np.concatenate([lab for _, _, lab in held])
+    s, y, _ = labelled_states(train_set, len(names), planner)
+    # ``column`` maps an option's label to its region, -1 for none
+    column = np.full(len(names), -1)
+    column[[names.index(n) for n in regions.option_names]] = np.arange(len(regions.option_names))
+    sh, yh, _ = labelled_states(held_set, len(names), planner)
     member = regions.contains_all(sh)  # (states, options with a region)
     mine = np.flatnonzero(column[yh] >= 0)  # held-out states of options with a region
     own = member[mine, column[yh[mine]]]
