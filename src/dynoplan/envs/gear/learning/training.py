@@ -5,7 +5,9 @@ with, and measures it on held-out data:
 
 - the goal heuristic ``G`` (:class:`~dynoplan.models.goal_network.GoalNetwork`, a Beta
   over progress) on every demonstration state, target = the demonstration's normalised
-  progress ``infos["progress"]`` (``0`` for the reset observation);
+  time ``t / T`` (what ``infos["progress"]`` records; ``0`` for the reset observation),
+  gathered as the pipeline's goal fit gathers it
+  (:func:`~dynoplan.models.goal_network.goal_training_set`);
 - the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`): a
   Gaussian mixture with ``M`` chosen by BIC on the demonstration states, components
   assigned to options by their states' labels, and per-option thresholds calibrated on
@@ -84,7 +86,7 @@ from dynoplan.models.evaluation import (
 )
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
+from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
 from dynoplan.models.trainer import deterministic_training
 from dynoplan.pipeline.fit import (
     FitSettings,
@@ -164,7 +166,6 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                                               np.random.default_rng([seed, 1]))
         dynamics_data = "option transitions"
 
-    train = demo_arrays(train_set, planner)
     held = demo_arrays(held_set, planner)
     # a folder half-rewritten by a failed run must not load as a set of models
     for stale in (MANIFEST_FILE, METRICS_FILE):
@@ -173,7 +174,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     goal_of: list[Callable[[FloatArray], FloatArray]] = []  # the fitted goal, for the dynamics
 
     def fit_goal() -> None:
-        report, network = _train_goal(train, held, out, cfg, seed)
+        report, network = _train_goal(list(train_set), held, out, cfg, seed, planner)
         results["goal"] = report
         features = gear_features(cfg.goal_features)
         goal_of.append(lambda states: network.mean_std(features(states))[0])
@@ -239,14 +240,18 @@ def gear_features(name: str | None) -> FeatureMap:
     return feature_map(name)
 
 
-def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
+def _train_goal(train_set: Sequence[Episode],
                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
-                cfg: FitSettings, seed: int) -> tuple[dict[str, Any], GoalNetwork]:
+                cfg: FitSettings, seed: int, planner: PlannerState
+                ) -> tuple[dict[str, Any], GoalNetwork]:
+    """The goal network on the demonstrations' states and progress as the pipeline's goal
+    fit gathers them (:func:`~dynoplan.models.goal_network.goal_training_set`: ``t / T``,
+    which ``infos["progress"]`` records too) and fits them
+    (:func:`~dynoplan.pipeline.fit.fit_goal_network`), saved into ``out``; the report of
+    ``metrics.json``'s ``goal``, measured on the held-out trials ``held``."""
     f = gear_features(cfg.goal_features)
-    x = np.concatenate([f(s) for s, _, _ in train])
-    y = np.concatenate([p for _, p, _ in train])
-    groups = np.concatenate([np.full(len(p), i) for i, (_, p, _) in enumerate(train)])
-    network, report = fit_goal_network(x, y, groups, cfg, seed)
+    states, y, groups = goal_training_set(train_set, planner)
+    network, report = fit_goal_network(f(states), y, groups, cfg, seed)
     network.save(out / GOAL_FILE)
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
