@@ -17,13 +17,12 @@ from dynoplan.data import (
     Episode,
     EpisodeFieldError,
     dataset_path,
-    labelled_states,
-    labelled_transitions,
     read_dataset,
     write_dataset,
 )
 from dynoplan.data import dataset as dataset_module
 from dynoplan.errors import DynoplanError
+from dynoplan.pipeline.fit_data import labelled_states, option_transitions
 
 OPTIONS = ["pick", "fast_move", "cautious_move", "insert"]
 DATASET_ID = "dynoplan/gear-assembly/expert-v0"
@@ -176,35 +175,35 @@ def test_dataset_path_follows_minari_root(monkeypatch, tmp_path):
 # --- labelled arrays for learners --------------------------------------------------------
 
 
-def test_labelled_states_pair_decision_states_with_labels(written, episodes):
+def test_the_fit_takes_labelled_states_from_a_read_dataset(written, episodes):
     dataset = read_dataset(written)
-    states, labels = labelled_states(dataset)
+    states, labels, groups = labelled_states(list(dataset), len(OPTIONS), lambda o: o)
     assert states.shape == (15, 5)
     assert labels.dtype == np.int64
     np.testing.assert_array_equal(states[:6], episodes[0].observations[:6])
     np.testing.assert_array_equal(states[6:], episodes[1].observations[:9])
     np.testing.assert_array_equal(labels, np.concatenate([e.infos["option"] for e in episodes]))
-
-    joints, progress = labelled_states(dataset, lambda obs: obs[:, :2], label="progress")
-    assert joints.shape == (15, 2)
-    np.testing.assert_array_equal(progress[:6], episodes[0].infos["progress"])
+    np.testing.assert_array_equal(groups, [0] * 6 + [1] * 9)
 
 
-def test_labelled_transitions_give_next_states(episodes):
-    states, labels, nexts = labelled_transitions(episodes, lambda obs: obs[:, :2])
-    np.testing.assert_array_equal(nexts[:6], episodes[0].observations[1:, :2])
-    np.testing.assert_array_equal(states[6:], episodes[1].observations[:-1, :2])
-    assert states.shape == nexts.shape == (15, 2)
-    assert labels.shape == (15,)
+def test_the_fit_takes_each_options_transitions_from_a_read_dataset(written, episodes):
+    pairs = option_transitions(list(read_dataset(written)), OPTIONS, lambda o: o[:2])
+    for k, name in enumerate(OPTIONS):
+        states, nexts = pairs[name]
+        np.testing.assert_array_equal(states, np.concatenate(
+            [e.observations[:-1, :2][e.infos["option"] == k] for e in episodes]))
+        np.testing.assert_array_equal(nexts, np.concatenate(
+            [e.observations[1:, :2][e.infos["option"] == k] for e in episodes]))
+    assert sum(len(pairs[n][0]) for n in OPTIONS) == 15
 
 
-def test_labelled_states_errors(episodes):
+def test_the_fit_refuses_unlabelled_episodes(episodes):
+    unlabelled = Episode(episodes[0].observations, episodes[0].actions, episodes[0].rewards,
+                         episodes[0].terminations, episodes[0].truncations,
+                         {"progress": episodes[0].infos["progress"]})
     with pytest.raises(DynoplanError) as exc:
-        labelled_states(episodes, label="nope")
-    assert_one_line_error(exc, "episode 0", "infos['nope']")
-    with pytest.raises(DynoplanError) as exc:
-        labelled_states(episodes, lambda obs: obs[:-1])
-    assert_one_line_error(exc, "state_fn", "(7, state_dim)")
+        labelled_states([unlabelled], len(OPTIONS), lambda o: o)
+    assert_one_line_error(exc, "episode 0", "infos['option']")
 
 
 # --- validation of episodes ---------------------------------------------------------------

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dynoplan.control import Controller, RandomChoice
-from dynoplan.data import labelled_transitions, read_dataset
+from dynoplan.data import read_dataset
 from dynoplan.envs.gear.controllers import HoldStill
 from dynoplan.envs.gear.env import HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
@@ -24,6 +24,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.dynamics import stack_dynamics
 from dynoplan.options import ConstantTermination, Option
+from dynoplan.pipeline.fit_data import option_transitions
 from dynoplan.types import FloatArray, Generator
 
 
@@ -117,8 +118,9 @@ def test_collected_transitions_are_at_the_decision_rate(tmp_path: Path) -> None:
     assert summary["runs"] == 2
     ds = read_dataset(out)
     assert ds.metadata.option_names[1] == "fast_move"
-    s, labels, _ = labelled_transitions(ds, state_fn=PlannerState())
-    assert s.shape[1] == STATE_DIM and set(labels.tolist()) == {1}
+    pairs = option_transitions(list(ds), ds.metadata.option_names, PlannerState())
+    assert pairs["fast_move"][0].shape[1] == STATE_DIM
+    assert [n for n, (s, _) in pairs.items() if len(s)] == ["fast_move"]
     # 30 steps per run: offset 0 gives 3 decisions, offsets 1..9 give 2
     lengths = sorted(len(e) for e in ds)
     assert lengths == sorted(([3] + [2] * 9) * 2)

@@ -13,7 +13,7 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from dynoplan.data import Episode, labelled_transitions, read_dataset
+from dynoplan.data import Episode, read_dataset
 from dynoplan.envs.gear.features import RELATIVE, TASK
 from dynoplan.envs.gear.learning.data import (
     demonstration_transitions,
@@ -33,6 +33,7 @@ from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynam
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.pipeline.fit import fit_regions_cross_validated
+from dynoplan.pipeline.fit_data import option_transitions
 
 pytestmark = pytest.mark.slow
 
@@ -230,10 +231,12 @@ def test_demonstrations_become_decision_rate_runs_of_one_option(tmp_path):
     first = runs[0]
     np.testing.assert_array_equal(first.observations, obs[[0, 10, 20]])
     np.testing.assert_array_equal(runs[-1].observations, obs[[32, 42]])
-    s, lab, nxt = labelled_transitions(runs)
-    assert np.all(np.isin(lab, [0, 3]))
+    names = gear_option_names()
+    pairs = option_transitions(runs, names)
+    assert [n for n in names if len(pairs[n][0])] == [names[0], names[3]]
     # every transition is DECISION_STEPS environment steps of one option
-    np.testing.assert_allclose(nxt - s, DECISION_STEPS * 50 / 1e3)
+    for s, nxt in pairs.values():
+        np.testing.assert_allclose(nxt - s, DECISION_STEPS * 50 / 1e3)
 
 
 def test_models_train_on_a_transitions_dataset_at_the_decision_rate(data, tmp_path):

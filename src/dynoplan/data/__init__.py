@@ -7,8 +7,9 @@
   plain ``h5py`` can read too; the layout is documented in ``docs/dataset-format.md``.
   :class:`DatasetMetadata` names the options (``option_names[k]`` for label ``k``),
   the environment and the provenance.
-- :func:`labelled_states` / :func:`labelled_transitions` -- the arrays the safety
-  regions, goal heuristic and dynamics models are trained on.
+
+The arrays the safety regions and dynamics models are trained on are cut from episodes
+by :mod:`dynoplan.pipeline.fit_data`.
 """
 
 from dynoplan.data.dataset import Dataset, dataset_path, read_dataset, write_dataset
@@ -18,8 +19,6 @@ from dynoplan.data.episodes import (
     Episode,
     EpisodeFieldError,
     check_option_labels,
-    labelled_states,
-    labelled_transitions,
 )
 from dynoplan.data.metadata import FORMAT_VERSION, DatasetMetadata
 
@@ -33,8 +32,6 @@ __all__ = [
     "EpisodeFieldError",
     "check_option_labels",
     "dataset_path",
-    "labelled_states",
-    "labelled_transitions",
     "read_dataset",
     "write_dataset",
 ]

@@ -1,4 +1,4 @@
-"""One recorded trajectory with per-step labels, and the arrays learners take from many.
+"""One recorded trajectory with per-step labels.
 
 An :class:`Episode` holds what a Gymnasium environment produced over ``T`` steps,
 laid out like Minari's ``EpisodeData``:
@@ -13,12 +13,15 @@ laid out like Minari's ``EpisodeData``:
   step ``t``).
 
 Construction validates shapes and values and raises :class:`EpisodeFieldError`, a
-:class:`~dynoplan.errors.DynoplanError` naming the field.
+:class:`~dynoplan.errors.DynoplanError` naming the field. The arrays the fit learns from
+(labelled states, per-option transitions and runs) are cut from episodes by
+:mod:`dynoplan.pipeline.fit_data`, the goal's states and progress by
+:func:`dynoplan.models.goal_network.goal_training_set`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -122,84 +125,6 @@ def check_option_labels(episode: Episode, num_options: int) -> None:
             f"infos/{OPTION_KEY}",
             f"label {int(labels[step])} at step {step} is outside {expected}",
         )
-
-
-def labelled_states(
-    episodes: Iterable[Episode],
-    state_fn: StateFn | None = None,
-    label: str = OPTION_KEY,
-) -> tuple[np.ndarray, np.ndarray]:
-    """States at which each step's decision was taken, with that step's label.
-
-    For every episode, rows ``0 .. T-1`` of ``state_fn(observations)`` are paired with
-    ``infos[label]``. With the default ``label="option"`` this is the training set of
-    the safety regions (Eq. 5); with ``label="progress"``, of the goal heuristic.
-
-    Args:
-        episodes: a :class:`~dynoplan.data.Dataset` or any iterable of episodes.
-        state_fn: maps observations ``(T+1, *obs_shape)`` to states ``(T+1, state_dim)``,
-            e.g. ``lambda obs: obs[:, :12]``; default: observations flattened per row.
-        label: the ``infos`` key to return.
-
-    Returns:
-        ``states`` ``(N, state_dim)`` and ``labels`` ``(N, ...)``, ``N`` the total steps.
-
-    Raises:
-        DynoplanError: an episode has no ``infos[label]``, or ``state_fn`` returns the
-            wrong shape.
-    """
-    states, labels, _ = _collect(episodes, state_fn, label)
-    return states, labels
-
-
-def labelled_transitions(
-    episodes: Iterable[Episode],
-    state_fn: StateFn | None = None,
-    label: str = OPTION_KEY,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-step transitions ``(s_t, label_t, s_{t+1})`` for training dynamics ``D_w``.
-
-    Same arguments as :func:`labelled_states`.
-
-    Returns:
-        ``states`` ``(N, state_dim)``, ``labels`` ``(N, ...)`` and ``next_states``
-        ``(N, state_dim)``; select one option's transitions with ``labels == w``.
-    """
-    return _collect(episodes, state_fn, label)
-
-
-def _collect(
-    episodes: Iterable[Episode], state_fn: StateFn | None, label: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    states: list[np.ndarray] = []
-    nexts: list[np.ndarray] = []
-    labels: list[np.ndarray] = []
-    for index, episode in enumerate(episodes):
-        if label not in episode.infos:
-            known = ", ".join(sorted(episode.infos)) or "none"
-            raise DynoplanError(
-                f"episode {index}: no infos[{label!r}] to label states with (infos: {known})"
-            )
-        obs = episode.observations
-        rows = obs.reshape(obs.shape[0], -1) if state_fn is None else np.asarray(state_fn(obs))
-        if rows.ndim != 2 or rows.shape[0] != obs.shape[0]:
-            raise DynoplanError(
-                f"episode {index}: state_fn must map observations {obs.shape} to "
-                f"({obs.shape[0]}, state_dim), got {rows.shape}"
-            )
-        states.append(rows[:-1])
-        nexts.append(rows[1:])
-        labels.append(episode.infos[label])
-    if not states:
-        empty = np.zeros((0, 0))
-        return empty, np.zeros((0,), dtype=np.int64), empty.copy()
-    try:
-        return np.concatenate(states), np.concatenate(labels), np.concatenate(nexts)
-    except ValueError:
-        raise DynoplanError(
-            f"episodes disagree on state or infos[{label!r}] shape: "
-            f"{sorted({s.shape[1:] for s in states})}, {sorted({x.shape[1:] for x in labels})}"
-        ) from None
 
 
 def _actions(value: npt.ArrayLike) -> np.ndarray:

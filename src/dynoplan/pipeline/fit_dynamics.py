@@ -13,6 +13,7 @@ from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.evaluation import one_step_error, option_end_gap
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
+from dynoplan.models.trainer import TrainingReport
 from dynoplan.options.termination import ConstantTermination, Termination
 from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.fit_data import option_runs
@@ -27,17 +28,30 @@ class DynamicsFitter(Protocol):
                  seed: int) -> DynamicsModel: ...
 
 
+def fit_ensemble(option: str, states: FloatArray, next_states: FloatArray, seed: int,
+                 settings: FitSettings) -> tuple[MLPEnsembleDynamics, TrainingReport]:
+    """Option ``option``'s MLP ensemble (PETS-style) fitted on its transitions ``states``
+    ``(N, d)`` -> ``next_states`` ``(N, d)``: ``settings.dynamics_hidden`` and
+    ``dynamics_members``, :func:`dynamics_epochs` epochs of :data:`DYNAMICS_BATCH` rows,
+    weights and draws seeded from ``seed`` alone (the same model for the same pairs and
+    ``seed`` on one machine, under
+    :func:`~dynoplan.models.trainer.deterministic_training`). Returns the model and what
+    its training did (losses per epoch, the kept epoch)."""
+    model = MLPEnsembleDynamics(states.shape[1], settings.dynamics_hidden,
+                                settings.dynamics_members, option=option, seed=seed)
+    report = model.fit(states, next_states, epochs=dynamics_epochs(len(states), settings),
+                       batch_size=DYNAMICS_BATCH, seed=seed,
+                       keep_still=settings.constant_dimensions_still)
+    return model, report
+
+
 def ensemble_fitter(settings: FitSettings) -> DynamicsFitter:
-    """The default :data:`DynamicsFitter`: an MLP ensemble per option (PETS-style)."""
+    """The default :data:`DynamicsFitter`: an MLP ensemble per option
+    (:func:`fit_ensemble`)."""
 
     def fit(option: str, states: FloatArray, next_states: FloatArray,
             seed: int) -> DynamicsModel:
-        model = MLPEnsembleDynamics(states.shape[1], settings.dynamics_hidden,
-                                    settings.dynamics_members, option=option, seed=seed)
-        model.fit(states, next_states, epochs=dynamics_epochs(len(states), settings),
-                  batch_size=DYNAMICS_BATCH, seed=seed,
-                  keep_still=settings.constant_dimensions_still)
-        return model
+        return fit_ensemble(option, states, next_states, seed, settings)[0]
 
     return fit
 
@@ -136,4 +150,5 @@ def strided(termination: Termination, stride: int) -> Termination:
 
 
 __all__ = ["DYNAMICS_BATCH", "GAP_ROLLOUTS", "DynamicsFitter", "StridedTermination",
-           "dynamics_epochs", "ensemble_fitter", "fit_dynamics", "goal_end_gaps", "strided"]
+           "dynamics_epochs", "ensemble_fitter", "fit_dynamics", "fit_ensemble",
+           "goal_end_gaps", "strided"]

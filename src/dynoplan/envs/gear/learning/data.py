@@ -121,14 +121,19 @@ def read_demos(path: Path, what: str) -> Dataset:
 def demo_arrays(dataset: Dataset, planner: PlannerState
                  ) -> list[tuple[FloatArray, FloatArray, IntArray]]:
     """Per episode: planner states ``(T+1, 22)``, progress ``(T+1,)`` (0 at the reset) and
-    the option label of each step ``(T,)``."""
+    the option label of each step ``(T,)``.
+
+    Raises:
+        DynoplanError: an episode without ``infos["option"]`` or ``infos["progress"]``.
+    """
     out = []
     for episode in dataset:
-        states = planner(episode.observations)
-        truth = np.r_[0.0, episode.infos["progress"]]
         labels = episode.options
-        assert labels is not None
-        out.append((states, truth, labels))
+        if labels is None or "progress" not in episode.infos:
+            raise DynoplanError(f"{dataset.path}: trials need infos['option'] and "
+                                "infos['progress']")
+        out.append((planner(episode.observations), np.r_[0.0, episode.infos["progress"]],
+                    labels))
     return out
 
 

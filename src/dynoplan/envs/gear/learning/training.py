@@ -5,14 +5,17 @@ with, and measures it on held-out data:
 
 - the goal heuristic ``G`` (:class:`~dynoplan.models.goal_network.GoalNetwork`, a Beta
   over progress) on every demonstration state, target = the demonstration's normalised
-  progress ``infos["progress"]`` (``0`` for the reset observation);
+  time ``t / T`` (what ``infos["progress"]`` records; ``0`` for the reset observation),
+  gathered as the pipeline's goal fit gathers it
+  (:func:`~dynoplan.models.goal_network.goal_training_set`);
 - the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`): a
   Gaussian mixture with ``M`` chosen by BIC on the demonstration states, components
   assigned to options by their states' labels, and per-option thresholds calibrated on
   the demonstrations by leave-one-demonstration-out
   (:func:`~dynoplan.pipeline.fit.fit_regions_cross_validated`),
-  for the options the demonstrations show (as :func:`~dynoplan.pipeline.fit.fit_regions`;
-  an option registered after the paper's four has no region unless demonstrated);
+  for the options the demonstrations show, by the pipeline's
+  :func:`~dynoplan.pipeline.fit_regions.fit_option_regions` (an option registered after
+  the paper's four has no region unless demonstrated);
 - one dynamics model ``D_w`` per registered option (:class:`~dynoplan.models.neural_dynamics.
   MLPEnsembleDynamics`) on transitions at the decision rate (one step =
   :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps), from the option
@@ -31,9 +34,10 @@ through the dynamics models (which predict all 22 columns), the terminations and
 regions' capped distance.
 
 This module trains, with the pipeline's region fit
-(:func:`~dynoplan.pipeline.fit.fit_labelled_regions`), goal network
-(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics epochs
-(:func:`~dynoplan.pipeline.fit.dynamics_epochs`); the rest lives in
+(:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`), goal network
+(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics ensembles
+(:func:`~dynoplan.pipeline.fit_dynamics.fit_ensemble`, the generic fit's own); the rest
+lives in
 :mod:`.settings` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
 :class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
 (datasets to arrays, splits), :mod:`.metrics` (far-away states) and :mod:`.files` (the
@@ -49,7 +53,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from dynoplan.data import Episode, labelled_transitions
+from dynoplan.data import Episode
 from dynoplan.envs.gear.features import FeatureMap, feature_map
 from dynoplan.envs.gear.learning.data import (
     CAUTIOUS,
@@ -82,16 +86,16 @@ from dynoplan.models.evaluation import (
 )
 from dynoplan.models.features import RegionsOnFeatures
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal
-from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
+from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
 from dynoplan.models.trainer import deterministic_training
 from dynoplan.pipeline.fit import (
-    DYNAMICS_BATCH,
     FitSettings,
     dynamics_epochs,
     fit_goal_network,
-    fit_labelled_regions,
 )
+from dynoplan.pipeline.fit_data import labelled_states, option_transitions
+from dynoplan.pipeline.fit_dynamics import fit_ensemble
+from dynoplan.pipeline.fit_regions import fit_option_regions
 from dynoplan.progress import track
 from dynoplan.timing import StageClock
 from dynoplan.types import FloatArray, IntArray
@@ -162,7 +166,6 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                                               np.random.default_rng([seed, 1]))
         dynamics_data = "option transitions"
 
-    train = demo_arrays(train_set, planner)
     held = demo_arrays(held_set, planner)
     # a folder half-rewritten by a failed run must not load as a set of models
     for stale in (MANIFEST_FILE, METRICS_FILE):
@@ -171,7 +174,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     goal_of: list[Callable[[FloatArray], FloatArray]] = []  # the fitted goal, for the dynamics
 
     def fit_goal() -> None:
-        report, network = _train_goal(train, held, out, cfg, seed)
+        report, network = _train_goal(list(train_set), held, out, cfg, seed, planner)
         results["goal"] = report
         features = gear_features(cfg.goal_features)
         goal_of.append(lambda states: network.mean_std(features(states))[0])
@@ -179,7 +182,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     stages: list[tuple[str, Callable[[], None]]] = [
         ("goal", fit_goal),
         ("regions", lambda: results.update(
-            regions=_train_regions(train, held, out, cfg, measure, seed))),
+            regions=_train_regions(list(train_set), list(held_set), planner, out, cfg,
+                                   measure, seed))),
     ]
     dyn_reports: dict[str, Any] = {}
     for k, name in enumerate(gear_option_names()):
@@ -236,14 +240,18 @@ def gear_features(name: str | None) -> FeatureMap:
     return feature_map(name)
 
 
-def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
+def _train_goal(train_set: Sequence[Episode],
                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
-                cfg: FitSettings, seed: int) -> tuple[dict[str, Any], GoalNetwork]:
+                cfg: FitSettings, seed: int, planner: PlannerState
+                ) -> tuple[dict[str, Any], GoalNetwork]:
+    """The goal network on the demonstrations' states and progress as the pipeline's goal
+    fit gathers them (:func:`~dynoplan.models.goal_network.goal_training_set`: ``t / T``,
+    which ``infos["progress"]`` records too) and fits them
+    (:func:`~dynoplan.pipeline.fit.fit_goal_network`), saved into ``out``; the report of
+    ``metrics.json``'s ``goal``, measured on the held-out trials ``held``."""
     f = gear_features(cfg.goal_features)
-    x = np.concatenate([f(s) for s, _, _ in train])
-    y = np.concatenate([p for _, p, _ in train])
-    groups = np.concatenate([np.full(len(p), i) for i, (_, p, _) in enumerate(train)])
-    network, report = fit_goal_network(x, y, groups, cfg, seed)
+    states, y, groups = goal_training_set(train_set, planner)
+    network, report = fit_goal_network(f(states), y, groups, cfg, seed)
     network.save(out / GOAL_FILE)
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
@@ -281,25 +289,24 @@ def _train_goal(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
     }, network
 
 
-def _train_regions(train: Sequence[tuple[FloatArray, FloatArray, IntArray]],
-                   held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
+def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
+                   planner: PlannerState, out: Path,
                    cfg: FitSettings, measure: GearMetricsSettings, seed: int) -> dict[str, Any]:
+    """The regions of the demonstrated options, fitted by the pipeline
+    (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`; undemonstrated options get
+    none), saved into ``out``; the report of ``metrics.json``'s ``regions``."""
     features = gear_features(cfg.region_features)
     names = gear_option_names()
-    s = np.concatenate([st[:-1] for st, _, _ in train])
-    y = np.concatenate([lab for _, _, lab in train])
-    g = np.concatenate([np.full(len(lab), i) for i, (_, _, lab) in enumerate(train)])
-    # regions for the demonstrated options only (as pipeline.fit.fit_regions); ``column``
-    # maps an option's label to its region, -1 for none
-    shown = [k for k in range(len(names)) if np.any(y == k)]
-    column = np.full(len(names), -1)
-    column[shown] = np.arange(len(shown))
-    fitted, info = fit_labelled_regions(features(s), y, g, [names[k] for k in shown], shown,
-                                        cfg, seed)
+    regions, info = fit_option_regions(train_set, (), names, cfg, seed, state_fn=planner,
+                                       features=features)
+    assert isinstance(regions, RegionsOnFeatures)  # fitted on a feature map
+    fitted = regions.regions
     fitted.save(out / REGIONS_FILE)
-    regions = RegionsOnFeatures(fitted, features)
-    sh = np.concatenate([st[:-1] for st, _, _ in held])
-    yh = np.concatenate([lab for _, _, lab in held])
+    s, y, _ = labelled_states(train_set, len(names), planner)
+    # ``column`` maps an option's label to its region, -1 for none
+    column = np.full(len(names), -1)
+    column[[names.index(n) for n in regions.option_names]] = np.arange(len(regions.option_names))
+    sh, yh, _ = labelled_states(held_set, len(names), planner)
     member = regions.contains_all(sh)  # (states, options with a region)
     mine = np.flatnonzero(column[yh] >= 0)  # held-out states of options with a region
     own = member[mine, column[yh[mine]]]
@@ -334,24 +341,20 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     fit_eps, cal_eps = (split_episodes(own, measure.dynamics_calibration_fraction,
                                         np.random.default_rng([seed, 4, k]))
                         if len({e.seed for e in own}) >= 4 else (own, []))
-    s, labels, nxt = labelled_transitions(fit_eps, state_fn=planner)
-    sh, labels_h, nxth = labelled_transitions(held_eps, state_fn=planner)
-    s, nxt = s[labels == k], nxt[labels == k]
-    sh, nxth = sh[labels_h == k], nxth[labels_h == k]
+    names = gear_option_names()
+    s, nxt = option_transitions(fit_eps, names, planner)[name]
+    sh, nxth = option_transitions(held_eps, names, planner)[name]
     if len(s) < 10:
         raise DynoplanError(f"option '{name}': only {len(s)} transitions to learn its "
                             "dynamics from (need >= 10); record more episodes (an option "
                             "the demonstrations do not show needs `dynoplan gear collect`)")
-    model = MLPEnsembleDynamics(STATE_DIM, cfg.dynamics_hidden, cfg.dynamics_members,
-                                option=name, seed=seed + k)
+    model, report = fit_ensemble(name, s, nxt, seed + k, cfg)
     epochs = dynamics_epochs(len(s), cfg)
-    report = model.fit(s, nxt, epochs=epochs, batch_size=DYNAMICS_BATCH, seed=seed + k,
-                       keep_still=cfg.constant_dimensions_still)
     std_scale = None
     if cal_eps:
-        sc, labels_c, nxtc = labelled_transitions(cal_eps, state_fn=planner)
-        if (labels_c == k).sum() >= 10:
-            std_scale = model.calibrate(sc[labels_c == k], nxtc[labels_c == k], 0.9)
+        sc, nxtc = option_transitions(cal_eps, names, planner)[name]
+        if len(sc) >= 10:
+            std_scale = model.calibrate(sc, nxtc, 0.9)
     model.save(out / dynamics_file(name))
     row: dict[str, Any] = {
         "transitions_train": len(s),

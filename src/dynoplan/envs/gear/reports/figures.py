@@ -26,7 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from dynoplan.data import Dataset, read_dataset
 from dynoplan.envs.gear.env import CONTROL_DT
-from dynoplan.envs.gear.learning.data import CAUTIOUS
+from dynoplan.envs.gear.learning.data import CAUTIOUS, demo_arrays
 from dynoplan.envs.gear.learning.files import HELDOUT_DIR, load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
 from dynoplan.envs.gear.state import PlannerState
@@ -177,15 +177,10 @@ def plot_tsne_regions(states: FloatArray, labels: IntArray, interrupted: BoolArr
 
 def _trial_arrays(dataset: Dataset, planner: PlannerState
                   ) -> list[tuple[FloatArray, FloatArray, IntArray, bool]]:
-    out = []
-    for episode in dataset:
-        labels = episode.options
-        if labels is None or "progress" not in episode.infos:
-            raise DynoplanError(f"{dataset.path}: trials need infos['option'] and "
-                                "infos['progress']")
-        out.append((planner(episode.observations), np.r_[0.0, episode.infos["progress"]],
-                    labels, bool((labels == CAUTIOUS).any())))
-    return out
+    """The trials' arrays (:func:`~dynoplan.envs.gear.learning.data.demo_arrays`), each
+    with whether the human interfered (a cautious-move step)."""
+    return [(states, truth, labels, bool((labels == CAUTIOUS).any()))
+            for states, truth, labels in demo_arrays(dataset, planner)]
 
 
 def make_gear_figures(models: Path, demos: Path, heldout: Path | None, out: Path,
