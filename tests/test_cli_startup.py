@@ -135,3 +135,11 @@ def test_signal_at_shutdown_prints_aborted(tmp_path, sig, status):
     assert done.stderr.strip().splitlines() == ["dynoplan: aborted"], done.stderr
     assert done.returncode == status
     assert (tmp_path / "rw" / "summary.json").is_file()
+
+
+def test_python_dash_m_dynoplan_is_the_command():
+    done = subprocess.run([sys.executable, "-m", "dynoplan", "nosuch"], capture_output=True,
+                          text=True, env=_env(), timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip().startswith("dynoplan: error:")
+    assert "Traceback" not in done.stderr
