@@ -126,17 +126,8 @@ def option_end_pairs(episodes: Sequence[Episode], option_names: Sequence[str],
     Returns:
         ``{name: (states (N, d), end_states (N, d))}``, ``N`` possibly 0.
     """
-    found: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {
-        n: ([], []) for n in option_names}
-    d = 0
-    for name, rows, start, end, cut, _ in _runs(episodes, option_names, state_fn):
-        d = rows.shape[1]
-        if cut:
-            continue
-        found[name][0].append(rows[start:end])
-        found[name][1].append(np.repeat(rows[end][None], end - start, axis=0))
-    return {n: (np.concatenate(a) if a else np.zeros((0, d)),
-                np.concatenate(b) if b else np.zeros((0, d))) for n, (a, b) in found.items()}
+    return {n: (states, ends) for n, (states, ends, _) in
+            _whole_runs(episodes, option_names, state_fn).items()}
 
 
 def option_run_failures(episodes: Sequence[Episode], option_names: Sequence[str],
@@ -150,18 +141,30 @@ def option_run_failures(episodes: Sequence[Episode], option_names: Sequence[str]
     Returns:
         ``{name: (states (N, d), failed (N,) bool)}``, ``N`` possibly 0.
     """
-    found: dict[str, tuple[list[FloatArray], list[np.ndarray]]] = {
-        n: ([], []) for n in option_names}
+    return {n: (states, failed) for n, (states, _, failed) in
+            _whole_runs(episodes, option_names, state_fn).items()}
+
+
+def _whole_runs(episodes: Sequence[Episode], option_names: Sequence[str],
+                state_fn: ObservationFn,
+                ) -> dict[str, tuple[FloatArray, FloatArray, np.ndarray]]:
+    """Per option, every state of every run no controller cut short, the state its run
+    ended in and whether it ended its episode in failure: ``(states (N, d), ends (N, d),
+    failed (N,) bool)``, ``N`` possibly 0."""
+    found: dict[str, tuple[list[FloatArray], list[FloatArray], list[np.ndarray]]] = {
+        n: ([], [], []) for n in option_names}
     d = 0
     for name, rows, start, end, cut, failed in _runs(episodes, option_names, state_fn):
         d = rows.shape[1]
         if cut:
             continue
         found[name][0].append(rows[start:end])
-        found[name][1].append(np.full(end - start, failed))
+        found[name][1].append(np.repeat(rows[end][None], end - start, axis=0))
+        found[name][2].append(np.full(end - start, failed))
     return {n: (np.concatenate(a) if a else np.zeros((0, d)),
-                np.concatenate(b) if b else np.zeros(0, dtype=bool))
-            for n, (a, b) in found.items()}
+                np.concatenate(b) if b else np.zeros((0, d)),
+                np.concatenate(c) if c else np.zeros(0, dtype=bool))
+            for n, (a, b, c) in found.items()}
 
 
 def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
