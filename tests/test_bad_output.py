@@ -120,6 +120,22 @@ def test_read_only_parent_is_one_line_before_any_work(tmp_path, monkeypatch, cap
     assert _snapshot(tmp_path) == before
 
 
+def test_sweep_with_a_read_only_resume_folder_is_one_line_before_any_work(
+        tmp_path, monkeypatch, capsys, read_only):
+    """The finished cells of an interrupted sweep wait beside OUT (``.out.sweep-cells``):
+    checked with OUT, before the configuration is read."""
+    args = _args("sweep", tmp_path)
+    resume = tmp_path / ".out.sweep-cells"
+    resume.mkdir()
+    (resume / "cell-0123456789abcdef.json").write_text("{}")
+    read_only(resume)
+    before = _snapshot(tmp_path)
+    code, stdout, err = invoke(monkeypatch, capsys, *args)
+    assert err.strip() == f"dynoplan: error: cannot write to {resume}: permission denied"
+    assert_one_line_error(code, err)
+    assert stdout == "" and _snapshot(tmp_path) == before and not leftovers(tmp_path)
+
+
 def test_gear_outcomes_with_read_only_models_is_one_line_before_any_work(
         tmp_path, monkeypatch, capsys, read_only):
     """The initiation goes into MODELS after the runs: checked before them."""

@@ -4,8 +4,9 @@
 ``.NAME.PID.XXXX.staging`` folder beside the target and move it in at the end: a failure
 or an interrupt (``KeyboardInterrupt``, which SIGINT and SIGTERM raise in the command
 line) leaves the target and its parent as they were, and the paths recorded in the
-outputs name the target, never the staging folder. A sweep's cell files are the one
-exception, kept as they finish so that an interrupted sweep resumes.
+outputs name the target, never the staging folder. A sweep keeps its finished cells as
+they finish, so that an interrupted sweep resumes, in its resume folder beside the target
+(``.OUT_NAME.sweep-cells``), and moves them into the target with the results.
 
 The stages' work is replaced by stand-ins here (seconds in all); the real runs are
 ``tests/test_gear_run.py``'s (slow) and ``tests/test_sweep.py``'s.
@@ -18,6 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from dynoplan.errors import DynoplanWarning
 from dynoplan.io import retarget, staged_folder, write_json
 from test_bad_input import leftovers
 
@@ -153,15 +155,18 @@ def test_sweep_interrupted_before_a_cell_finished_leaves_no_folder(sweep_dir):
     assert _snapshot(sweep_dir) == before and not leftovers(sweep_dir)
 
 
-def test_sweep_interrupted_keeps_its_finished_cells_only(sweep_dir):
+def test_sweep_interrupted_keeps_its_finished_cells_beside_the_target(sweep_dir):
     import test_sweep
 
     test_sweep.STOP_AT[0] = 8  # two cells finish
-    with pytest.raises(KeyboardInterrupt):
+    before = _snapshot(sweep_dir)
+    with pytest.warns(DynoplanWarning, match="kept 2 finished cells of 4"), \
+            pytest.raises(KeyboardInterrupt):
         _sweep(sweep_dir)
-    out = sweep_dir / "out"
-    assert [p.name for p in out.iterdir()] == ["cells"] and not leftovers(sweep_dir)
-    assert len(list((out / "cells").iterdir())) == 2
+    resume = sweep_dir / ".out.sweep-cells"
+    assert {k: v for k, v in _snapshot(sweep_dir).items()
+            if not k.startswith(resume.name)} == before  # no OUT
+    assert len(list(resume.iterdir())) == 2 and not leftovers(sweep_dir)
 
 
 def test_sweep_results_are_replaced_together_or_not_at_all(sweep_dir, monkeypatch):
@@ -170,17 +175,17 @@ def test_sweep_results_are_replaced_together_or_not_at_all(sweep_dir, monkeypatc
     _sweep(sweep_dir)
     out = sweep_dir / "out"
     (out / "cells" / next(iter(sorted(p.name for p in (out / "cells").iterdir())))).unlink()
-    results = {n: (out / n).read_bytes()
-               for n in ("results.csv", "results.md", "sweep.png", "summary.json")}
+    before = _snapshot(out)
 
     def plot_fails(*args, **kwargs):
         raise RuntimeError("no figure")
 
     monkeypatch.setattr(sweep_figures, "plot_sweep", plot_fails)
-    with pytest.raises(RuntimeError):
+    with pytest.warns(DynoplanWarning, match="kept 1 finished cell of 4"), \
+            pytest.raises(RuntimeError):
         _sweep(sweep_dir)  # the cell runs again, then results.csv and .md, then the figure
-    assert {n: (out / n).read_bytes() for n in results} == results  # none of the new ones
-    assert len(list((out / "cells").iterdir())) == 4  # the cell that ran is kept
+    assert _snapshot(out) == before  # none of the new results, nor the cell
+    assert len(list((sweep_dir / ".out.sweep-cells").iterdir())) == 1  # the cell that ran
     assert not leftovers(sweep_dir)
 
 

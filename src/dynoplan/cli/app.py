@@ -111,7 +111,9 @@ def sweep(
     config: Path = typer.Argument(..., help="Sweep configuration (.toml or .json)."),
     out: Path | None = typer.Option(None, callback=out_folder,
                                     help="Output folder (default: results/sweep-"
-                                    "CONFIG_NAME). Re-running into it skips finished cells."),
+                                    "CONFIG_NAME). Finished cells wait in "
+                                    ".OUT_NAME.sweep-cells beside it until the sweep "
+                                    "completes; re-running resumes from them."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -122,11 +124,11 @@ def sweep(
     require_gear()
     os.environ.setdefault("MUJOCO_GL", "egl")
     from dynoplan.experiments.sweep import run_sweep
-    from dynoplan.io import check_writable
     from dynoplan.parallel import parse_workers
+    from dynoplan.pipeline.sweep import check_sweep_writable
 
     folder = out if out is not None else Path("results") / f"sweep-{config.stem}"
-    check_writable(folder)
+    check_sweep_writable(folder)  # OUT, and the resume folder beside it
     pool = parse_workers(workers, ray_address)
     summary = run_sweep(config, folder, pool, progress=not quiet,
                         log=(lambda _: None) if quiet else typer.echo)

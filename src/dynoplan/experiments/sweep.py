@@ -1,7 +1,9 @@
 """``dynoplan sweep CONFIG``: the gear's controllers on a grid of planner settings and seeds
 over trained gear models, resumably (:mod:`dynoplan.pipeline.sweep`; the configuration:
 :mod:`dynoplan.pipeline.sweep_config`): the episodes of ``gear run`` for each seed, one
-row of ``gear run``'s ``results.csv`` per cell."""
+row of ``gear run``'s ``results.csv`` per cell. Finished cells wait in the resume folder
+beside ``OUT`` (:func:`~dynoplan.pipeline.sweep.resume_folder`) until the sweep completes;
+``OUT`` changes only then, all at once."""
 
 from collections.abc import Callable
 from pathlib import Path
@@ -15,7 +17,7 @@ from dynoplan.envs.gear.reports.results import RESULT_COLUMNS, summarise
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.pipeline.jobs import build_runner, runner_episode
-from dynoplan.pipeline.sweep import SweepTask, cell_key
+from dynoplan.pipeline.sweep import SweepTask, cell_key, resume_folder
 from dynoplan.pipeline.sweep import run_sweep as run_task_sweep
 from dynoplan.pipeline.sweep_config import SweepConfig
 from dynoplan.seeding import EpisodeSeed
@@ -41,4 +43,4 @@ def run_sweep(config_path: Path, out: Path, workers: Workers = SERIAL, progress:
                           run=run)
 
 
-__all__ = ["GEAR_SWEEP", "cell_key", "load_sweep_config", "run_sweep"]
+__all__ = ["GEAR_SWEEP", "cell_key", "load_sweep_config", "resume_folder", "run_sweep"]

@@ -4,33 +4,42 @@ configuration: :mod:`dynoplan.pipeline.sweep_config`), resumably; the gear's is
 
 Every cell's episodes are tasks of one map (:func:`dynoplan.parallel.imap_unordered`),
 so many workers share the whole grid, not one cell at a time. As soon as a cell's last
-episode is in, its result is written to ``OUT/cells/<key>.json`` (a temporary file
-renamed onto the name, :mod:`dynoplan.io`). A re-run reads the cell files back and skips
-the cells whose file is valid: it parses, has this format, the cell's exact settings,
-the same models (the SHA-256 of ``models.json``) and one metric row of the right episode
-count. Anything else (an interrupted write leaves only a hidden temporary file; a
-truncated or edited file; models trained again) is computed again. So an interrupted
-sweep loses only its unfinished cells.
+episode is in, its result is written to ``<key>.json`` in the resume folder beside
+``OUT``, ``PARENT/.OUT_NAME.sweep-cells`` (:func:`resume_folder`; a temporary file renamed
+onto the name, :mod:`dynoplan.io`). A re-run reads the cell files back, from the resume
+folder and from ``OUT/cells`` (the cells of a completed sweep, or of an interrupted one
+of an earlier dynoplan, which kept them there), and skips the cells whose file is valid:
+it parses, has this format, the cell's exact settings, the same models (the SHA-256 of
+``models.json``) and one metric row of the right episode count. Anything else (an
+interrupted write leaves only a hidden temporary file; a truncated or edited file;
+models trained again) is computed again. So an interrupted sweep loses only its
+unfinished cells.
 
 Outputs in ``OUT``: ``results.csv`` and ``results.md`` (one row per cell: the swept
-settings, then the task's metric columns, :class:`SweepTask`), ``sweep.png``, and
-``summary.json``, staged as one (:func:`~dynoplan.io.staged_folder`: the four replace the
-previous ones together when the sweep completes, or none does). The cell files are the
-sweep's own record of what is finished, kept as they come so that a sweep stopped in any
-way (Ctrl-C, SIGTERM, SIGKILL, a lost head node) resumes: they are the one thing an
-interrupted sweep adds to ``OUT``, and only once a cell has finished (before that
-``OUT`` and the folder above it stay as they were).
+settings, then the task's metric columns, :class:`SweepTask`), ``sweep.png``,
+``summary.json`` and ``cells/`` (every cell file: this grid's, and those of other grids
+that ``OUT/cells`` or the resume folder held, so that a later grid reuses them), staged as
+one (:func:`~dynoplan.io.staged_folder`): they replace the previous ones together when
+the sweep completes, or none does, and the resume folder is removed after the move. A
+sweep stopped in any way (Ctrl-C, SIGTERM, SIGKILL, a lost head node, an error) leaves
+``OUT`` as it was; its finished cells stay in the resume folder (the one thing it adds
+beside ``OUT``, and only once a cell has finished), and a stop that unwinds says how
+many in one :class:`~dynoplan.errors.DynoplanWarning`. The resume folder's name is not a
+staging folder's (``.NAME.PID.XXXX.staging``), so no later write removes it as a leftover.
 """
 
 import hashlib
 import json
+import os
+import shutil
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from dynoplan.errors import DynoplanError
+from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.io import check_writable, staged_folder, write_csv, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE, check_format_version
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
@@ -44,6 +53,8 @@ from dynoplan.seeding import EpisodeSeed
 
 CELL_FORMAT = "dynoplan-sweep-cell"
 CELL_VERSION = 1
+RESUME_SUFFIX = ".sweep-cells"
+"""The resume folder of ``OUT`` is ``.OUT_NAME`` + this, beside ``OUT``."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +118,24 @@ def write_cell(path: Path, cell: Cell, models_sha256: str,
     return row
 
 
+def resume_folder(out: Path) -> Path:
+    """Where a sweep into ``out`` keeps its finished cells until it completes:
+    ``PARENT/.OUT_NAME.sweep-cells`` (module docstring)."""
+    target = out if out.name not in ("", "..") else Path(os.path.abspath(out))
+    return target.parent / f".{target.name}{RESUME_SUFFIX}"
+
+
+def check_sweep_writable(out: Path) -> None:
+    """:func:`~dynoplan.io.check_writable` of ``out`` and of its resume folder (itself when
+    it exists; else the folder above, where it is made), creating nothing.
+
+    Raises:
+        DynoplanError: ``cannot write to FOLDER: REASON``, or a file in the way.
+    """
+    check_writable(out)
+    check_writable(resume_folder(out))
+
+
 def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers = SERIAL,
               progress: bool = True,
               log: Callable[[str], None] = lambda _: None, *,
@@ -120,9 +149,13 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
     :func:`~dynoplan.pipeline.jobs.runner_episode`);
     tests replace them.
 
+    On any exception (``KeyboardInterrupt`` included) ``out`` is as it was and the
+    finished cells are in :func:`resume_folder`; when it holds any of this grid's, one
+    :class:`~dynoplan.errors.DynoplanWarning` says how many, before the exception goes on.
+
     Raises:
         DynoplanError: a bad configuration, no ``models.json`` in the models folder, an
-            unwritable ``out``.
+            unwritable ``out`` or resume folder.
     """
     config = sweep.config(config_path)
     manifest = config.models / MANIFEST_FILE
@@ -132,15 +165,18 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
     except OSError:
         raise DynoplanError(f"{config_path}: models: {manifest} not found (train models "
                             "with 'dynoplan gear run' or 'dynoplan gear train')") from None
-    check_writable(out / "cells")  # before any cell; it is made with the first one
-    check_writable(out)
+    check_sweep_writable(out)  # before any cell; the resume folder comes with the first
+    resume = resume_folder(out)
     cells = config.cells()
     rows: dict[int, dict[str, Any]] = {}
+    files: dict[str, Path] = {}  # this grid's cell files: where each finished one is
     for i, cell in enumerate(cells):
-        row = read_cell(out / "cells" / f"{cell_key(cell)}.json", cell, models_sha256,
-                        sweep.columns)
-        if row is not None:
-            rows[i] = row
+        name = f"{cell_key(cell)}.json"
+        for folder in (resume, out / "cells"):
+            row = read_cell(folder / name, cell, models_sha256, sweep.columns)
+            if row is not None:
+                rows[i], files[name] = row, folder / name
+                break
     todo = [i for i in range(len(cells)) if i not in rows]
     log(f"{len(cells)} cells: {len(rows)} finished, {len(todo)} to run "
         f"({len(todo) * config.episodes} episodes)")
@@ -153,16 +189,17 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
             tasks.append((job, s))
             owner.append(i)
     buffers: dict[int, dict[int, EpisodeRecord]] = {i: {} for i in todo}
-    with staged_folder(out) as stage:  # the results together, or none
+    try:
         for t, metrics in imap_unordered(setup, run, tasks, workers, "sweep episodes",
                                          progress):
             i = owner[t]
             buffers[i][t] = metrics
             if len(buffers[i]) == cells[i].episodes:
                 finished = buffers.pop(i)
-                rows[i] = write_cell(out / "cells" / f"{cell_key(cells[i])}.json", cells[i],
-                                     models_sha256, [finished[k] for k in sorted(finished)],
-                                     sweep)
+                name = f"{cell_key(cells[i])}.json"
+                rows[i] = write_cell(resume / name, cells[i], models_sha256,
+                                     [finished[k] for k in sorted(finished)], sweep)
+                files[name] = resume / name
         table = [{**_swept(config, cells[i]), **{c: rows[i].get(c) for c in sweep.columns}}
                  for i in range(len(cells))]
         summary = {"config": str(config_path), "models": str(config.models),
@@ -171,13 +208,36 @@ def run_sweep(config_path: Path, out: Path, sweep: SweepTask, workers: Workers =
                    "cells_reused": len(cells) - len(todo),
                    "episodes_per_cell": config.episodes, "workers": asdict(workers),
                    "wall_s": round(time.perf_counter() - t0, 2), "results": table}
-        write_csv(stage / "results.csv", table)
-        write_text(stage / "results.md", results_markdown(config, table))
-        from dynoplan.reports.sweep_figures import plot_sweep
+        with staged_folder(out) as stage:  # the results and the cells together, or none
+            _copy_cells(stage / "cells", files, (out / "cells", resume))
+            write_csv(stage / "results.csv", table)
+            write_text(stage / "results.md", results_markdown(config, table))
+            from dynoplan.reports.sweep_figures import plot_sweep
 
-        plot_sweep(table, config.swept, stage / "sweep.png")
-        write_json(stage / "summary.json", summary)
+            plot_sweep(table, config.swept, stage / "sweep.png")
+            write_json(stage / "summary.json", summary)
+    except BaseException:
+        kept = sum(1 for path in files.values() if path.parent == resume)
+        if kept:
+            warnings.warn(f"kept {kept} finished cell{'s' if kept != 1 else ''} of "
+                          f"{len(cells)} in {resume}; run the same command again to "
+                          "resume", DynoplanWarning, stacklevel=2)
+        raise
+    shutil.rmtree(resume, ignore_errors=True)  # its cells are in OUT/cells now
     return summary
+
+
+def _copy_cells(folder: Path, files: dict[str, Path], sources: Sequence[Path]) -> None:
+    """Fill ``folder`` with every cell file: ``files`` (this grid's, by name), then the
+    other ``cell-*.json`` of ``sources`` (a later source's file wins)."""
+    every: dict[str, Path] = {}
+    for source in sources:
+        if source.is_dir():
+            every.update((p.name, p) for p in source.glob("cell-*.json") if p.is_file())
+    every.update(files)
+    folder.mkdir()
+    for name, path in sorted(every.items()):
+        shutil.copyfile(path, folder / name)
 
 
 def _swept(config: SweepConfig, cell: Cell) -> dict[str, Any]:
@@ -198,5 +258,6 @@ def results_markdown(config: SweepConfig, table: Sequence[dict[str, Any]]) -> st
         markdown_table(table)])
 
 
-__all__ = ["CELL_FORMAT", "CELL_VERSION", "SweepTask", "cell_key", "read_cell",
-           "results_markdown", "run_sweep", "write_cell"]
+__all__ = ["CELL_FORMAT", "CELL_VERSION", "RESUME_SUFFIX", "SweepTask", "cell_key",
+           "check_sweep_writable", "read_cell", "results_markdown", "resume_folder",
+           "run_sweep", "write_cell"]
