@@ -30,14 +30,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from dynoplan.envs.gear.controllers import (
-    GEAR_CONTROL,
-    gear_oracle,
-    make_gear_controller,
-)
+from dynoplan.envs.gear.controllers import GEAR_CONTROL, gear_oracle
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.learning.files import load_gear_models
 from dynoplan.envs.gear.options.catalog import policy_factories
+from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.pipeline.evaluate import ControllerRunner
 from dynoplan.planning import OptionPlanner
 from dynoplan.seeding import episode_seeds
 
@@ -46,8 +44,9 @@ def measure(models_dir: Path, episodes: int, every: int, samples: int, horizon: 
             seed: int, warmup: int = 4) -> dict[str, Any]:
     models = load_gear_models(models_dir)
     factories = policy_factories(models_dir)
-    env = GearAssemblyEnv()
-    controller = make_gear_controller("dynoplan", env, models, factories)
+    runner = GearTask().make_runner("dynoplan", models_dir, GEAR_CONTROL)
+    assert isinstance(runner, ControllerRunner) and isinstance(runner.env, GearAssemblyEnv)
+    env, controller = runner.env, runner.controller
     options = controller.options
     same = OptionPlanner(options, models.goal, horizon=horizon, samples=samples)
     oracle = gear_oracle(env, options, factories, models.goal, horizon, samples)

@@ -20,7 +20,9 @@ from dynoplan.pipeline.collect import (
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import (
     ControllerJob,
+    ControllerVariant,
     EpisodeRecord,
+    TaskControl,
     controller_names,
     evaluate_controllers,
     learned_regions,
@@ -70,6 +72,7 @@ __all__ = [
     "CallableDemonstrator",
     "ControllerJob",
     "ControllerSettings",
+    "ControllerVariant",
     "Demonstrator",
     "DynamicsFitter",
     "EndOnSuccess",
@@ -85,6 +88,7 @@ __all__ = [
     "StridedTermination",
     "SuccessFn",
     "Task",
+    "TaskControl",
     "admissibility",
     "box_state_dim",
     "call_factory",

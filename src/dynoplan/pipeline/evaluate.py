@@ -6,6 +6,13 @@ so the rows of a results table differ only by the controller. The demonstrator (
 user's scripted chain of the options) is the bar: it shows what the options can do when
 chained right, and DynoPlan's success is reported as a share of its success
 (:func:`composition_ratio`).
+
+Every task's controllers come from one factory, :func:`make_controller`: a
+:class:`ControllerVariant` (how it chooses; the names every task has are
+:func:`generic_variant`'s), the options, the goal heuristic, the
+:class:`~dynoplan.pipeline.control_settings.ControllerSettings` and what the task adds
+(:class:`TaskControl`: the gear's planner state, hold, termination rate, safety
+constraint, simulator oracle and script).
 """
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -18,13 +25,19 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.adapters.spec import OptionSpec, as_spec
-from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice
-from dynoplan.control.controller import Controller, EpisodeTrace
+from dynoplan.control.choosers import (
+    FixedChoice,
+    OptionChooser,
+    RandomChoice,
+    ScriptedSequence,
+)
+from dynoplan.control.controller import Controller, EpisodeTrace, flat_state
 from dynoplan.errors import DynoplanError
 from dynoplan.models.corruption import NoisyDynamics
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.initiation import RegionModel
+from dynoplan.options.initiation import Nowhere, RegionModel
 from dynoplan.options.option import Option
+from dynoplan.options.termination import ConstantTermination
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.collect import Demonstrator, demonstrator_from, record_episode
 from dynoplan.pipeline.control_settings import ControllerSettings
@@ -34,6 +47,7 @@ from dynoplan.planning.option_planner import OptionPlanner
 from dynoplan.planning.sequence_planner import SequencePlanner
 from dynoplan.progress import track
 from dynoplan.reports.tables import markdown_table
+from dynoplan.safety.constraint import SafetyConstraint
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 from dynoplan.types import FloatArray
 
@@ -116,27 +130,150 @@ def neutral_action(space: gym.Space[Any]) -> FloatArray | None:
     return np.clip(np.zeros(space.shape), space.low, space.high).astype(space.dtype)
 
 
-def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
-                    settings: ControllerSettings,
+PLANNER = "planner"
+ORACLE = "oracle"
+SCRIPT = "script"
+ONE_OPTION = "option"
+CHOOSERS = (PLANNER, RANDOM, ORACLE, SCRIPT, ONE_OPTION)
+"""How a controller chooses its options (:attr:`ControllerVariant.chooser`)."""
+
+
+@dataclass(frozen=True)
+class ControllerVariant:
+    """A controller a task names: how it chooses an option and what it may choose.
+
+    Attributes:
+        chooser: one of :data:`CHOOSERS`: ``planner`` (DynoPlan's Eq. 1,
+            :class:`~dynoplan.planning.OptionPlanner`, or
+            :class:`~dynoplan.planning.SequencePlanner` at ``depth`` > 1), ``random``
+            (uniform among the admissible options), ``oracle`` (the task's
+            :attr:`TaskControl.oracle`), ``script`` (the task's :attr:`TaskControl.script`,
+            each option run until its policy reports it is finished: its termination is
+            ignored) or ``option`` (``option`` alone).
+        sets: the task's name for the initiation and continuation sets the options are
+            built on (the task builds the options before the factory sees them, which
+            does not read this): ``own``, the options' own sets as the task builds them
+            (a Gymnasium task's), or one of the task's named sets (the gear's
+            :data:`~dynoplan.envs.gear.controllers.INITIATION_SETS`).
+        end_inside: the planner's rollouts end at their last state inside the option's
+            continuation set, whatever the settings say
+            (:class:`~dynoplan.planning.OptionPlanner`).
+        safe: Eq. 1 is chance-constrained by the task's safety constraint
+            (:attr:`TaskControl.constraint`, at ``ControllerSettings.risk_level``).
+        never: options never admissible (an ablation: the same models without an
+            option's choice).
+        replans: the chooser decides again every ``ControllerSettings.replan_every``
+            environment steps and the options' terminations are drawn every
+            :attr:`TaskControl.termination_every` steps; ``False``: it decides only when
+            the option stops, and terminations are drawn every step (a script never
+            replans: every call of its chooser is the script's next step).
+        option: the option an ``option`` chooser runs.
+    """
+
+    chooser: str
+    sets: str = "own"
+    end_inside: bool = False
+    safe: bool = False
+    never: tuple[str, ...] = ()
+    replans: bool = True
+    option: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.chooser not in CHOOSERS:
+            raise DynoplanError(f"unknown chooser {self.chooser!r}; expected one of "
+                                f"{', '.join(CHOOSERS)}")
+        if (self.chooser == ONE_OPTION) != (self.option is not None):
+            raise DynoplanError("an 'option' chooser names its option, and only it does")
+        if self.chooser == SCRIPT and self.replans:
+            raise DynoplanError("a script does not replan (replans=False)")
+
+
+def generic_variant(kind: str, options: Sequence[Option]) -> ControllerVariant:
+    """The controllers every task has, by the names of :func:`controller_names`:
+    ``dynoplan`` (the planner, replanning), ``random`` and ``option:<name>`` (neither
+    replans: the option chosen runs until it stops)."""
+    if kind == DYNOPLAN:
+        return ControllerVariant(PLANNER)
+    if kind == RANDOM:
+        return ControllerVariant(RANDOM, replans=False)
+    if kind.startswith(OPTION_PREFIX):
+        return ControllerVariant(ONE_OPTION, replans=False,
+                                 option=kind.removeprefix(OPTION_PREFIX))
+    raise DynoplanError(
+        f"unknown controller '{kind}' (known: {', '.join(controller_names(options))})")
+
+
+OracleMaker = Callable[[Sequence[Option], GoalHeuristic, ControllerSettings], OptionChooser]
+"""``oracle(options, goal, settings) -> chooser``: a task's simulator oracle over the
+controller's options (for example :class:`~dynoplan.planning.SimulatorOracle` at
+``settings.oracle_horizon`` and ``settings.oracle_samples``)."""
+
+
+@dataclass(frozen=True)
+class TaskControl:
+    """What a task gives the one controller factory (:func:`make_controller`) beyond its
+    options, models and settings; the defaults are a Gymnasium task's.
+
+    Attributes:
+        state_fn: the planner state of an observation.
+        hold_action: the task's action where no option is admissible, when the settings
+            name none (``None``: :func:`neutral_action` of the action space).
+        termination_every: environment steps between draws of an option's termination
+            under a chooser that replans (the rate its learned models step at).
+        record_infos: keep every step's ``info`` in the trace (for the task's metrics).
+        constraint: the safety constraint of the ``safe`` variants (``None``: the task
+            has none).
+        oracle: the ``oracle`` chooser's maker (``None``: the task has none).
+        script: the ``script`` chooser's options in order (empty: the task has none).
+    """
+
+    state_fn: Callable[[Any], FloatArray] = flat_state
+    hold_action: Any = None
+    termination_every: int = 1
+    record_infos: bool = False
+    constraint: SafetyConstraint | None = None
+    oracle: OracleMaker | None = None
+    script: tuple[str, ...] = ()
+
+
+def make_controller(kind: str | ControllerVariant, options: Sequence[Option],
+                    goal: GoalHeuristic, settings: ControllerSettings,
                     planner_options: Sequence[Option] | None = None,
                     action_space: gym.Space[Any] | None = None,
-                    state_scale: FloatArray | None = None) -> Controller:
-    """A controller by name: ``dynoplan``, ``random`` or ``option:<name>``.
+                    state_scale: FloatArray | None = None,
+                    task: TaskControl = TaskControl()) -> Controller:
+    """The one factory of every task's controllers.
 
     Args:
-        options: the options the controller runs.
-        goal: the goal heuristic (used by ``dynoplan`` only).
+        kind: a :class:`ControllerVariant`, or the name of one every task has
+            (:func:`generic_variant`: ``dynoplan``, ``random`` or ``option:<name>``).
+        options: the options the controller runs (on the sets the variant names).
+        goal: the goal heuristic (used by the planner and the oracle).
         planner_options: the options as the planner sees them (same names; they may
             carry multi-step dynamics and per-model-step terminations); default
             ``options``.
         state_scale: ``(state_dim,)`` the spread of every state coordinate over the
-            fitted data (``FittedModels.state_scale``), which ``no_effect_share`` scales.
+            fitted data (``FittedModels.state_scale``), which ``no_effect_share`` and
+            ``loop_share`` scale (``None``: neither rule).
         action_space: the environment's; where no option is admissible the controller
-            holds with ``settings.hold_action``, else :func:`neutral_action` of it (unless
+            holds with ``settings.hold_action``, else the task's
+            (``task.hold_action``), else :func:`neutral_action` of it (unless
             ``settings.hold`` is off).
+        task: what the task adds (its planner state, hold, termination rate, safety
+            constraint, oracle and script).
+
+    Raises:
+        DynoplanError: an unknown controller name, or a variant that needs what the task
+            does not give (a safety constraint, an oracle, a script).
     """
     settings.validate()
+    variant = kind if isinstance(kind, ControllerVariant) else generic_variant(kind, options)
+
     def as_run(o: Option) -> Option:
+        if o.name in variant.never:
+            o = replace(o, initiation=Nowhere(), continuation=None, fallback=None)
+        if variant.chooser == SCRIPT:
+            o = replace(o, termination=ConstantTermination(0.0))
         return replace(o, start_where_done=settings.start_where_done,
                        fallback=o.fallback if settings.fallback_own_sets else None,
                        failure=o.failure if settings.score_failures else None)
@@ -144,9 +281,11 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
     options = [as_run(o) for o in options]
     if planner_options is not None:
         planner_options = [as_run(o) for o in planner_options]
-    hold = hold_action(settings, action_space)
+    hold = hold_action(settings, action_space, task.hold_action)
     chooser: OptionChooser
-    if kind == DYNOPLAN:
+    if variant.chooser == PLANNER:
+        if variant.safe and task.constraint is None:
+            raise DynoplanError("a safe controller needs the task's safety constraint")
         # depth 1 is OptionPlanner itself (the same decisions to the bit)
         planner = OptionPlanner if settings.depth == 1 else partial(SequencePlanner,
                                                                     depth=settings.depth)
@@ -154,22 +293,32 @@ def make_controller(kind: str, options: Sequence[Option], goal: GoalHeuristic,
                                               settings.dynamics_noise), goal,
                           horizon=settings.horizon, samples=settings.samples,
                           risk=settings.risk, epistemic=settings.epistemic,
-                          end_inside=settings.end_inside,
+                          constraint=task.constraint if variant.safe else None,
+                          risk_level=settings.risk_level,
+                          end_inside=settings.end_inside or variant.end_inside,
                           # holding is a way to wait only where there is a hold
                           fallback_must_gain=settings.fallback_own_sets
                           and settings.fallback_must_gain and hold is not None)
-    elif kind == RANDOM:
+    elif variant.chooser == ORACLE:
+        if task.oracle is None:
+            raise DynoplanError("an oracle controller needs the task's oracle")
+        chooser = task.oracle(options, goal, settings)
+    elif variant.chooser == RANDOM:
         chooser = RandomChoice(options)
-    elif kind.startswith(OPTION_PREFIX):
-        chooser = FixedChoice(options, kind.removeprefix(OPTION_PREFIX))
+    elif variant.chooser == SCRIPT:
+        if not task.script:
+            raise DynoplanError("a scripted controller needs the task's script")
+        chooser = ScriptedSequence(options, task.script)
     else:
-        raise DynoplanError(
-            f"unknown controller '{kind}' (known: {', '.join(controller_names(options))})")
-    alone = kind != DYNOPLAN
-    return Controller(options, chooser, max_decisions=settings.max_decisions,
+        assert variant.option is not None
+        chooser = FixedChoice(options, variant.option)
+    return Controller(options, chooser, state_fn=task.state_fn,
+                      max_decisions=settings.max_decisions,
                       max_option_steps=settings.max_option_steps,
-                      replan_every=None if alone else settings.replan_every,
+                      replan_every=settings.replan_every if variant.replans else None,
                       margin=settings.margin, hold_action=hold,
+                      record_infos=task.record_infos,
+                      termination_every=task.termination_every if variant.replans else 1,
                       no_effect_tolerance=no_effect_tolerance(settings, state_scale),
                       loop_tolerance=None if settings.loop_share is None or state_scale is None
                       else settings.loop_share * np.asarray(state_scale, dtype=np.float64),
@@ -194,14 +343,19 @@ def planning_settings(settings: ControllerSettings, models: "FittedModels"
     return replace(settings, horizon=1) if models.option_model == "end" else settings
 
 
-def hold_action(settings: ControllerSettings, action_space: gym.Space[Any] | None) -> Any:
-    """The action a generic controller holds with (``None``: it ends the episode)."""
+def hold_action(settings: ControllerSettings, action_space: gym.Space[Any] | None,
+                task_hold: Any = None) -> Any:
+    """The action a controller holds with (``None``: it ends the episode):
+    ``settings.hold_action``, else the task's own ``task_hold``, else
+    :func:`neutral_action` of ``action_space``."""
     if not settings.hold:
         return None
     if isinstance(settings.hold_action, tuple):
         return np.asarray(settings.hold_action)
     if settings.hold_action is not None:
         return settings.hold_action
+    if task_hold is not None:
+        return task_hold
     return None if action_space is None else neutral_action(action_space)
 
 

@@ -29,15 +29,18 @@ variant.
 The choosers that replan (all but the fixed script) plan again every decision period
 (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps), and draw ``beta`` at that
 rate too: the learned models step at the decision rate.
+
+Every controller is built by the pipeline's one factory,
+:func:`~dynoplan.pipeline.evaluate.make_controller`, from a variant of :data:`VARIANTS`, the
+options on its sets (:func:`gear_options`), :data:`GEAR_CONTROL` and what the gear adds
+(:func:`gear_control`); :meth:`~dynoplan.envs.gear.pipeline_task.GearTask.make_runner`
+puts them together.
 """
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from dynoplan.control import Controller
-from dynoplan.control.choosers import OptionChooser, RandomChoice, ScriptedSequence
 from dynoplan.envs.gear.arm_points import arm_points
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory, gripper_as_it_is
@@ -62,11 +65,10 @@ from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion, Nowhere
 from dynoplan.options.option import Option
-from dynoplan.options.termination import ConstantTermination
 from dynoplan.pipeline.control_settings import ControllerSettings
-from dynoplan.pipeline.evaluate import with_dynamics_noise
+from dynoplan.pipeline.evaluate import ControllerVariant, TaskControl
 from dynoplan.pipeline.fit import FittedModels
-from dynoplan.planning import OptionPlanner, SimulatorOracle
+from dynoplan.planning import SimulatorOracle
 from dynoplan.safety.constraint import ConstantVelocityHuman, SeparationConstraint
 from dynoplan.types import FloatArray
 
@@ -90,29 +92,11 @@ INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
   policies is R^12")."""
 
 
-@dataclass(frozen=True)
-class ControllerVariant:
-    """A named controller: how it chooses (``planner``, ``oracle``, ``random`` or
-    ``script``), on which initiation and continuation sets (of :data:`INITIATION_SETS`),
-    whether the planner's rollouts end at their last state inside the option's
-    continuation set (``end_inside``, :class:`~dynoplan.planning.OptionPlanner`, whatever
-    the settings say), and whether Eq. 1 is chance-constrained by ISO/TS 15066 separation
-    from the predicted hand (``safe``, :func:`gear_safety_constraint`)."""
-
-    chooser: str
-    sets: str
-    end_inside: bool = False
-    safe: bool = False
-    never: tuple[str, ...] = ()
-    """Options never admissible in this variant (an ablation: the same models without
-    an option's choice)."""
-
-
 VARIANTS: dict[str, ControllerVariant] = {
     "dynoplan": ControllerVariant("planner", "learned", end_inside=True),
     "random": ControllerVariant("random", "learned"),
     "oracle": ControllerVariant("oracle", "learned"),
-    "fixed_script": ControllerVariant("script", "everywhere"),
+    "fixed_script": ControllerVariant("script", "everywhere", replans=False),
     "dynoplan+rules": ControllerVariant("planner", "rules"),
     "random+rules": ControllerVariant("random", "rules"),
     "oracle+rules": ControllerVariant("oracle", "rules"),
@@ -128,7 +112,10 @@ VARIANTS: dict[str, ControllerVariant] = {
                                                    safe=True, never=(GIVE_WAY_NAME,)),
 }
 """Every controller ``gear evaluate --controllers`` and ``gear episode --controller``
-accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe ones.
+accept: :data:`CONTROLLERS`, the variants on other initiation sets and the safe ones, as
+:class:`~dynoplan.pipeline.evaluate.ControllerVariant` s of the one controller factory
+(:func:`~dynoplan.pipeline.evaluate.make_controller`; ``sets`` is one of
+:data:`INITIATION_SETS`, :func:`gear_options`).
 
 ``dynoplan`` scores its rollouts at their last state inside the continuation set
 (``end_inside``): on the learned sets nothing else stops a rollout where the option's
@@ -147,7 +134,8 @@ MAX_EPISODE_STEPS = round(MAX_EPISODE_SECONDS / CONTROL_DT)
 GEAR_CONTROL = ControllerSettings(
     horizon=10, samples=64, margin=0.1, replan_every=DECISION_STEPS,
     max_decisions=MAX_EPISODE_STEPS, max_option_steps=MAX_EPISODE_STEPS, oracle_horizon=10,
-    oracle_samples=1, epistemic=0.0, no_effect_tolerance=1e-3)
+    oracle_samples=1, epistemic=0.0, no_effect_tolerance=1e-3, no_effect_share=None,
+    loop_share=None, start_where_done=True, fallback_must_gain=False, stall_progress=None)
 """How the gear's controllers plan and run (``gear run``'s defaults):
 
 - ``horizon``, ``samples``: Eq. 1's ``n`` (decisions of 0.5 s) and ``S``;
@@ -168,7 +156,13 @@ GEAR_CONTROL = ControllerSettings(
   not started there again (:class:`~dynoplan.control.Controller`). Without it, a move
   already at its goal (done after two steps) was chosen again and again, while the
   insertion it should give way to was ruled out by its learned initiation (measured in
-  ``docs/safety.md``)."""
+  ``docs/safety.md``); without it (``gear evaluate --repeat-no-effect``) there is no such
+  rule (``no_effect_share`` is off);
+- the generic pipeline's other rules are off, as they were never measured on the gear:
+  an option may start where its termination is certain (``start_where_done``), no rule
+  against coming back to an earlier decision's state (``loop_share``), and where only an
+  option's fallback set holds, the planner starts the best-scoring option rather than
+  holding (``fallback_must_gain``, ``stall_progress``)."""
 
 
 def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
@@ -184,16 +178,11 @@ def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Ini
 
 
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
-                 factories: Mapping[str, GearPolicyFactory], sets: str = "rules",
-                 terminations: bool = True, never: tuple[str, ...] = ()) -> list[Option]:
-    """The options in ``models.option_names`` order, their policies bound to ``env``.
-
-    Args:
-        sets: their initiation and continuation sets, one of :data:`INITIATION_SETS`.
-        terminations: each option's own ``beta_w`` (else 0: the option runs until its
-            policy reports it is finished).
-        never: options that are never admissible (their initiation set is empty).
-    """
+                 factories: Mapping[str, GearPolicyFactory], sets: str = "rules"
+                 ) -> list[Option]:
+    """The options in ``models.option_names`` order, their policies bound to ``env``, each
+    with its own termination ``beta_w`` and its initiation, continuation and fallback sets
+    under ``sets`` (one of :data:`INITIATION_SETS`)."""
     missing = [n for n in models.option_names if n not in factories]
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
@@ -202,13 +191,9 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
         policy = factories[name](env)
         dynamics: DynamicsModel = models.dynamics[name]
         initiation, continuation = option_sets(name, models, sets)
-        fallback = option_fallback(name, models, sets)
-        if name in never:
-            initiation, continuation, fallback = Nowhere(), None, None
-        options.append(Option(
-            name, policy, dynamics,
-            termination=policy.termination() if terminations else ConstantTermination(0.0),
-            initiation=initiation, continuation=continuation, fallback=fallback))
+        options.append(Option(name, policy, dynamics, termination=policy.termination(),
+                              initiation=initiation, continuation=continuation,
+                              fallback=option_fallback(name, models, sets)))
     return options
 
 
@@ -253,42 +238,25 @@ def option_fallback(name: str, models: FittedModels, sets: str) -> Initiation | 
     return InRegion(learned, name)
 
 
-def make_gear_controller(name: str, env: GearAssemblyEnv, models: FittedModels,
-                         factories: Mapping[str, GearPolicyFactory],
-                         settings: ControllerSettings = GEAR_CONTROL) -> Controller:
-    """The controller ``name`` (one of :data:`VARIANTS`) on ``env``."""
-    if name not in VARIANTS:
-        raise DynoplanError(f"unknown controller {name!r}; expected one of "
-                            f"{', '.join(VARIANTS)}")
-    settings.validate()
-    variant = VARIANTS[name]
-    scripted = variant.chooser == "script"
-    options = gear_options(env, models, factories, sets=variant.sets,
-                           terminations=not scripted, never=variant.never)
-    chooser: OptionChooser
-    if variant.chooser == "planner":
-        chooser = OptionPlanner(with_dynamics_noise(options, settings.dynamics_noise),
-                                models.goal, horizon=settings.horizon,
-                                samples=settings.samples, risk=settings.risk,
-                                epistemic=settings.epistemic,
-                                constraint=gear_safety_constraint(env) if variant.safe else None,
-                                risk_level=settings.risk_level,
-                                end_inside=settings.end_inside or variant.end_inside)
-    elif variant.chooser == "oracle":
-        chooser = gear_oracle(env, options, factories, models.goal,
-                              settings.oracle_horizon, settings.oracle_samples)
-    elif variant.chooser == "random":
-        chooser = RandomChoice(options)
-    else:
-        chooser = ScriptedSequence(options, FIXED_SCRIPT)
-    hold = HoldStill(env) if settings.hold_action is None else settings.hold_action
-    return Controller(options, chooser, state_fn=PlannerState(),
-                      max_decisions=settings.max_decisions,
-                      max_option_steps=settings.max_option_steps,
-                      replan_every=None if scripted else settings.replan_every,
-                      margin=settings.margin, hold_action=hold, record_infos=True,
-                      termination_every=1 if scripted else DECISION_STEPS,
-                      no_effect_tolerance=settings.no_effect_tolerance)
+def gear_control(env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory]
+                 ) -> TaskControl:
+    """What the gear gives the one controller factory
+    (:func:`~dynoplan.pipeline.evaluate.make_controller`) for controllers on ``env``: the
+    planner state (:class:`~dynoplan.envs.gear.state.PlannerState`), :class:`HoldStill`,
+    terminations drawn every decision period (the learned models step at that rate),
+    every step's ``info`` kept (for :func:`~dynoplan.envs.gear.metrics.episode_metrics`),
+    the safety constraint (:func:`gear_safety_constraint`), the simulator oracle
+    (:func:`gear_oracle`, its policies from ``factories``) and :data:`FIXED_SCRIPT`."""
+
+    def oracle(options: Sequence[Option], goal: GoalHeuristic,
+               settings: ControllerSettings) -> SimulatorOracle:
+        return gear_oracle(env, list(options), factories, goal, settings.oracle_horizon,
+                           settings.oracle_samples)
+
+    return TaskControl(state_fn=PlannerState(), hold_action=HoldStill(env),
+                       termination_every=DECISION_STEPS, record_infos=True,
+                       constraint=gear_safety_constraint(env), oracle=oracle,
+                       script=FIXED_SCRIPT)
 
 
 SAFETY_LOOKAHEAD = 2.5
@@ -365,17 +333,16 @@ __all__ = [
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
     "VARIANTS",
-    "ControllerVariant",
     "FarFromGoal",
     "HoldStill",
     "StopWhereItIs",
+    "gear_control",
     "gear_options",
     "gear_oracle",
     "gripper_as_it_is",
     "hand_clear_of_tool",
     "hand_near_tool",
     "holding_gear",
-    "make_gear_controller",
     "not_carried",
     "option_fallback",
     "option_sets",

@@ -34,7 +34,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.options.option import OptionPolicy
 from dynoplan.pipeline.collect import OptionRuns, PolicyMaker, Recording, RunStart
 from dynoplan.pipeline.control_settings import ControllerSettings
-from dynoplan.pipeline.evaluate import ControllerRunner
+from dynoplan.pipeline.evaluate import ControllerRunner, make_controller, planning_settings
 from dynoplan.pipeline.jobs import EpisodeRunner
 from dynoplan.safety.shield import SeparationShield
 from dynoplan.types import BoolArray, Generator
@@ -102,12 +102,16 @@ class GearTask:
                     settings: ControllerSettings) -> EpisodeRunner:
         """Controller ``controller`` (of :data:`~dynoplan.envs.gear.controllers.VARIANTS` or
         :data:`FLAT_POLICY`) on a
-        new environment, built from the models folder ``models`` (once per process).
+        new environment, built from the models folder ``models`` (once per process) by
+        the pipeline's one factory (:func:`~dynoplan.pipeline.evaluate.make_controller`):
+        the variant's options on its sets
+        (:func:`~dynoplan.envs.gear.controllers.gear_options`) and what the gear adds
+        (:func:`~dynoplan.envs.gear.controllers.gear_control`).
         PyTorch runs on one thread, as in the serial command line, so predictions, and
         hence episodes, are bit-identical in every process."""
         import torch
 
-        from dynoplan.envs.gear.controllers import make_gear_controller
+        from dynoplan.envs.gear.controllers import gear_control, gear_options
         from dynoplan.envs.gear.learning.files import load_gear_models
         from dynoplan.envs.gear.options.catalog import policy_factories
         from dynoplan.envs.gear.options.motion import reseed_ompl
@@ -124,9 +128,14 @@ class GearTask:
                 raise DynoplanError(f"{FLAT_POLICY} needs the flat policy's folder")
             return FlatPolicyRunner(gear_env, FlatPolicy(self.flat_folder, gear_env).act)
         fitted = load_gear_models(models)
+        factories = policy_factories(models)
+        variant = VARIANTS[controller]
         return ControllerRunner(
-            env, make_gear_controller(controller, gear_env, fitted, policy_factories(models),
-                                      settings),
+            env, make_controller(variant, gear_options(gear_env, fitted, factories, variant.sets),
+                                 fitted.goal, planning_settings(settings, fitted),
+                                 action_space=env.action_space,
+                                 state_scale=fitted.state_scale,
+                                 task=gear_control(gear_env, factories)),
             task_metrics=episode_metrics, regions=fitted.regions, before_episode=reseed_ompl)
 
     # --- option runs (:class:`~dynoplan.pipeline.collect.OptionRunTask`) ---------------
