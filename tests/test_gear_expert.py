@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.gear import gear_app
 from dynoplan.envs.gear.demonstrations import (
+    ExpertDemonstrator,
     record_expert_episodes,
     render_scene,
     run_expert,
@@ -22,7 +23,7 @@ from dynoplan.errors import DynoplanError
 @pytest.fixture(scope="module")
 def env_and_expert():
     env = GearAssemblyEnv()
-    yield env, GearExpert(env)
+    yield env, ExpertDemonstrator(GearExpert(env))
     env.close()
 
 

@@ -19,6 +19,7 @@ from dynoplan.envs.gear.options.give_way import (
 )
 from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES, PlannerState
+from dynoplan.pipeline.collect import RunStart, record_episode
 
 
 def _state(hand):
@@ -97,20 +98,26 @@ class _Still(GearOptionPolicy):
         return np.concatenate([self.env.arm_targets, [GRIPPER_CLOSED]])
 
 
+class _Moving(OptionOperator):
+    """The operator from a start past the pick (the gear held): it moves."""
+
+    def reset(self, observation, rng):
+        super().reset(observation, rng)
+        self.phase = "move"
+
+
 def test_the_operator_gives_way_when_the_hand_comes_to_the_arm_then_moves_on(env):
     with temporary_gear_options(GIVE_WAY):
         start = reach_start(env, "give_way", np.random.default_rng(1))
         factories = {name: _Still for name in PAPER_OPTIONS} | {"give_way": GiveWayPolicy}
-        operator = OptionOperator(env, factories, seed=0)
+        operator = _Moving(env, factories)
         label = GEAR_OPTIONS.index("give_way")
     assert label == len(PAPER_OPTIONS)
-    operator.phase = "move"
-    obs, info = start.observation, start.info
-    labels = []
-    for _ in range(round(GIVE_WAY_TIME / CONTROL_DT) + 20):
-        decision = operator.act(obs, info)
-        labels.append(decision.option)
-        obs, _, _, _, info = env.step(decision.action)
+    recording = record_episode(env, operator.specs, operator, None, np.random.default_rng(0),
+                               round(GIVE_WAY_TIME / CONTROL_DT) + 20,
+                               start=RunStart(start.observation, start.info, None),
+                               option_names=operator.names)
+    labels = recording.episode.infos["option"].tolist()
     assert labels[0] == label
     first_other = next(i for i, k in enumerate(labels) if k != label)
     assert set(labels[first_other:]) <= {PAPER_OPTIONS.index("fast_move"),

@@ -267,6 +267,55 @@ def test_demonstrators_that_misbehave_are_clear_errors():
         run_pipeline(line_env(), specs, settings=SMALL)
 
 
+def test_a_demonstrator_may_restart_an_option_act_itself_and_read_the_info():
+    from dynoplan.options.option import OptionPolicy
+    from dynoplan.pipeline import Decision, Demonstrator, record_episode
+    from dynoplan.pipeline.collect import demonstrator_from
+
+    class Counted(OptionPolicy):
+        """Acts +1; counts its starts."""
+
+        starts = 0
+
+        def reset(self, observation, rng):
+            Counted.starts += 1
+
+        def act(self, observation):
+            return np.array([1.0], np.float32)
+
+    class Script(Demonstrator):
+        """right; right started again; one step of its own (-0.5, labelled left); right."""
+
+        def __init__(self):
+            self.infos = []
+
+        def reset(self, observation, rng):
+            self.step = 0
+
+        def observe(self, info):
+            self.infos.append(info)
+
+        def choose(self, observation):
+            self.step += 1
+            return {1: "right", 2: Decision("right", restart=True),
+                    3: Decision("left", action=np.array([-0.5], np.float32))}.get(
+                        self.step, "right")
+
+    specs = [option_spec("right", Counted(), termination=0.0)]
+    script = Script()
+    recording = record_episode(line_env(), specs, script, 0, np.random.default_rng(0),
+                               max_steps=5, option_names=["right", "left"])
+    episode = recording.episode
+    assert episode.infos["option"].tolist() == [0, 0, 1, 0, 0]
+    np.testing.assert_array_equal(np.asarray(episode.actions).ravel(), [1, 1, -0.5, 1, 1])
+    assert Counted.starts == 3  # the first step, the restart, after its own action
+    assert len(script.infos) == 6 and script.infos[0] == {}  # the reset's and every step's
+    with pytest.raises(DynoplanError, match="chose 'up', which is not an option"):
+        record_episode(line_env(), specs,
+                       demonstrator_from(lambda obs: Decision("up", action=np.zeros(1))), 0,
+                       np.random.default_rng(0), max_steps=2)
+
+
 def test_load_object_names_what_is_wrong(tmp_path):
     for ref, message in (("no_colon", "expected MODULE:NAME"),
                          ("not_a_module_xyz:f", "cannot import module"),

@@ -8,6 +8,7 @@ all of it in one call.
 from dynoplan.control.controller import flat_state
 from dynoplan.pipeline.collect import (
     CallableDemonstrator,
+    Decision,
     Demonstrator,
     RandomOptions,
     box_state_dim,
@@ -73,6 +74,7 @@ __all__ = [
     "ControllerJob",
     "ControllerSettings",
     "ControllerVariant",
+    "Decision",
     "Demonstrator",
     "DynamicsFitter",
     "EndOnSuccess",

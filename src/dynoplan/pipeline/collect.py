@@ -153,19 +153,47 @@ def _check_action(space: gym.Space[Any], action: Any, name: str) -> None:
 # --- who picks the option while recording ------------------------------------------------
 
 
+@dataclass(frozen=True)
+class Decision:
+    """What a demonstrator's ``choose`` returns instead of an option name when it needs
+    more than choosing (:class:`Demonstrator`).
+
+    Attributes:
+        option: the option's name, the step's label.
+        restart: start the option again (its policy's ``reset``) although it acted on
+            the step before, for example a failed grasp tried once more.
+        action: the step's action, given by the demonstrator itself (a script that acts
+            and labels its own actions with options); ``None``: the option's policy
+            acts. After a step the demonstrator acted on, no option is running: the
+            next step that chooses an option starts it.
+    """
+
+    option: str
+    restart: bool = False
+    action: Any = None
+
+
 class Demonstrator:
     """A scripted policy over options: picks the option that acts at every step.
 
     ``reset(observation, rng)`` starts an episode (draw any randomness of the script
-    from ``rng``); ``choose(observation) -> option name`` is called before every step.
-    When the name differs from the previous step's, that option is started; ``None``
-    ends the recording there.
+    from ``rng``); ``choose(observation)`` is called before every step and returns the
+    option's name, ``None`` (the recording ends there) or a :class:`Decision`. When the
+    name differs from the previous step's, that option is started (its policy's
+    ``reset(observation, rng)`` with the episode's ``rng``); a ``Decision`` may start it
+    again, or act itself. ``observe(info)`` is given the environment's ``info`` of the
+    reset and of every step, before the next ``choose`` (a script that reads success or
+    privileged state from it; optional for a duck-typed demonstrator).
     """
 
     def reset(self, observation: Any, rng: Generator) -> None:
-        """Called once per episode, after ``env.reset``."""
+        """Called once per episode, after ``env.reset`` (and after ``observe`` of its
+        ``info``)."""
 
-    def choose(self, observation: Any) -> str | None:
+    def observe(self, info: dict[str, Any]) -> None:
+        """Called with the ``info`` of ``env.reset`` and then of every step."""
+
+    def choose(self, observation: Any) -> "str | Decision | None":
         raise NotImplementedError
 
 
@@ -292,6 +320,10 @@ def record_episode(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
     """Run one episode with the option the demonstrator picks at each step.
 
     Args:
+        specs: the options whose policies act; a :class:`Decision` with an action needs
+            no spec.
+        demonstrator: a :class:`Demonstrator` (or duck-typed: ``reset`` and ``choose``,
+            ``observe`` optional).
         start: where the episode starts (the env is there already) instead of
             ``env.reset(seed=env_seed)``.
         info_keys: step ``info`` entries recorded as ``infos[key]`` ``(T,)``.
@@ -308,6 +340,9 @@ def record_episode(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
         obs, info = env.reset(seed=env_seed)
     else:
         obs, info, env_seed = start.observation, start.info, start.env_seed
+    observe = getattr(demonstrator, "observe", None)
+    if observe is not None:
+        observe(info)
     demonstrator.reset(obs, rng)
     observations: list[Any] = [obs]
     actions: list[np.ndarray] = []
@@ -319,19 +354,27 @@ def record_episode(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
     current: str | None = None
     terminated = truncated = False
     while not (terminated or truncated) and (max_steps is None or len(actions) < max_steps):
-        name = demonstrator.choose(obs)
-        if name is None:
+        choice = demonstrator.choose(obs)
+        if choice is None:
             break
-        if name not in by_name or name not in names:
+        decision = choice if isinstance(choice, Decision) else Decision(choice)
+        name = decision.option
+        acts = decision.action is not None
+        if name not in names or not (acts or name in by_name):
             raise DynoplanError(
                 f"the demonstrator chose '{name}', which is not an option "
                 f"(options: {', '.join(n for n in names if n in by_name)})")
-        spec = by_name[name]
-        if name != current:
-            spec.policy.reset(obs, rng)
-            current = name
-        action = spec.policy.act(obs)
+        if acts:
+            action, current = decision.action, None
+        else:
+            spec = by_name[name]
+            if name != current or decision.restart:
+                spec.policy.reset(obs, rng)
+                current = name
+            action = spec.policy.act(obs)
         obs, reward, terminated, truncated, info = env.step(action)
+        if observe is not None:
+            observe(info)
         observations.append(obs)
         actions.append(np.asarray(action))
         rewards.append(float(reward))

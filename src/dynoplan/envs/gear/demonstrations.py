@@ -1,4 +1,10 @@
-"""Run the scripted gear-assembly expert: demonstrations, a summary, a picture and a video.
+"""Run the gear's demonstrators: demonstrations, a summary, a picture and a video.
+
+Both demonstrators are pipeline :class:`~dynoplan.pipeline.collect.Demonstrator` s,
+recorded by the pipeline's :func:`~dynoplan.pipeline.collect.record_episode`: the
+:class:`~dynoplan.envs.gear.operator.OptionOperator` chains the options' policies, and
+:class:`ExpertDemonstrator` lets the scripted :class:`GearExpert` act itself, labelling
+its actions with options.
 
 - :func:`record_expert_episodes`: per-episode arrays (observations, actions, option
   labels, progress, ...) ready to be written as a dataset;
@@ -12,21 +18,23 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
+from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
-from dynoplan.envs.gear.expert import ExpertAction, GearExpert
+from dynoplan.envs.gear.expert import GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.parallel import SERIAL, Workers, parallel_map
+from dynoplan.pipeline.collect import Decision, Demonstrator, RunStart, record_episode
 from dynoplan.reports.video import write_mp4
 from dynoplan.seeding import episode_seeds as derive_episode_seeds
-from dynoplan.types import FloatArray
+from dynoplan.types import Generator
 
 Episode = dict[str, Any]
 """One episode: ``observations`` (T+1, 50), ``actions`` (T, 13), ``rewards`` (T,),
@@ -57,18 +65,6 @@ def check_request(episodes: int, human_mode: str | None, demonstrator: str = "ex
                             f"{', '.join(DEMONSTRATORS)}")
 
 
-class Demonstrator(Protocol):
-    """Who demonstrates: the scripted :class:`GearExpert` or the
-    :class:`~dynoplan.envs.gear.operator.OptionOperator`. ``reseed(seed)`` makes the next
-    episode depend on ``seed`` alone (independent episodes)."""
-
-    def reseed(self, seed: int) -> None: ...
-
-    def reset(self) -> None: ...
-
-    def act(self, observation: FloatArray, info: dict[str, Any]) -> ExpertAction: ...
-
-
 DEMO_MODE_CYCLE = ("block", "cross", "away")
 """Human modes of successive option demonstrations (when no mode is forced)."""
 
@@ -77,26 +73,57 @@ DEMONSTRATORS = ("options", "expert")
 ``expert``: the scripted expert with privileged state."""
 
 
-def make_demonstrator(kind: str, env: GearAssemblyEnv, models: Path | None = None,
-                      seed: int = 0) -> Demonstrator:
-    """The demonstrator ``kind`` (see :data:`DEMONSTRATORS`) on ``env``; the options'
-    neural parts are read from ``models``."""
+class ExpertDemonstrator(Demonstrator):
+    """The scripted :class:`GearExpert` as a pipeline demonstrator: it acts itself (its
+    privileged script, read from the simulator and the step's ``info``), each action a
+    :class:`~dynoplan.pipeline.collect.Decision` labelled with the option it belongs to
+    (the paper's four: ``gear_option_names()[:4]``); it needs no option's policy. It
+    draws nothing at random."""
+
+    def __init__(self, expert: GearExpert) -> None:
+        from dynoplan.envs.gear.options.catalog import gear_option_names
+
+        self.expert = expert
+        self.names = gear_option_names()
+        self.info: dict[str, Any] = {}
+
+    def reset(self, observation: Any, rng: Generator) -> None:
+        self.expert.reset()
+
+    def observe(self, info: dict[str, Any]) -> None:
+        self.info = info
+
+    def choose(self, observation: Any) -> Decision:
+        decision = self.expert.act(observation, self.info)
+        return Decision(self.names[decision.option], action=decision.action)
+
+
+def make_demonstrator(kind: str, env: GearAssemblyEnv, models: Path | None = None
+                      ) -> tuple[Demonstrator, list[OptionSpec]]:
+    """The demonstrator ``kind`` (see :data:`DEMONSTRATORS`) on ``env`` and the options
+    whose policies it chains (the recorder runs them; none for the expert, which acts
+    itself); the options' neural parts are read from ``models``."""
     if kind == "expert":
-        return GearExpert(env)
+        return ExpertDemonstrator(GearExpert(env)), []
     if kind == "options":
         from dynoplan.envs.gear.operator import OptionOperator
         from dynoplan.envs.gear.options.catalog import policy_factories
 
-        return OptionOperator(env, policy_factories(models), seed=seed)
+        operator = OptionOperator(env, policy_factories(models))
+        return operator, operator.specs
     raise DynoplanError(f"unknown demonstrator {kind!r}; expected one of "
                         f"{', '.join(DEMONSTRATORS)}")
 
 
-def run_expert_episode(env: GearAssemblyEnv, expert: Demonstrator, seed: int,
+def run_expert_episode(env: GearAssemblyEnv, demonstrator: Demonstrator, seed: int,
                        human_mode: str | None = None,
-                       frames: list[npt.NDArray[np.uint8]] | None = None) -> Episode:
-    """One episode of ``expert`` in ``env`` from ``env.reset(seed=seed)``, recorded by the
-    pipeline's recorder (:func:`~dynoplan.pipeline.collect.record_episode`).
+                       frames: list[npt.NDArray[np.uint8]] | None = None,
+                       specs: Sequence[OptionSpec] = ()) -> Episode:
+    """One episode of ``demonstrator`` (running the options ``specs``; see
+    :func:`make_demonstrator`) in ``env`` from ``env.reset(seed=seed)`` with the human
+    mode ``human_mode`` (None: the seed's own), recorded by the pipeline's recorder
+    (:func:`~dynoplan.pipeline.collect.record_episode`) with the generator
+    ``default_rng(seed)``; labels index ``gear_option_names()``.
 
     ``progress`` is normalised time: ``progress[t] = (t + 1) / T``, the progress of
     ``observations[t + 1]`` (``observations[0]`` has progress 0). With ``frames``, a
@@ -104,15 +131,13 @@ def run_expert_episode(env: GearAssemblyEnv, expert: Demonstrator, seed: int,
     Adds ``step_seconds`` (wall time spent in ``env.step``) to the episode.
     """
     from dynoplan.envs.gear.options.catalog import gear_option_names
-    from dynoplan.pipeline.collect import RunStart, record_episode
 
     recorded = _Recorded(env, frames)
     obs, info = recorded.reset(seed=seed, options={"human_mode": human_mode}
                                if human_mode is not None else None)
-    chooser = _ExpertChoice(expert, recorded, gear_option_names())
-    recording = record_episode(recorded, chooser.specs(), chooser, seed,
+    recording = record_episode(recorded, specs, demonstrator, seed,
                                np.random.default_rng(seed), start=RunStart(obs, info, seed),
-                               info_keys=_INFO_KEYS)
+                               info_keys=_INFO_KEYS, option_names=gear_option_names())
     episode = recording.episode
     infos = episode.infos
     steps = len(episode)
@@ -139,60 +164,29 @@ def run_expert_episode(env: GearAssemblyEnv, expert: Demonstrator, seed: int,
 
 
 class _Recorded(gym.Wrapper[Any, Any, Any, Any]):
-    """The gear env as a demonstration records it: the last ``info`` (what the
-    demonstrator reads), the wall time spent in ``env.step`` and, with ``frames``, a
-    rendered frame after the reset and after every step."""
+    """The gear env as a demonstration records it: the wall time spent in ``env.step``
+    and, with ``frames``, a rendered frame after the reset and after every step."""
 
     def __init__(self, env: GearAssemblyEnv, frames: list[npt.NDArray[np.uint8]] | None
                  ) -> None:
         super().__init__(env)
         self.gear_env = env
         self.frames = frames
-        self.info: dict[str, Any] = {}
         self.step_seconds = 0.0
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
-        obs, self.info = self.env.reset(**kwargs)
+        obs, info = self.env.reset(**kwargs)
         if self.frames is not None:
             self.frames.append(_frame(self.gear_env))
-        return obs, self.info
+        return obs, info
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         t0 = time.perf_counter()
-        obs, reward, terminated, truncated, self.info = self.env.step(action)
+        obs, reward, terminated, truncated, info = self.env.step(action)
         self.step_seconds += time.perf_counter() - t0
         if self.frames is not None:
             self.frames.append(_frame(self.gear_env))
-        return obs, reward, terminated, truncated, self.info
-
-
-class _ExpertChoice:
-    """A gear :class:`Demonstrator` as the recorder's demonstrator: at every step it asks
-    the demonstrator for its decision (on the observation and the last ``info``), names
-    the decision's option and hands its action to that option's policy
-    (:meth:`specs`)."""
-
-    def __init__(self, expert: Demonstrator, env: _Recorded, names: Sequence[str]) -> None:
-        self.expert = expert
-        self.env = env
-        self.names = list(names)
-        self.action: FloatArray | None = None
-
-    def specs(self) -> list[Any]:
-        from dynoplan.adapters.spec import OptionSpec
-        from dynoplan.options.option import FunctionPolicy
-        from dynoplan.options.termination import ConstantTermination
-
-        return [OptionSpec(name, FunctionPolicy(lambda _o, _r: self.action),
-                           ConstantTermination(0.0)) for name in self.names]
-
-    def reset(self, observation: Any, rng: Any) -> None:
-        self.expert.reset()
-
-    def choose(self, observation: Any) -> str:
-        decision = self.expert.act(observation, self.env.info)
-        self.action = decision.action
-        return self.names[decision.option]
+        return obs, reward, terminated, truncated, info
 
 
 def _frame(env: GearAssemblyEnv) -> npt.NDArray[np.uint8]:
@@ -212,24 +206,39 @@ class DemoJob:
     models: Path | None = None
 
 
-def build_demonstrator(job: DemoJob) -> tuple[GearAssemblyEnv, Demonstrator]:
+@dataclass
+class DemoWorker:
+    """What a worker holds for a :class:`DemoJob`: the environment, the demonstrator on
+    it and the options whose policies it chains (:func:`make_demonstrator`)."""
+
+    job: DemoJob
+    env: GearAssemblyEnv
+    demonstrator: Demonstrator
+    specs: list[OptionSpec]
+
+
+def build_demonstrator(job: DemoJob) -> DemoWorker:
     """The environment and the demonstrator on it (once per process)."""
     import torch
 
     torch.set_num_threads(1)  # as in the command line: identical predictions everywhere
     env = GearAssemblyEnv()
-    return env, make_demonstrator(job.kind, env, job.models)
+    return DemoWorker(job, env, *make_demonstrator(job.kind, env, job.models))
 
 
-def demonstrated_episode(state: tuple[GearAssemblyEnv, Demonstrator],
-                         item: tuple[int, str | None]) -> Episode:
+def demonstrated_episode(worker: DemoWorker, item: tuple[int, str | None]) -> Episode:
     """The episode of env seed ``item[0]`` with the human mode ``item[1]`` (None: the
-    seed's own). It depends on them alone (the demonstrator is reseeded from the env
-    seed first), so it is the same on any worker, after any other episode."""
-    env, demonstrator = state
+    seed's own). It depends on them alone (the options draw from ``default_rng(seed)``,
+    and the operator's planners are reseeded from it first:
+    :func:`~dynoplan.envs.gear.options.motion.reseed_ompl`), so it is the same on any
+    worker, after any other episode."""
     seed, mode = item
-    demonstrator.reseed(seed)
-    return run_expert_episode(env, demonstrator, seed, mode)
+    if worker.job.kind == "options":
+        from dynoplan.envs.gear.options.motion import reseed_ompl
+
+        reseed_ompl(seed)
+    return run_expert_episode(worker.env, worker.demonstrator, seed, mode,
+                              specs=worker.specs)
 
 
 def record_expert_episodes(n: int, seed: int, progress: bool = False,
@@ -359,7 +368,8 @@ def render_scene(out: Path, seed: int = 0, video: bool = True, human_mode: str |
     try:
         frames: list[npt.NDArray[np.uint8]] = []
         if video:
-            run_expert_episode(env, GearExpert(env), seed, human_mode, frames=frames)
+            run_expert_episode(env, ExpertDemonstrator(GearExpert(env)), seed, human_mode,
+                               frames=frames)
         else:
             env.reset(seed=seed, options={"human_mode": human_mode} if human_mode else None)
             frames.append(_frame(env))

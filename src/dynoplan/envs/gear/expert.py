@@ -89,8 +89,9 @@ class GearExpert:
 
     Lifecycle: ``reset()`` after every ``env.reset``; then ``act(observation, info)`` once
     per step, with the observation and ``info`` of the last ``reset``/``step``; it never
-    steps the env itself.
-    Deterministic: the same env state gives the same action.
+    steps the env itself. Deterministic: the same env state gives the same action (it
+    draws nothing at random). The demonstrations record it as a pipeline demonstrator
+    that acts itself (:class:`~dynoplan.envs.gear.demonstrations.ExpertDemonstrator`).
     """
 
     def __init__(self, env: GearAssemblyEnv, config: ExpertConfig | None = None) -> None:
@@ -107,10 +108,6 @@ class GearExpert:
         self.reset()
 
     # ---------------------------------------------------------------- lifecycle
-    def reseed(self, seed: int) -> None:
-        """Nothing to do: the expert draws nothing at random (the demonstrators'
-        interface, see :meth:`~dynoplan.envs.gear.operator.OptionOperator.reseed`)."""
-
     def reset(self) -> None:
         """Start a new episode from the env's current state."""
         self.q_cmd = self.env.arm_qpos

@@ -24,10 +24,14 @@ a simple rule and sight of the human's hand:
 Every step is labelled with the running option, so the safety regions and the goal
 heuristic learned from these demonstrations describe where the real options go (the
 scripted :class:`~dynoplan.envs.gear.expert.GearExpert` moves along its own paths, which
-the planning options do not follow). It has the expert's interface: ``reset()`` and
-``act(observation, info) -> ExpertAction``. Other options registered after the paper's
-four are not demonstrated (the regions then leave them out; their data comes from
-``dynoplan gear collect``).
+the planning options do not follow). It is a pipeline
+:class:`~dynoplan.pipeline.collect.Demonstrator`: it chooses, the recorder
+(:func:`~dynoplan.pipeline.collect.record_episode`) runs the chosen option of
+:attr:`OptionOperator.specs`, started with the episode's generator; a failed pick or a
+finished move chosen again is started again (a :class:`~dynoplan.pipeline.collect.Decision`
+with ``restart``); it reads the success from the step's ``info`` (``observe``). Other
+options registered after the paper's four are not demonstrated (the regions then leave
+them out; their data comes from ``dynoplan gear collect``).
 """
 
 from collections.abc import Mapping
@@ -35,15 +39,17 @@ from typing import Any
 
 import numpy as np
 
+from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK, ExpertAction
+from dynoplan.envs.gear.expert import CAUTIOUS_MOVE, FAST_MOVE, INSERT, PICK
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS, PAPER_OPTIONS
 from dynoplan.envs.gear.options.give_way import GIVE_WAY, GIVE_WAY_NEAR, left_arm_hand_distance
-from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState, tool_human_distance
 from dynoplan.errors import DynoplanError
-from dynoplan.types import FloatArray
+from dynoplan.options.termination import ConstantTermination
+from dynoplan.pipeline.collect import Decision, Demonstrator
+from dynoplan.types import FloatArray, Generator
 
 NEAR = 0.45
 """Tool-hand distance (m) under which the operator moves cautiously (where the options'
@@ -56,14 +62,18 @@ MAX_PICK_ATTEMPTS = 3
 
 
 
-class OptionOperator:
-    """Chains the option policies built by ``factories`` on ``env`` (module docstring);
-    labels are the options' indices in the registry
-    (:data:`~dynoplan.envs.gear.options.catalog.GEAR_OPTIONS`): the paper's four are
-    0..3, the give-way option its own label when it is registered."""
+class OptionOperator(Demonstrator):
+    """Chains the option policies built by ``factories`` on ``env`` (module docstring).
 
-    def __init__(self, env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory],
-                 seed: int = 0) -> None:
+    Its options are :attr:`specs` (the paper's four and, when it is registered, the
+    give-way option), named as in the registry
+    (:data:`~dynoplan.envs.gear.options.catalog.GEAR_OPTIONS`), whose names the labels
+    index: record with ``option_names=gear_option_names()``. Record it with these specs:
+    it reads their policies' status to decide.
+    """
+
+    def __init__(self, env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory]
+                 ) -> None:
         missing = [n for n in PAPER_OPTIONS if n not in factories]
         if missing:
             raise DynoplanError(f"the operator needs every option; missing {', '.join(missing)}")
@@ -74,34 +84,39 @@ class OptionOperator:
         if GIVE_WAY.name in GEAR_OPTIONS.names() and GIVE_WAY.name in factories:
             self.give_way = GEAR_OPTIONS.index(GIVE_WAY.name)
             self.policies[self.give_way] = factories[GIVE_WAY.name](env)
+        self.names = GEAR_OPTIONS.names()
+        self.specs: list[OptionSpec] = [
+            OptionSpec(self.names[label], policy, ConstantTermination(0.0))
+            for label, policy in self.policies.items()]
         self.state_fn = PlannerState()
-        self.rng = np.random.default_rng(seed)
-        self.reset()
+        self.info: dict[str, Any] = {}
+        self._begin()
 
-    def reseed(self, seed: int) -> None:
-        """Make the next episode depend on ``seed`` alone, not on the episodes before it
-        in this process: OMPL (the moves' and the pick's plans,
-        :func:`~dynoplan.envs.gear.options.motion.reseed_ompl`) and the generator handed to
-        the options are seeded from it. Call it before an independent episode."""
-        reseed_ompl(seed)
-        self.rng = np.random.default_rng(seed)
+    def reset(self, observation: Any, rng: Generator) -> None:
+        """A new episode: the pick first (the recorder starts the options with ``rng``)."""
+        self._begin()
 
-    def reset(self) -> None:
+    def observe(self, info: dict[str, Any]) -> None:
+        self.info = info
+
+    def choose(self, observation: Any) -> Decision:
+        """The option of the next step, started again (``restart``) when the rule starts
+        the one that ran the step before."""
+        obs = np.asarray(observation, dtype=np.float64)
+        self.starts = False
+        if self.running is None or self.steps_in_decision >= DECISION_STEPS \
+                or self.policies[self.running].finished():
+            self._decide(obs, self.info)
+        assert self.running is not None
+        self.steps_in_decision += 1
+        return Decision(self.names[self.running], restart=self.starts)
+
+    def _begin(self) -> None:
         self.running: int | None = None
+        self.starts = False
         self.phase = "pick"
         self.pick_attempts = 0
         self.steps_in_decision = 0
-
-    def act(self, observation: FloatArray, info: dict[str, Any]) -> ExpertAction:
-        """The next action (13,) and the running option's index as its label."""
-        obs = np.asarray(observation, dtype=np.float64)
-        if self.running is None or self.steps_in_decision >= DECISION_STEPS \
-                or self.policies[self.running].finished():
-            self._decide(obs, info)
-        assert self.running is not None
-        self.steps_in_decision += 1
-        action = self.policies[self.running].act(obs)
-        return ExpertAction(action=action, option=self.running, step=self.phase)
 
     def _decide(self, obs: FloatArray, info: dict[str, Any]) -> None:
         """Choose the option for the next decision period (and start it if it changes)."""
@@ -116,13 +131,13 @@ class OptionOperator:
                 if not current.finished():
                     return
             elif float(left_arm_hand_distance(state)[0]) < GIVE_WAY_NEAR:
-                self._start(self.give_way, obs)
+                self._start(self.give_way)
                 return
         if self.phase == "pick":
             if current is None or current.status == "failed":
                 if self.pick_attempts < MAX_PICK_ATTEMPTS:
                     self.pick_attempts += 1
-                    self._start(PICK, obs)
+                    self._start(PICK)
                 return
             if current.status != "done":
                 return
@@ -136,24 +151,25 @@ class OptionOperator:
                 return
             self.phase = "move"
             choice = CAUTIOUS_MOVE
-            self._start(choice, obs)
+            self._start(choice)
             return
         # move: fast or cautious to the offset, then insert
         arrived = current is not None and self.running in (FAST_MOVE, CAUTIOUS_MOVE) \
             and current.status == "done"
         if arrived and distance >= INSERT_CLEAR:
             self.phase = "insert"
-            self._start(INSERT, obs)
+            self._start(INSERT)
             return
         choice = CAUTIOUS_MOVE if distance < NEAR else FAST_MOVE
         if arrived and choice == CAUTIOUS_MOVE and self.running == CAUTIOUS_MOVE:
             return  # at the offset, waiting for the hand to clear
         if choice != self.running or (current is not None and current.finished()):
-            self._start(choice, obs)
+            self._start(choice)
 
-    def _start(self, option: int, obs: FloatArray) -> None:
+    def _start(self, option: int) -> None:
+        """Run ``option`` from this step on, started afresh (by the recorder)."""
         self.running = option
-        self.policies[option].reset(obs, self.rng)
+        self.starts = True
 
 
 __all__ = ["INSERT_CLEAR", "INSERT_NEAR", "NEAR", "OptionOperator"]
