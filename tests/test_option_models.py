@@ -126,3 +126,49 @@ def test_a_fallback_option_is_started_only_where_it_gains_on_the_present_state()
     on = [falling_back(-50.0), falling_back(20.0)]
     assert OptionPlanner(on, Progress(), horizon=1, samples=4,
                          fallback_must_gain=True).plan(state, rng).chosen_name == "shift+20"
+
+
+def test_runs_the_explorer_cut_at_its_step_limit_give_the_option_models_no_end():
+    """Two options that never stop on their own (termination 0), explored with a step
+    limit of 3 on 10-step episodes: every run ends at the limit or the time limit, so no
+    run is an option's end. With terminations that fire at once every run but each
+    episode's last (the time limit) is one."""
+    import gymnasium as gym
+    from gymnasium import spaces
+
+    from dynoplan.adapters import option_spec
+    from dynoplan.pipeline.collect import collect_transitions
+    from dynoplan.pipeline.fit_data import option_runs
+
+    class Walk(gym.Env):
+        observation_space = spaces.Box(-100, 100, (1,), np.float64)
+        action_space = spaces.Box(-1, 1, (1,), np.float32)
+
+        def reset(self, *, seed=None, options=None):
+            super().reset(seed=seed)
+            self.x = 0.0
+            return np.array([self.x]), {}
+
+        def step(self, action):
+            self.x += float(action[0])
+            return np.array([self.x]), 0.0, False, False, {}
+
+    def options(beta):
+        return [option_spec("go", lambda obs: np.array([1.0], np.float32), termination=beta),
+                option_spec("stay", lambda obs: np.array([0.0], np.float32), termination=beta)]
+
+    env = gym.wrappers.TimeLimit(Walk(), 10)
+    names = ["go", "stay"]
+    cut = collect_transitions(env, options(0.0), 4, seed=0, max_option_steps=3)
+    for episode in cut:
+        assert episode.infos["interrupted"][[2, 5, 8, 9]].all()
+    assert sum(len(p[0]) for p in option_end_pairs(cut, names, lambda o: o).values()) == 0
+    assert sum(len(r[0]) for r in option_runs(cut, names, lambda o: o).values()) == 0
+    whole = collect_transitions(env, options(1.0), 4, seed=0, max_option_steps=3)
+    last_runs = 0
+    for episode in whole:
+        assert np.flatnonzero(episode.infos["interrupted"]).tolist() == [9]
+        labels = episode.infos["option"]
+        last_runs += len(labels) - np.flatnonzero(labels != labels[-1]).max(initial=-1) - 1
+    kept = sum(len(p[0]) for p in option_end_pairs(whole, names, lambda o: o).values())
+    assert kept == 40 - last_runs > 0

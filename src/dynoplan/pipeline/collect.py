@@ -27,7 +27,13 @@ import numpy as np
 
 from dynoplan.adapters.spec import OptionSpec, as_spec, check_unique_names
 from dynoplan.control.controller import default_success, flat_state
-from dynoplan.data.episodes import FAILURE_KEY, OPTION_KEY, PROGRESS_KEY, Episode
+from dynoplan.data.episodes import (
+    FAILURE_KEY,
+    INTERRUPTED_KEY,
+    OPTION_KEY,
+    PROGRESS_KEY,
+    Episode,
+)
 from dynoplan.errors import DynoplanError
 from dynoplan.options.option import Option, OptionPolicy
 from dynoplan.options.termination import ConstantTermination
@@ -227,6 +233,10 @@ class RandomOptions(Demonstrator):
     A new option is drawn when the running one's termination fires (drawn from the
     episode's ``rng``, as the controller does), when it leaves its continuation set, or
     after ``max_option_steps``. With no admissible option, any option is drawn.
+
+    Attributes:
+        cut: the steps of this episode (0-based) at which a run stopped only because it
+            had run ``max_option_steps``: where it stopped is not where its option ends.
     """
 
     def __init__(self, specs: Sequence[OptionSpec], state_fn: ObservationFn = flat_state,
@@ -237,21 +247,28 @@ class RandomOptions(Demonstrator):
         self._rng: Generator = np.random.default_rng(0)
         self._current: int | None = None
         self._steps = 0
+        self._t = 0
+        self.cut: list[int] = []
 
     def reset(self, observation: Any, rng: Generator) -> None:
         self._rng = rng
         self._current = None
         self._steps = 0
+        self._t = 0
+        self.cut = []
 
     def choose(self, observation: Any) -> str:
         s = self.state_fn(observation)[None]
         if self._current is not None:
             spec = self.specs[self._current]
-            stop = (self._steps >= self.max_option_steps
-                    or not bool(spec.continuation_set.contains(s)[0])
+            capped = self._steps >= self.max_option_steps
+            stop = (capped or not bool(spec.continuation_set.contains(s)[0])
                     or self._rng.random() < float(spec.termination.probability(s)[0]))
             if stop:
+                if capped:
+                    self.cut.append(self._t - 1)
                 self._current = None
+        self._t += 1
         if self._current is None:
             admissible = [i for i, sp in enumerate(self.specs) if sp.initiation.contains(s)[0]]
             pool = admissible or list(range(len(self.specs)))
@@ -445,9 +462,12 @@ def collect_transitions(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], epi
                         progress: bool = False, demos: Sequence[Episode] = (),
                         branches: int = 0) -> list[Episode]:
     """Episodes of randomly chosen options (see :class:`RandomOptions`), labelled with
-    their options and ``infos["failure"]`` (True at the last step of an episode that
-    terminated without success): ``episodes`` from ``env.reset``, then ``branches`` that
-    branch off the demonstrations ``demos``.
+    their options, ``infos["failure"]`` (True at the last step of an episode that
+    terminated without success) and ``infos["interrupted"]`` (True at the last step of a
+    run the explorer cut at ``max_option_steps``, and at the last step of an episode that
+    did not terminate: where those runs stopped is not where their options end):
+    ``episodes`` from ``env.reset``, then ``branches`` that branch off the demonstrations
+    ``demos``.
 
     A branching episode starts where a demonstration drawn at random (of those with a
     reset seed) was after a step drawn at random (:func:`branch_start`), so that the
@@ -479,6 +499,10 @@ def collect_transitions(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], epi
         failure = np.zeros(len(episode), dtype=bool)
         failure[-1] = bool(episode.terminations[-1]) and not recording.success
         episode.infos[FAILURE_KEY] = failure
+        cut = np.zeros(len(episode), dtype=bool)
+        cut[explorer.cut] = True
+        cut[-1] = not episode.terminations[-1]  # the time limit, not the option, ended it
+        episode.infos[INTERRUPTED_KEY] = cut
         out.append(episode)
     return out
 

@@ -70,9 +70,12 @@ def option_labels(episode: Episode, index: int, n_options: int) -> np.ndarray:
 def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
                 state_fn: ObservationFn = flat_state, stride: int = 1,
                 ) -> dict[str, tuple[FloatArray, FloatArray, np.ndarray]]:
-    """Every run of every option: where it started, where it ended and how long it ran.
+    """Every run of every option that no one cut short: where it started, where it
+    ended and how long it ran.
 
-    A run is a maximal stretch of steps with the same option label. With ``stride`` > 1
+    A run is a maximal stretch of steps with the same option label. A run cut short
+    (``infos["interrupted"]`` at its last step: a controller's replan, an explorer's
+    step limit, an episode's time limit) is left out. With ``stride`` > 1
     its length is counted in model steps of ``stride`` environment steps (rounded down)
     and its "end" is the state after that many model steps.
 
@@ -82,8 +85,10 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
     found: dict[str, tuple[list[FloatArray], list[FloatArray], list[int]]] = {
         n: ([], [], []) for n in option_names}
     d = 0
-    for name, rows, start, end, _, _ in _runs(episodes, option_names, state_fn):
+    for name, rows, start, end, cut, _ in _runs(episodes, option_names, state_fn):
         d = rows.shape[1]
+        if cut:
+            continue
         steps = int(end - start) // stride
         found[name][0].append(rows[start])
         found[name][1].append(rows[start + steps * stride])
