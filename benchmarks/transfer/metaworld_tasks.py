@@ -335,15 +335,16 @@ def table(results: dict[str, Any]) -> str:
             "random | shared: task's demos, goal fit (s) | refit: demos + exploration, "
             "fit (s) |\n|---|---|---|---|---|---|---|---|\n")
     lines = []
+    done = [s for s in results["seed_list"] if str(s) in results["seeds"]]
     for task in results["tasks"]:
-        rows = [results["seeds"][str(s)][task] for s in results["seed_list"]]
+        rows = [results["seeds"][str(s)][task] for s in done]
         lines.append(
             f"| {task} | {'seen' if task in TRAIN else 'unseen'} | {_cell(rows, 'expert')} | "
             f"{_cell(rows, 'shared')} | {_cell(rows, 'refit')} | {_cell(rows, 'random')} | "
             f"{rows[0]['demonstrations']}, {np.mean([r['fit_seconds'] for r in rows]):.1f} | "
             f"{rows[0]['refit_demonstrations']} + {rows[0]['refit_exploration']}, "
             f"{np.mean([r['refit_fit_seconds'] for r in rows]):.1f} |")
-    shared = [results["seeds"][str(s)]["options"] for s in results["seed_list"]]
+    shared = [results["seeds"][str(s)]["options"] for s in done]
     foot = (f"\nShared dynamics: {shared[0]['demonstrations']} demonstrations "
             f"({', '.join(TRAIN)}) + {shared[0]['exploration_episodes']} exploration "
             f"episodes, dynamics fitted in "
@@ -378,8 +379,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown task(s) {unknown}; known: {', '.join(TASKS)}")
     results: dict[str, Any] = {"tasks": tasks, "seed_list": seeds, "seeds": {},
-                               "episodes": args.episodes, "command": " ".join(sys.argv)}
+                               "episodes": args.episodes, "demos": args.demos,
+                               "exploration": args.exploration,
+                               "command": " ".join(sys.argv)}
+    earlier = args.out / "results.json"
+    if earlier.is_file():  # a resume: the seeds finished with the same settings are kept
+        old = json.loads(earlier.read_text())
+        if all(old.get(k) == results[k] for k in ("tasks", "episodes", "demos",
+                                                    "exploration")):
+            results["seeds"] = {s: v for s, v in old["seeds"].items()
+                                if int(s) in seeds}
     for seed in seeds:
+        if str(seed) in results["seeds"]:
+            print(f"seed {seed}: kept from {earlier}", flush=True)
+            continue
         root = args.out / f"seed{seed}"
         per: dict[str, Any] = {"options": fit_shared(root / "options", seed, args.demos,
                                                      args.exploration * len(TRAIN))}
