@@ -352,6 +352,43 @@ def table(results: dict[str, Any]) -> str:
     return head + "\n".join(lines) + "\n" + foot
 
 
+def end_errors(out: Path, seeds: Sequence[int], tasks: Sequence[str]) -> str:
+    """Per seed, task and option: the mean distance (cm) between the puck's real and
+    predicted (ensemble mean) position where the option's run ended, over the runs of the
+    task's refit exploration (``OUT/seed*/refit-TASK/transitions``), for the shared
+    dynamics (never fitted on them) and the task's own (fitted on them: in-sample)."""
+    from dynoplan.data.dataset import read_dataset
+    from dynoplan.pipeline.collect import flat_state
+    from dynoplan.pipeline.fit import FittedModels
+    from dynoplan.pipeline.fit_data import option_runs
+    from dynoplan.pipeline.run import demos_from_dataset
+    from dynoplan.pipeline.task_fit import load_option_models
+
+    names = [s.name for s in make_options() if s.name != "reach"]
+    lines = ["| seed | task | " + " | ".join(f"{n}: runs, shared, own" for n in names) + " |",
+             "|---|---|" + "---|" * len(names)]
+    for seed in seeds:
+        shared = load_option_models(out / f"seed{seed}" / "options").models
+        for task in tasks:
+            folder = out / f"seed{seed}" / f"refit-{task}"
+            if task == "reach-v3" or not (folder / "transitions").is_dir():
+                continue
+            own = FittedModels.load(folder / "models")
+            runs = option_runs(demos_from_dataset(read_dataset(folder / "transitions"),
+                                                  shared.option_names),
+                               shared.option_names, flat_state, 1)
+            cells = []
+            for name in names:
+                starts, ends, _ = runs[name]
+                models: list[Any] = [shared.dynamics[name], own.dynamics[name]]  # ensembles
+                errors = [100 * float(np.linalg.norm(
+                    m.predict(starts)[0].mean(0)[:, OBJECT] - ends[:, OBJECT],
+                    axis=1).mean()) for m in models] if len(starts) else [np.nan] * 2
+                cells.append(f"{len(starts)}, {errors[0]:.1f}, {errors[1]:.1f}")
+            lines.append(f"| {seed} | {task} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.transfer.metaworld_tasks",
                                      description=__doc__.split("\n\n")[0])
@@ -365,6 +402,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--exploration", type=int, default=20,
                         help="exploration episodes per task fitted on [20]")
     parser.add_argument("--tasks", default=",".join(TASKS))
+    parser.add_argument("--end-errors", action="store_true",
+                        help="only print the puck's end errors of the options' dynamics "
+                             "(shared and own) on each task's refit runs, from --out")
     args = parser.parse_args(argv)
     if importlib.util.find_spec("metaworld") is None:
         print("skipped Meta-World transfer: needs the 'metaworld' package "
@@ -378,6 +418,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = [t for t in tasks if t not in ENV_IDS]
     if unknown:
         parser.error(f"unknown task(s) {unknown}; known: {', '.join(TASKS)}")
+    if args.end_errors:
+        print(end_errors(args.out, seeds, tasks), end="")
+        return 0
     results: dict[str, Any] = {"tasks": tasks, "seed_list": seeds, "seeds": {},
                                "episodes": args.episodes, "demos": args.demos,
                                "exploration": args.exploration,
