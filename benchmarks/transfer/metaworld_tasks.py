@@ -248,10 +248,12 @@ def _settings(values: dict[str, Any]) -> Any:
     return pipeline_settings(values)
 
 
-def fit_shared(out: Path, seed: int, demos: int, exploration: int) -> dict[str, Any]:
-    """The options folder: ``demos`` demonstrations of every seen task (recorded on its
-    own environment) and ``exploration`` episodes of random options on the pooled
-    environment, one pipeline run (its evaluation: one episode of random choice, unused)."""
+def fit_shared(out: Path, seed: int, demos: int, exploration: int,
+               train: Sequence[str] = TRAIN) -> dict[str, Any]:
+    """The options folder: ``demos`` demonstrations of every seen task of ``train``
+    (recorded on its own environment) and ``exploration`` episodes of random options on
+    those tasks pooled (:class:`TaskPerEpisode`), one pipeline run (its evaluation: one
+    episode of random choice, unused)."""
     from dynoplan.pipeline import run_pipeline, task_env
     from dynoplan.pipeline.collect import record_demonstrations
     from dynoplan.pipeline.run import _seeds
@@ -259,13 +261,15 @@ def fit_shared(out: Path, seed: int, demos: int, exploration: int) -> dict[str, 
     specs = make_options()
     started = time.perf_counter()
     pooled = []
-    for task in TRAIN:
+    for task in train:
         env = task_env(gym.make(ENV_IDS[task]), success, state)
         pooled += record_demonstrations(env, specs, make_demonstrator(task), demos,
                                         _seeds(seed)["demos"])
     settings = _settings({"seed": seed, "exploration_episodes": exploration, "episodes": 1,
                           "controllers": "random"})
-    result = run_pipeline(gym.make(TRAIN_ENV_ID), specs, demos=pooled, settings=settings,
+    pooled_env = (gym.make(TRAIN_ENV_ID) if tuple(train) == TRAIN else
+                  gym.wrappers.TimeLimit(TaskPerEpisode(train), MAX_STEPS))
+    result = run_pipeline(pooled_env, specs, demos=pooled, settings=settings,
                           out=out, state_fn=state, success=success,
                           command="python -m benchmarks.transfer.metaworld_tasks (options)")
     stages = result.summary["stage_seconds"]
@@ -336,17 +340,19 @@ def table(results: dict[str, Any]) -> str:
             "fit (s) |\n|---|---|---|---|---|---|---|---|\n")
     lines = []
     done = [s for s in results["seed_list"] if str(s) in results["seeds"]]
+    train = results.get("train", TRAIN)
     for task in results["tasks"]:
         rows = [results["seeds"][str(s)][task] for s in done]
         lines.append(
-            f"| {task} | {'seen' if task in TRAIN else 'unseen'} | {_cell(rows, 'expert')} | "
+            f"| {task} | {'seen' if task in train else 'unseen'} | {_cell(rows, 'expert')} | "
             f"{_cell(rows, 'shared')} | {_cell(rows, 'refit')} | {_cell(rows, 'random')} | "
             f"{rows[0]['demonstrations']}, {np.mean([r['fit_seconds'] for r in rows]):.1f} | "
-            f"{rows[0]['refit_demonstrations']} + {rows[0]['refit_exploration']}, "
-            f"{np.mean([r['refit_fit_seconds'] for r in rows]):.1f} |")
+            + ("- |" if rows[0]["refit_demonstrations"] is None else
+               f"{rows[0]['refit_demonstrations']} + {rows[0]['refit_exploration']}, "
+               f"{np.mean([r['refit_fit_seconds'] for r in rows]):.1f} |"))
     shared = [results["seeds"][str(s)]["options"] for s in done]
     foot = (f"\nShared dynamics: {shared[0]['demonstrations']} demonstrations "
-            f"({', '.join(TRAIN)}) + {shared[0]['exploration_episodes']} exploration "
+            f"({', '.join(train)}) + {shared[0]['exploration_episodes']} exploration "
             f"episodes, dynamics fitted in "
             f"{np.mean([s['dynamics_seconds'] for s in shared]):.1f} s (mean over seeds).\n")
     return head + "\n".join(lines) + "\n" + foot
@@ -402,6 +408,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--exploration", type=int, default=20,
                         help="exploration episodes per task fitted on [20]")
     parser.add_argument("--tasks", default=",".join(TASKS))
+    parser.add_argument("--train", default=",".join(TRAIN),
+                        help="the tasks whose runs the shared dynamics are fitted on "
+                             f"[{','.join(TRAIN)}]")
+    parser.add_argument("--no-refit", action="store_true",
+                        help="skip the per-task refitting (its column stays empty)")
     parser.add_argument("--end-errors", action="store_true",
                         help="only print the puck's end errors of the options' dynamics "
                              "(shared and own) on each task's refit runs, from --out")
@@ -415,7 +426,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(1)
     seeds = [int(s) for s in args.seeds.split(",")]
     tasks = [t for t in args.tasks.split(",") if t]
-    unknown = [t for t in tasks if t not in ENV_IDS]
+    train = [t for t in args.train.split(",") if t]
+    unknown = [t for t in [*tasks, *train] if t not in ENV_IDS]
     if unknown:
         parser.error(f"unknown task(s) {unknown}; known: {', '.join(TASKS)}")
     if args.end_errors:
@@ -423,13 +435,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     results: dict[str, Any] = {"tasks": tasks, "seed_list": seeds, "seeds": {},
                                "episodes": args.episodes, "demos": args.demos,
-                               "exploration": args.exploration,
+                               "exploration": args.exploration, "train": train,
                                "command": " ".join(sys.argv)}
     earlier = args.out / "results.json"
     if earlier.is_file():  # a resume: the seeds finished with the same settings are kept
         old = json.loads(earlier.read_text())
-        if all(old.get(k) == results[k] for k in ("tasks", "episodes", "demos",
-                                                    "exploration")):
+        if all(old.get(k, d) == results[k] for k, d in (
+                ("tasks", None), ("episodes", None), ("demos", None), ("exploration", None),
+                ("train", list(TRAIN)))):
             results["seeds"] = {s: v for s, v in old["seeds"].items()
                                 if int(s) in seeds}
     for seed in seeds:
@@ -438,13 +451,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             continue
         root = args.out / f"seed{seed}"
         per: dict[str, Any] = {"options": fit_shared(root / "options", seed, args.demos,
-                                                     args.exploration * len(TRAIN))}
+                                                     args.exploration * len(train), train)}
         for task in tasks:
-            per[task] = {
-                **solve_shared(task, root / "options", root / f"shared-{task}", seed,
-                               args.demos, args.episodes),
-                **solve_refit(task, root / f"refit-{task}", seed, args.demos,
-                              args.exploration, args.episodes)}
+            refit = ({"refit": None, "refit_demonstrations": None,
+                      "refit_exploration": None, "refit_fit_seconds": None}
+                     if args.no_refit else
+                     solve_refit(task, root / f"refit-{task}", seed, args.demos,
+                                 args.exploration, args.episodes))
+            per[task] = {**solve_shared(task, root / "options", root / f"shared-{task}", seed,
+                                        args.demos, args.episodes), **refit}
             print(task, json.dumps(per[task]), flush=True)
         results["seeds"][str(seed)] = per
         args.out.mkdir(parents=True, exist_ok=True)
