@@ -66,3 +66,20 @@ def test_every_demonstrator_succeeds_and_the_pooled_reset_is_seeded():
     np.testing.assert_array_equal(first, again)
     assert info["task"] == info_again["task"] and info["task"] in mw.TRAIN
     assert {pooled.reset(seed=s)[1]["task"] for s in range(20)} == set(mw.TRAIN)
+
+
+def test_the_table_reads_every_finished_seed_and_an_empty_refit():
+    row = {"expert": 1.0, "shared": 0.9, "random": 0.5, "demonstrations": 10,
+           "fit_seconds": 5.0, "refit": 0.95, "refit_demonstrations": 10,
+           "refit_exploration": 20, "refit_fit_seconds": 15.0}
+    options = {"demonstrations": 20, "exploration_episodes": 40, "dynamics_seconds": 9.0}
+    results = {"tasks": ["reach-v3", "push-v3"], "seed_list": [0, 1, 2],
+               "train": ["reach-v3"],
+               "seeds": {"0": {"options": options, "reach-v3": row,
+                               "push-v3": {**row, "refit": None, "refit_demonstrations": None,
+                                           "refit_exploration": None,
+                                           "refit_fit_seconds": None}}}}
+    lines = mw.table(results).splitlines()
+    assert lines[2].startswith("| reach-v3 | seen | 1.00 | 0.90 | 0.95 | 0.50 | 10, 5.0 | 10 + 20")
+    assert lines[3].startswith("| push-v3 | unseen |") and lines[3].endswith("| - |")
+    assert "20 demonstrations (reach-v3) + 40 exploration" in mw.table(results)
