@@ -322,6 +322,32 @@ def solve_refit(task: str, out: Path, seed: int, demos: int, exploration: int,
             "refit_exploration": exploration, "refit_fit_seconds": fit_seconds}
 
 
+def solve_own_runs(task: str, root: Path, seed: int, demos: int,
+                   episodes: int) -> dict[str, Any]:
+    """A diagnostic: ``task`` on the shared dynamics, but with the option runs of its own
+    refit (``root/refit-TASK/transitions``: its exploration episodes) in place of the
+    options folder's, for its goal heuristic's off-demonstration states and its regions
+    (what ``run_task`` takes from an options folder beside the dynamics). Writes
+    ``root/ownruns-TASK`` (its options folder: the shared ``models/`` and those runs)."""
+    import shutil
+
+    from dynoplan.pipeline.task_fit import RUNS_FOLDER, run_task
+
+    folder = root / f"ownruns-{task}-options"
+    if folder.exists():
+        shutil.rmtree(folder)
+    shutil.copytree(root / "options" / "models", folder / "models")
+    shutil.copytree(root / f"refit-{task}" / "transitions", folder / RUNS_FOLDER)
+    settings = _settings({"seed": seed, "demos": demos, "episodes": episodes,
+                          "controllers": "dynoplan"})
+    result = run_task(gym.make(ENV_IDS[task]), folder, make_options(),
+                      demonstrator=make_demonstrator(task), settings=settings,
+                      out=root / f"ownruns-{task}", state_fn=state, success=success,
+                      command=f"python -m benchmarks.transfer.metaworld_tasks ({task}, "
+                              "own runs)")
+    return {"shared_own_runs": _row(result.evaluation, "dynoplan")}
+
+
 def _mean(values: Sequence[float | None]) -> str:
     real = [v for v in values if v is not None]
     return "-" if not real else f"{np.mean(real):.2f}"
@@ -337,7 +363,8 @@ def table(results: dict[str, Any]) -> str:
     """The markdown table of ``results`` (as written to ``results.json``)."""
     head = ("| task | dynamics | expert | DynoPlan, shared dynamics | DynoPlan, refitted | "
             "random | shared: task's demos, goal fit (s) | refit: demos + exploration, "
-            "fit (s) |\n|---|---|---|---|---|---|---|---|\n")
+            "fit (s) | DynoPlan, shared dynamics, the task's own runs |\n"
+            "|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     done = [s for s in results["seed_list"] if str(s) in results["seeds"]]
     train = results.get("train", TRAIN)
@@ -349,7 +376,8 @@ def table(results: dict[str, Any]) -> str:
             f"{rows[0]['demonstrations']}, {np.mean([r['fit_seconds'] for r in rows]):.1f} | "
             + ("- |" if rows[0]["refit_demonstrations"] is None else
                f"{rows[0]['refit_demonstrations']} + {rows[0]['refit_exploration']}, "
-               f"{np.mean([r['refit_fit_seconds'] for r in rows]):.1f} |"))
+               f"{np.mean([r['refit_fit_seconds'] for r in rows]):.1f} |")
+            + f" {_cell(rows, 'shared_own_runs')} |")
     shared = [results["seeds"][str(s)]["options"] for s in done]
     foot = (f"\nShared dynamics: {shared[0]['demonstrations']} demonstrations "
             f"({', '.join(train)}) + {shared[0]['exploration_episodes']} exploration "
@@ -413,6 +441,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                              f"[{','.join(TRAIN)}]")
     parser.add_argument("--no-refit", action="store_true",
                         help="skip the per-task refitting (its column stays empty)")
+    parser.add_argument("--own-runs", action="store_true",
+                        help="also run the diagnostic of solve_own_runs for every task "
+                             "with a refit (its exploration runs for goal and regions)")
     parser.add_argument("--end-errors", action="store_true",
                         help="only print the puck's end errors of the options' dynamics "
                              "(shared and own) on each task's refit runs, from --out")
@@ -465,6 +496,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "results.json").write_text(json.dumps(results, indent=1))
         (args.out / "results.md").write_text(table(results))
+    if args.own_runs:
+        for seed in seeds:
+            root = args.out / f"seed{seed}"
+            for task in tasks:
+                row = results["seeds"][str(seed)][task]
+                if row.get("shared_own_runs") is None and row.get("refit") is not None:
+                    row.update(solve_own_runs(task, root, seed, args.demos, args.episodes))
+                    print(task, seed, row["shared_own_runs"], flush=True)
+            (args.out / "results.json").write_text(json.dumps(results, indent=1))
+            (args.out / "results.md").write_text(table(results))
     print(table(results))
     return 0
 
