@@ -1,0 +1,1 @@
+"""Transfer experiments: tasks over option dynamics learned once (issue 32)."""
