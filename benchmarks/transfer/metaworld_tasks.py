@@ -59,6 +59,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from benchmarks.suite.tasks.metaworld_pick_place import CLOSE, OPEN, move_hand
 from dynoplan.adapters import OptionSpec, option_spec
 from dynoplan.pipeline import Demonstrator
 
@@ -73,13 +74,10 @@ TRAIN_ENV_ID = "MWSharedTrain-v3"
 MAX_STEPS = 150
 """Steps per episode (Meta-World allows 500; the demonstrators need at most about 70)."""
 
-HAND = slice(0, 3)
+HAND = slice(0, 3)  # where the observation has it too: the suite's move_hand reads it there
 GRIPPER = 3
 OBJECT = slice(4, 7)
 GOAL = slice(7, 10)
-GAIN = 10.0
-"""Proportional gain from a position error (m) to an action (1 = 1 cm per step)."""
-OPEN, CLOSE = -1.0, 1.0
 REACHED = 0.02
 """m: distance from hand to goal at which ``reach`` is done."""
 DELIVERED = 0.03
@@ -174,20 +172,15 @@ def state(observation: Any) -> np.ndarray:
 # --- the options -------------------------------------------------------------------------
 
 
-def _move(s: Any, target: np.ndarray, gripper: float) -> np.ndarray:
-    step = np.clip(GAIN * (target - np.asarray(s[HAND])), -1.0, 1.0)
-    return np.array([*step, gripper], dtype=np.float32)
-
-
 def reach(s: Any) -> np.ndarray:
     """Open the gripper and take the hand to the goal."""
-    return _move(s, np.asarray(s[GOAL]), OPEN)
+    return move_hand(s, np.asarray(s[GOAL]), OPEN)
 
 
 def carry(s: Any) -> np.ndarray:
     """Keep the gripper closed and move the hand so that the puck goes to the goal."""
     hand, puck = np.asarray(s[HAND]), np.asarray(s[OBJECT])
-    return _move(s, np.asarray(s[GOAL]) + (hand - puck), CLOSE)
+    return move_hand(s, np.asarray(s[GOAL]) + (hand - puck), CLOSE)
 
 
 def reached(states: np.ndarray) -> np.ndarray:

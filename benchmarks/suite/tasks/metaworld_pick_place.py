@@ -139,7 +139,7 @@ state_fn = None
 # --- the options -------------------------------------------------------------------------
 
 
-def _move(observation: Any, target: np.ndarray, gripper: float) -> np.ndarray:
+def move_hand(observation: Any, target: np.ndarray, gripper: float) -> np.ndarray:
     """The action that moves the hand towards ``target`` (m) with the gripper's effort."""
     step = np.clip(GAIN * (target - np.asarray(observation[HAND])), -1.0, 1.0)
     return np.array([*step, gripper], dtype=np.float32)
@@ -152,12 +152,12 @@ def _over_puck(observation: Any, height: float) -> np.ndarray:
 
 def hover(observation: Any) -> np.ndarray:
     """Open the gripper and go ``HOVER_HEIGHT`` above the puck."""
-    return _move(observation, _over_puck(observation, HOVER_HEIGHT), OPEN)
+    return move_hand(observation, _over_puck(observation, HOVER_HEIGHT), OPEN)
 
 
 def descend(observation: Any) -> np.ndarray:
     """Keep the gripper open and go down onto the puck (``GRASP_HEIGHT`` above its centre)."""
-    return _move(observation, _over_puck(observation, GRASP_HEIGHT), OPEN)
+    return move_hand(observation, _over_puck(observation, GRASP_HEIGHT), OPEN)
 
 
 def grasp(observation: Any) -> np.ndarray:
@@ -168,12 +168,12 @@ def grasp(observation: Any) -> np.ndarray:
 def carry(observation: Any) -> np.ndarray:
     """Keep the gripper closed and move the hand so that the puck goes to the goal."""
     hand, puck = np.asarray(observation[HAND]), np.asarray(observation[PUCK])
-    return _move(observation, np.asarray(observation[GOAL]) + (hand - puck), CLOSE)
+    return move_hand(observation, np.asarray(observation[GOAL]) + (hand - puck), CLOSE)
 
 
 def retreat(observation: Any) -> np.ndarray:
     """Distractor: open the gripper and rise to ``HOME``."""
-    return _move(observation, HOME, OPEN)
+    return move_hand(observation, HOME, OPEN)
 
 
 def above(states: np.ndarray) -> np.ndarray:
