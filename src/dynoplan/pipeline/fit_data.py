@@ -100,8 +100,9 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
 def _runs(episodes: Sequence[Episode], option_names: Sequence[str], state_fn: ObservationFn,
           ) -> Iterator[tuple[str, FloatArray, int, int, bool, bool]]:
     """Every run (a maximal stretch of steps with one option label) of ``episodes``: its
-    option, its episode's states ``(T+1, d)``, its steps ``start:end``, whether a
-    controller cut it short (``infos["interrupted"]`` at its last step) and whether it
+    option, its episode's states ``(T+1, d)``, its steps ``start:end``, whether it
+    was cut short (``infos["interrupted"]`` at its last step: a controller's replan, an
+    explorer's step limit, an episode's time limit) and whether it
     ended its episode in failure (``infos["failure"]`` at the episode's last step)."""
     for index, episode in enumerate(episodes):
         labels = option_labels(episode, index, len(option_names))
@@ -153,7 +154,7 @@ def option_run_failures(episodes: Sequence[Episode], option_names: Sequence[str]
 def _whole_runs(episodes: Sequence[Episode], option_names: Sequence[str],
                 state_fn: ObservationFn,
                 ) -> dict[str, tuple[FloatArray, FloatArray, np.ndarray]]:
-    """Per option, every state of every run no controller cut short, the state its run
+    """Per option, every state of every run no one cut short, the state its run
     ended in and whether it ended its episode in failure: ``(states (N, d), ends (N, d),
     failed (N,) bool)``, ``N`` possibly 0."""
     found: dict[str, tuple[list[FloatArray], list[FloatArray], list[np.ndarray]]] = {
