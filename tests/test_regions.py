@@ -29,6 +29,30 @@ def test_eq5_matches_a_hand_computation_in_2d():
         np.testing.assert_allclose(regions.likelihood(query, name), expected, rtol=1e-8)
 
 
+def test_a_state_asked_about_again_gets_the_answer_a_fresh_mixture_gives():
+    """The controller asks about one state for every option in turn; the answers come from
+    memory then, and must stay those of a mixture that never saw a question."""
+    rng = np.random.default_rng(2)
+    x, y = _two_clusters(rng)
+    regions = SafetyRegions.fit(x, y, ["a", "b"], n_components=4, seed=0)
+    fresh = SafetyRegions(*_parts(regions))
+    states = rng.normal(2.0, 2.0, size=(6, 2))
+    for s in [states[0], states[0], states[1], states[0], states[1] + 1e-12]:
+        for name in ["a", "b", "a"]:
+            never_asked = SafetyRegions(*_parts(regions))
+            assert regions.contains(s[None], name) == never_asked.contains(s[None], name)
+            np.testing.assert_array_equal(regions.log_likelihood(s[None], name),
+                                          never_asked.log_likelihood(s[None], name))
+    np.testing.assert_array_equal(regions.contains_all(states), fresh.contains_all(states))
+    with pytest.raises(ValueError):  # the remembered answer cannot be changed by a caller
+        regions.component_log_density(states[:1])[0, 0] = 0.0
+
+
+def _parts(regions):
+    return (regions.option_names, regions.means, regions.precisions_cholesky,
+            regions.members, regions.log_thresholds)
+
+
 def test_each_option_owns_the_components_of_its_states():
     rng = np.random.default_rng(1)
     x, y = _two_clusters(rng)

@@ -208,9 +208,10 @@ class Controller:
         state = self.state_fn(obs)
         terminated = truncated = False
         running: int | None = None  # an option interrupted by ``replan_every``
+        starts = _DecisionStarts()
         for k in range(self.max_decisions):
             if self.loop_tolerance is not None:
-                self._close_loops(trace, state)
+                self._close_loops(trace, state, starts)
             t0 = time.perf_counter()
             plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
@@ -273,15 +274,16 @@ class Controller:
         trace.success = self.success_fn(terminated, info)
         return trace
 
-    def _close_loops(self, trace: EpisodeTrace, state: FloatArray) -> None:
+    def _close_loops(self, trace: EpisodeTrace, state: FloatArray,
+                     starts: "_DecisionStarts") -> None:
         """Every option started at an earlier decision whose state ``state`` is back at
         (within ``loop_tolerance``) may not start again while the state stays there. The
         last decision is left to the no-effect rule: a loop takes two or more."""
         assert self.loop_tolerance is not None
-        for d in trace.decisions[:-1]:
-            if d.option is not None and np.all(np.abs(state - d.state) <= self.loop_tolerance):
-                next(o for o in self.options if o.name == d.option).ended_without_effect(
-                    state, self.loop_tolerance)
+        starts.extend(trace.decisions[:-1])
+        for name in starts.started_near(state, self.loop_tolerance):
+            next(o for o in self.options if o.name == name).ended_without_effect(
+                state, self.loop_tolerance)
 
     def _unstall(self, plan: Plan, trace: EpisodeTrace, state: FloatArray) -> int | None:
         """The best-scoring admissible option where the last decision held without moving
@@ -313,3 +315,37 @@ class Controller:
         trace.total_reward += float(reward)
         if self.record_infos:
             trace.infos.append(dict(info))
+
+
+class _DecisionStarts:
+    """The states at which an episode's decisions started an option, stacked as they come:
+    the loop rule asks at every decision which of them the state is back at, one array
+    comparison instead of a loop over the episode's decisions."""
+
+    def __init__(self) -> None:
+        self.states: np.ndarray | None = None  # (capacity, state_dim), rows [0, n) in use
+        self.options: list[str] = []
+        self.seen = 0  # decisions taken in so far
+
+    def extend(self, decisions: Sequence[Decision]) -> None:
+        """Take in the decisions after those already seen (the ones that ran an option)."""
+        for d in decisions[self.seen:]:
+            if d.option is None:
+                continue
+            row = np.asarray(d.state).reshape(-1)
+            n = len(self.options)
+            if self.states is None:
+                self.states = np.empty((16, row.size), dtype=row.dtype)
+            elif n == len(self.states):
+                self.states = np.concatenate([self.states, np.empty_like(self.states)])
+            self.states[n] = row
+            self.options.append(d.option)
+        self.seen = max(self.seen, len(decisions))
+
+    def started_near(self, state: FloatArray, tolerance: float | FloatArray) -> list[str]:
+        """The options (each once, in the order first started) started at a state within
+        ``tolerance`` of ``state`` (shape ``(state_dim,)``) in every coordinate."""
+        if self.states is None:
+            return []
+        near = np.all(np.abs(state - self.states[:len(self.options)]) <= tolerance, axis=1)
+        return list(dict.fromkeys(self.options[i] for i in np.flatnonzero(near)))

@@ -23,7 +23,7 @@ mixture was fitted on, which BIC with few demonstrations makes needle-thin).
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +44,9 @@ def constant_mask(states: FloatArray) -> BoolArray:
     x = np.asarray(states, dtype=np.float64)
     return np.asarray(x.std(axis=0) <= CONSTANT_SPREAD * (1.0 + np.abs(x.mean(axis=0))))
 
+
+REMEMBERED_STATES = 8
+"""How many states :meth:`SafetyRegions.component_log_density` remembers its answer for."""
 
 UNTESTED_SCALE = 1e6
 """The scale of an untested dimension, in units of the largest spread of the data."""
@@ -67,6 +70,10 @@ class SafetyRegions:
     precisions_cholesky: FloatArray
     members: BoolArray
     log_thresholds: FloatArray
+    _last: tuple[bytes, FloatArray] | None = field(default=None, init=False, repr=False,
+                                                   compare=False)
+    """The last few states asked about and their densities: a controller asks about one
+    state for every option in turn."""
 
     @property
     def state_dim(self) -> int:
@@ -89,8 +96,20 @@ class SafetyRegions:
 
     # --- Eq. 5 -----------------------------------------------------------------------
     def component_log_density(self, states: FloatArray) -> FloatArray:
-        """``log p(s | mu_i, Sigma_i)`` for every state and component: ``(batch, components)``."""
+        """``log p(s | mu_i, Sigma_i)`` for every state and component: ``(batch, components)``
+        (read-only; the same states asked again in a row, up to :data:`REMEMBERED_STATES`
+        of them, are answered from memory)."""
         x = as_states(states, self.state_dim)
+        key = x.tobytes() if len(x) <= REMEMBERED_STATES else None
+        if key is not None and self._last is not None and self._last[0] == key:
+            return self._last[1]
+        log_p = self._component_log_density(x)
+        log_p.flags.writeable = False
+        if key is not None:
+            self._last = (key, log_p)
+        return log_p
+
+    def _component_log_density(self, x: FloatArray) -> FloatArray:
         d = self.state_dim
         # (batch, components, d): whitened residuals (x - mu_i) @ L_i
         diff = x[:, None, :] - self.means[None, :, :]
