@@ -65,7 +65,7 @@ from dynoplan.envs.gear.learning.data import (
     read_labelled,
     split_episodes,
 )
-from dynoplan.envs.gear.learning.files import METRICS_FILE, models_manifest
+from dynoplan.envs.gear.learning.files import METRICS_FILE, gear_models
 from dynoplan.envs.gear.learning.metrics import far_states
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
@@ -84,9 +84,10 @@ from dynoplan.models.evaluation import (
     one_step_error,
     option_end_gap,
 )
-from dynoplan.models.features import RegionsOnFeatures
-from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
+from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
+from dynoplan.models.folder import MANIFEST_FILE
+from dynoplan.models.goal_network import evaluate_goal, goal_training_set
+from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import deterministic_training
 from dynoplan.pipeline.fit import (
     FitSettings,
@@ -171,31 +172,31 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     for stale in (MANIFEST_FILE, METRICS_FILE):
         (out / stale).unlink(missing_ok=True)
     results: dict[str, Any] = {}
-    goal_of: list[Callable[[FloatArray], FloatArray]] = []  # the fitted goal, for the dynamics
+    fitted: dict[str, Any] = {}  # the goal, the regions and the dynamics, by what they are
 
     def fit_goal() -> None:
-        report, network = _train_goal(list(train_set), held, out, cfg, seed, planner)
-        results["goal"] = report
-        features = gear_features(cfg.goal_features)
-        goal_of.append(lambda states: network.mean_std(features(states))[0])
+        results["goal"], fitted["goal"] = _train_goal(list(train_set), held, cfg, seed,
+                                                      planner)
 
-    stages: list[tuple[str, Callable[[], None]]] = [
-        ("goal", fit_goal),
-        ("regions", lambda: results.update(
-            regions=_train_regions(list(train_set), list(held_set), planner, out, cfg,
-                                   measure, seed))),
-    ]
+    def fit_regions() -> None:
+        results["regions"], fitted["regions"] = _train_regions(
+            list(train_set), list(held_set), planner, cfg, measure, seed)
+
+    stages: list[tuple[str, Callable[[], None]]] = [("goal", fit_goal),
+                                                    ("regions", fit_regions)]
     dyn_reports: dict[str, Any] = {}
+    dynamics: dict[str, MLPEnsembleDynamics] = {}
     for k, name in enumerate(gear_option_names()):
         def fit_option(k: int = k, name: str = name) -> None:
-            dyn_reports[name] = _train_dynamics(k, name, dyn_train, dyn_held, planner, out,
-                                                cfg, measure, seed, goal_of[0])
+            dyn_reports[name], dynamics[name] = _train_dynamics(
+                k, name, dyn_train, dyn_held, planner, cfg, measure, seed,
+                lambda states: fitted["goal"].mean_std(states)[0])
         stages.append((f"dynamics {name}", fit_option))
     with deterministic_training():  # the same files whatever threads the caller set
         for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
             clock.stage(name, run)
 
-    models_manifest(out, seed, cfg)
+    gear_models(dynamics, fitted["goal"], fitted["regions"], seed, cfg).write(out)
     # coverage over all held-out transitions (options without any do not count)
     dyn_rows = [r for r in dyn_reports.values() if r["coverage_90"] is not None]
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)
@@ -241,18 +242,18 @@ def gear_features(name: str | None) -> FeatureMap:
 
 
 def _train_goal(train_set: Sequence[Episode],
-                held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
+                held: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                 cfg: FitSettings, seed: int, planner: PlannerState
-                ) -> tuple[dict[str, Any], GoalNetwork]:
+                ) -> tuple[dict[str, Any], GoalOnFeatures]:
     """The goal network on the demonstrations' states and progress as the pipeline's goal
     fit gathers them (:func:`~dynoplan.models.goal_network.goal_training_set`: ``t / T``,
     which ``infos["progress"]`` records too) and fits them
-    (:func:`~dynoplan.pipeline.fit.fit_goal_network`), saved into ``out``; the report of
-    ``metrics.json``'s ``goal``, measured on the held-out trials ``held``."""
+    (:func:`~dynoplan.pipeline.fit.fit_goal_network`); the report of ``metrics.json``'s
+    ``goal``, measured on the held-out trials ``held``, and the goal heuristic on planner
+    states."""
     f = gear_features(cfg.goal_features)
     states, y, groups = goal_training_set(train_set, planner)
     network, report = fit_goal_network(f(states), y, groups, cfg, seed)
-    network.save(out / GOAL_FILE)
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
     pooled = evaluate_goal(network, xh, yh)
@@ -286,22 +287,21 @@ def _train_goal(train_set: Sequence[Episode],
                 "different normalised times in trials of different lengths. Trials "
                 "'interrupted' had cautious_move steps (the expert slowed, waited or "
                 "backed away for the human), where time advances but the state does not",
-    }, network
+    }, GoalOnFeatures(network, f)
 
 
 def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
-                   planner: PlannerState, out: Path,
-                   cfg: FitSettings, measure: GearMetricsSettings, seed: int) -> dict[str, Any]:
+                   planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
+                   seed: int) -> tuple[dict[str, Any], RegionsOnFeatures]:
     """The regions of the demonstrated options, fitted by the pipeline
     (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`; undemonstrated options get
-    none), saved into ``out``; the report of ``metrics.json``'s ``regions``."""
+    none); the report of ``metrics.json``'s ``regions`` and the regions."""
     features = gear_features(cfg.region_features)
     names = gear_option_names()
     regions, info = fit_option_regions(train_set, (), names, cfg, seed, state_fn=planner,
                                        features=features)
     assert isinstance(regions, RegionsOnFeatures)  # fitted on a feature map
     fitted = regions.regions
-    fitted.save(out / REGIONS_FILE)
     s, y, _ = labelled_states(train_set, len(names), planner)
     # ``column`` maps an option's label to its region, -1 for none
     column = np.full(len(names), -1)
@@ -330,13 +330,14 @@ def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
         "heldout_states": len(yh),
         **info,
         "members": fitted.members.astype(int).tolist(),
-    }
+    }, regions
 
 
 def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
-                    held_eps: Sequence[Episode], planner: PlannerState, out: Path,
+                    held_eps: Sequence[Episode], planner: PlannerState,
                     cfg: FitSettings, measure: GearMetricsSettings, seed: int,
-                    goal: Callable[[FloatArray], FloatArray]) -> dict[str, Any]:
+                    goal: Callable[[FloatArray], FloatArray]
+                    ) -> tuple[dict[str, Any], MLPEnsembleDynamics]:
     own = [e for e in train_eps if e.options is not None and int(e.options[0]) == k]
     fit_eps, cal_eps = (split_episodes(own, measure.dynamics_calibration_fraction,
                                         np.random.default_rng([seed, 4, k]))
@@ -355,7 +356,6 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
         sc, nxtc = option_transitions(cal_eps, names, planner)[name]
         if len(sc) >= 10:
             std_scale = model.calibrate(sc, nxtc, 0.9)
-    model.save(out / dynamics_file(name))
     row: dict[str, Any] = {
         "transitions_train": len(s),
         "transitions_heldout": len(sh),
@@ -372,7 +372,7 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
     if len(sh) == 0:  # nothing of this option among the held-out data: no report
         return {**row, "one_step_rmse": None, "one_step_no_change_rmse": None,
                 "one_step_ratio": None, "n_step": None, "goal_end_gap": None,
-                "coverage_90": None}
+                "coverage_90": None}, model
     one = one_step_error(model, sh, nxth)
     cal = calibration(model, sh, nxth, 0.9)
     trajectories = option_trajectories(held_eps, planner, k)
@@ -397,5 +397,5 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
         "coverage_90": cal.coverage,
         "coverage_90_by_dimension": dict(zip(STATE_NAMES, cal.per_dimension.tolist(),
                                              strict=True)),
-    }
+    }, model
 
