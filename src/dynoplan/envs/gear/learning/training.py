@@ -63,7 +63,6 @@ from dynoplan.envs.gear.learning.data import (
     option_trajectories,
     read_demos,
     read_labelled,
-    split_episodes,
 )
 from dynoplan.envs.gear.learning.files import METRICS_FILE, gear_models
 from dynoplan.envs.gear.learning.metrics import far_states
@@ -78,6 +77,7 @@ from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.evaluation import (
     calibration,
     n_step_report,
@@ -86,16 +86,22 @@ from dynoplan.models.evaluation import (
 )
 from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
 from dynoplan.models.folder import MANIFEST_FILE
+from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.goal_network import evaluate_goal, goal_training_set
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
-from dynoplan.models.trainer import deterministic_training
+from dynoplan.models.trainer import TrainingReport, deterministic_training
 from dynoplan.pipeline.fit import (
     FitSettings,
     dynamics_epochs,
     fit_goal_network,
 )
-from dynoplan.pipeline.fit_data import labelled_states, option_transitions
-from dynoplan.pipeline.fit_dynamics import fit_ensemble
+from dynoplan.pipeline.fit_data import labelled_states, option_transitions, split_runs
+from dynoplan.pipeline.fit_dynamics import (
+    CALIBRATION_LEVEL,
+    calibration_split,
+    ensemble_fitter,
+    fit_dynamics,
+)
 from dynoplan.pipeline.fit_regions import fit_option_regions
 from dynoplan.progress import track
 from dynoplan.timing import StageClock
@@ -163,8 +169,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         if steps != DECISION_STEPS:
             raise DynoplanError(f"{transitions}: recorded every {steps} environment steps, "
                                 f"the models step every {DECISION_STEPS}")
-        dyn_train, dyn_held = split_episodes(list(collected), measure.dynamics_heldout_fraction,
-                                              np.random.default_rng([seed, 1]))
+        dyn_train, dyn_held = split_runs(list(collected), measure.dynamics_heldout_fraction,
+                                         np.random.default_rng([seed, 1]))
         dynamics_data = "option transitions"
 
     held = demo_arrays(held_set, planner)
@@ -182,21 +188,19 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         results["regions"], fitted["regions"] = _train_regions(
             list(train_set), list(held_set), planner, cfg, measure, seed)
 
-    stages: list[tuple[str, Callable[[], None]]] = [("goal", fit_goal),
-                                                    ("regions", fit_regions)]
     dyn_reports: dict[str, Any] = {}
-    dynamics: dict[str, MLPEnsembleDynamics] = {}
-    for k, name in enumerate(gear_option_names()):
-        def fit_option(k: int = k, name: str = name) -> None:
-            dyn_reports[name], dynamics[name] = _train_dynamics(
-                k, name, dyn_train, dyn_held, planner, cfg, measure, seed,
-                lambda states: fitted["goal"].mean_std(states)[0])
-        stages.append((f"dynamics {name}", fit_option))
+
+    def fit_option_dynamics() -> None:
+        fitted["dynamics"] = _train_dynamics(dyn_train, dyn_held, planner, cfg, measure,
+                                             seed, fitted["goal"], dyn_reports)
+
+    stages: list[tuple[str, Callable[[], None]]] = [
+        ("goal", fit_goal), ("regions", fit_regions), ("dynamics", fit_option_dynamics)]
     with deterministic_training():  # the same files whatever threads the caller set
         for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
             clock.stage(name, run)
 
-    gear_models(dynamics, fitted["goal"], fitted["regions"], seed, cfg).write(out)
+    gear_models(fitted["dynamics"], fitted["goal"], fitted["regions"], seed, cfg).write(out)
     # coverage over all held-out transitions (options without any do not count)
     dyn_rows = [r for r in dyn_reports.values() if r["coverage_90"] is not None]
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)
@@ -333,31 +337,53 @@ def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
     }, regions
 
 
-def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
-                    held_eps: Sequence[Episode], planner: PlannerState,
-                    cfg: FitSettings, measure: GearMetricsSettings, seed: int,
-                    goal: Callable[[FloatArray], FloatArray]
-                    ) -> tuple[dict[str, Any], MLPEnsembleDynamics]:
-    own = [e for e in train_eps if e.options is not None and int(e.options[0]) == k]
-    fit_eps, cal_eps = (split_episodes(own, measure.dynamics_calibration_fraction,
-                                        np.random.default_rng([seed, 4, k]))
-                        if len({e.seed for e in own}) >= 4 else (own, []))
+def _train_dynamics(train_eps: Sequence[Episode], held_eps: Sequence[Episode],
+                    planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
+                    seed: int, goal: GoalHeuristic, reports: dict[str, Any]
+                    ) -> dict[str, DynamicsModel]:
+    """Every registered option's dynamics, fitted by the pipeline
+    (:func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`) on its runs among ``train_eps``
+    but those held back to calibrate its spread
+    (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`); each option's report of
+    ``metrics.json``'s ``dynamics`` goes into ``reports``, measured on ``held_eps``."""
     names = gear_option_names()
-    s, nxt = option_transitions(fit_eps, names, planner)[name]
+    split = calibration_split(train_eps, names, measure.dynamics_calibration_fraction, seed)
+    pairs = {n: option_transitions(runs, names, planner)[n] for n, (runs, _) in split.items()}
+    held_back = {n: option_transitions(back, names, planner)[n]
+                 for n, (_, back) in split.items() if back}
+    training: dict[str, TrainingReport] = {}
+    models, rows = fit_dynamics(
+        pairs, seed, ensemble_fitter(cfg, training), calibration=held_back,
+        remedy="record more episodes (an option the demonstrations do not show needs "
+               "`dynoplan gear collect`)")
+
+    def score(states: FloatArray) -> FloatArray:
+        return goal.mean_std(states)[0]
+
+    for k, name in enumerate(names):
+        model = models[name]
+        assert isinstance(model, MLPEnsembleDynamics)  # the default fitter's
+        reports[name] = _dynamics_report(k, name, model, training[name], rows[name],
+                                         len(split[name][1]), held_eps, planner, cfg,
+                                         measure, seed, score)
+    return models
+
+
+def _dynamics_report(k: int, name: str, model: MLPEnsembleDynamics, report: TrainingReport,
+                     fit_row: dict[str, Any], calibration_episodes: int,
+                     held_eps: Sequence[Episode], planner: PlannerState, cfg: FitSettings,
+                     measure: GearMetricsSettings, seed: int,
+                     goal: Callable[[FloatArray], FloatArray]) -> dict[str, Any]:
+    """Option ``name``'s (label ``k``) row of ``metrics.json``'s ``dynamics``: its fit
+    (``fit_row`` of :func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`, ``report`` of
+    its training) and, on its held-out runs among ``held_eps``, one-step, n-step and
+    calibration errors and the end gap of the goal's mean score ``goal``."""
+    names = gear_option_names()
     sh, nxth = option_transitions(held_eps, names, planner)[name]
-    if len(s) < 10:
-        raise DynoplanError(f"option '{name}': only {len(s)} transitions to learn its "
-                            "dynamics from (need >= 10); record more episodes (an option "
-                            "the demonstrations do not show needs `dynoplan gear collect`)")
-    model, report = fit_ensemble(name, s, nxt, seed + k, cfg)
-    epochs = dynamics_epochs(len(s), cfg)
-    std_scale = None
-    if cal_eps:
-        sc, nxtc = option_transitions(cal_eps, names, planner)[name]
-        if len(sc) >= 10:
-            std_scale = model.calibrate(sc, nxtc, 0.9)
+    epochs = dynamics_epochs(fit_row["transitions"], cfg)
+    std_scale = fit_row["std_scale"]
     row: dict[str, Any] = {
-        "transitions_train": len(s),
+        "transitions_train": fit_row["transitions"],
         "transitions_heldout": len(sh),
         "holdout_nll_first_best": [report.holdout_loss[0],
                                    report.holdout_loss[report.best_epoch]]
@@ -365,16 +391,16 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
         "train_nll_first_last": [report.train_loss[0], report.train_loss[-1]],
         "epochs": epochs,
         "best_epoch": report.best_epoch,
-        "calibration_episodes": len(cal_eps),
+        "calibration_episodes": calibration_episodes,
         "std_scale": None if std_scale is None else dict(zip(
             STATE_NAMES, np.round(std_scale, 3).tolist(), strict=True)),
     }
     if len(sh) == 0:  # nothing of this option among the held-out data: no report
         return {**row, "one_step_rmse": None, "one_step_no_change_rmse": None,
                 "one_step_ratio": None, "n_step": None, "goal_end_gap": None,
-                "coverage_90": None}, model
+                "coverage_90": None}
     one = one_step_error(model, sh, nxth)
-    cal = calibration(model, sh, nxth, 0.9)
+    cal = calibration(model, sh, nxth, CALIBRATION_LEVEL)
     trajectories = option_trajectories(held_eps, planner, k)
     multi = n_step_report(model, trajectories, measure.n_step, measure.rollouts,
                           np.random.default_rng([seed, 3, k]))
@@ -397,5 +423,5 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
         "coverage_90": cal.coverage,
         "coverage_90_by_dimension": dict(zip(STATE_NAMES, cal.per_dimension.tolist(),
                                              strict=True)),
-    }, model
+    }
 
