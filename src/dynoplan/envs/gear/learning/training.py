@@ -6,8 +6,7 @@ with, and measures it on held-out data:
 - the goal heuristic ``G`` (:class:`~dynoplan.models.goal_network.GoalNetwork`, a Beta
   over progress) on every demonstration state, target = the demonstration's normalised
   time ``t / T`` (what ``infos["progress"]`` records; ``0`` for the reset observation),
-  gathered as the pipeline's goal fit gathers it
-  (:func:`~dynoplan.models.goal_network.goal_training_set`);
+  fitted by the pipeline's :func:`~dynoplan.pipeline.fit_goal.fit_goal`;
 - the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`): a
   Gaussian mixture with ``M`` chosen by BIC on the demonstration states, components
   assigned to options by their states' labels, and per-option thresholds calibrated on
@@ -20,7 +19,10 @@ with, and measures it on held-out data:
   MLPEnsembleDynamics`) on transitions at the decision rate (one step =
   :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps), from the option
   transitions collected by ``dynoplan gear collect`` or, without them, from the
-  demonstrations subsampled (:func:`demonstration_transitions`).
+  demonstrations subsampled (:func:`demonstration_transitions`), fitted by the
+  pipeline's :func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`, each option's spread
+  calibrated on runs held back from its fit
+  (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`).
 
 The goal heuristic and the regions read named feature maps
 (:mod:`dynoplan.envs.gear.features`; ``objects`` and ``relative`` by default, the same
@@ -33,15 +35,14 @@ that reads the joints scores an imagined insertion far below what really comes o
 through the dynamics models (which predict all 22 columns), the terminations and the
 regions' capped distance.
 
-This module trains, with the pipeline's region fit
-(:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`), goal network
-(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics ensembles
-(:func:`~dynoplan.pipeline.fit_dynamics.fit_ensemble`, the generic fit's own); the rest
-lives in
-:mod:`.settings` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
+This module reads the data, calls the pipeline's three fits and writes their models with
+the pipeline's :meth:`~dynoplan.pipeline.fit.FittedModels.write`; what is the gear's own
+is the held-out measurement of ``metrics.json``. The rest lives in :mod:`.settings` (the
+:class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
 :class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
-(datasets to arrays, splits), :mod:`.metrics` (far-away states) and :mod:`.files` (the
-manifest and :func:`~dynoplan.envs.gear.learning.files.load_gear_models`).
+(datasets to arrays), :mod:`.metrics` (far-away states) and :mod:`.files`
+(:func:`~dynoplan.envs.gear.learning.files.gear_models` and
+:func:`~dynoplan.envs.gear.learning.files.load_gear_models`).
 """
 
 import time
@@ -87,14 +88,10 @@ from dynoplan.models.evaluation import (
 from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
 from dynoplan.models.folder import MANIFEST_FILE
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.models.goal_network import evaluate_goal, goal_training_set
+from dynoplan.models.goal_network import GoalTrainingReport, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import TrainingReport, deterministic_training
-from dynoplan.pipeline.fit import (
-    FitSettings,
-    dynamics_epochs,
-    fit_goal_network,
-)
+from dynoplan.pipeline.fit import FitSettings, dynamics_epochs, fit_goal
 from dynoplan.pipeline.fit_data import labelled_states, option_transitions, split_runs
 from dynoplan.pipeline.fit_dynamics import (
     CALIBRATION_LEVEL,
@@ -249,15 +246,16 @@ def _train_goal(train_set: Sequence[Episode],
                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                 cfg: FitSettings, seed: int, planner: PlannerState
                 ) -> tuple[dict[str, Any], GoalOnFeatures]:
-    """The goal network on the demonstrations' states and progress as the pipeline's goal
-    fit gathers them (:func:`~dynoplan.models.goal_network.goal_training_set`: ``t / T``,
-    which ``infos["progress"]`` records too) and fits them
-    (:func:`~dynoplan.pipeline.fit.fit_goal_network`); the report of ``metrics.json``'s
-    ``goal``, measured on the held-out trials ``held``, and the goal heuristic on planner
-    states."""
+    """The goal heuristic on the gear's goal features, fitted by the pipeline
+    (:func:`~dynoplan.pipeline.fit_goal.fit_goal`: on the demonstrations' states and their
+    progress ``t / T``, which ``infos["progress"]`` records too); the report of
+    ``metrics.json``'s ``goal``, measured on the held-out trials ``held``, and the goal
+    heuristic on planner states."""
     f = gear_features(cfg.goal_features)
-    states, y, groups = goal_training_set(train_set, planner)
-    network, report = fit_goal_network(f(states), y, groups, cfg, seed)
+    training: list[GoalTrainingReport] = []
+    goal, fit_report = fit_goal(train_set, cfg, seed, planner, f, training=training)
+    assert isinstance(goal, GoalOnFeatures)  # fitted on a feature map
+    network, report = goal.network, training[0]
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
     pooled = evaluate_goal(network, xh, yh)
@@ -283,7 +281,7 @@ def _train_goal(train_set: Sequence[Episode],
         "per_trial_interrupted": interrupted.tolist(),
         "uninterrupted": calm_metrics,
         "train_loss_first_last": [report.train_loss[0], report.train_loss[-1]],
-        "train_states": len(y),
+        "train_states": fit_report["states"],
         "note": "truth = the trial's normalised time (infos['progress']); spearman and "
                 "mae are means over held-out trials of each trial's rank correlation and "
                 "error along that trial (Fig. 3a's view: the planner ranks futures of one "
@@ -291,7 +289,7 @@ def _train_goal(train_set: Sequence[Episode],
                 "different normalised times in trials of different lengths. Trials "
                 "'interrupted' had cautious_move steps (the expert slowed, waited or "
                 "backed away for the human), where time advances but the state does not",
-    }, GoalOnFeatures(network, f)
+    }, goal
 
 
 def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
