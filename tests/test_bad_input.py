@@ -188,11 +188,11 @@ def test_sweep_config_out_of_bounds_is_one_line(tmp_path, monkeypatch, capsys, b
 def gear_models(tmp_path_factory) -> Path:
     """A tiny but valid gear models folder (untrained widths of 4; loads, never runs)."""
     from dynoplan.envs.gear.features import feature_map
-    from dynoplan.envs.gear.learning.files import load_gear_models, models_manifest
+    from dynoplan.envs.gear.learning.files import gear_models, load_gear_models
     from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
     from dynoplan.envs.gear.options.catalog import gear_option_names
     from dynoplan.envs.gear.state import STATE_DIM
-    from dynoplan.models.folder import GOAL_FILE, REGIONS_FILE, dynamics_file
+    from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
     from dynoplan.models.goal_network import GoalNetwork
     from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
     from dynoplan.models.regions import SafetyRegions
@@ -202,16 +202,15 @@ def gear_models(tmp_path_factory) -> Path:
     rng = np.random.default_rng(0)
     names = list(gear_option_names())
     x = rng.normal(size=(20 * len(names), STATE_DIM))
-    goal, _ = GoalNetwork.fit(feature_map(QUICK_SETTINGS.goal_features or "")(x),
-                              rng.uniform(size=len(x)), hidden=4, members=1, epochs=1, seed=0)
-    goal.save(folder / GOAL_FILE)
+    goal_map = feature_map(QUICK_SETTINGS.goal_features or "")
+    goal, _ = GoalNetwork.fit(goal_map(x), rng.uniform(size=len(x)), hidden=4, members=1,
+                              epochs=1, seed=0)
     labels = np.repeat(np.arange(len(names)), 20)
-    regions = feature_map(QUICK_SETTINGS.region_features)
-    SafetyRegions.fit(regions(x), labels, names, n_components=len(names)).save(
-        folder / REGIONS_FILE)
-    for name in names:
-        MLPEnsembleDynamics(STATE_DIM, [4], 1, option=name).save(folder / dynamics_file(name))
-    models_manifest(folder, 0, QUICK_SETTINGS)
+    regions = feature_map(QUICK_SETTINGS.region_features or "")
+    fitted = SafetyRegions.fit(regions(x), labels, names, n_components=len(names))
+    dynamics = {name: MLPEnsembleDynamics(STATE_DIM, [4], 1, option=name) for name in names}
+    gear_models(dynamics, GoalOnFeatures(goal, goal_map), RegionsOnFeatures(fitted, regions),
+                0, QUICK_SETTINGS).write(folder)
     load_gear_models(folder)  # valid as made
     return folder
 

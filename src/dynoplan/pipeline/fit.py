@@ -247,10 +247,14 @@ class FittedModels:
         (:func:`~dynoplan.io.staged_folder`): a failed save leaves the previous models.
         """
         with staged_folder(folder, keep=True) as staged:
-            self._write(staged)
+            self.write(staged)
         return Path(folder)
 
-    def _write(self, out: Path) -> None:
+    def write(self, out: Path) -> None:
+        """Write every model file, then ``models.json``, into the folder ``out`` as it is
+        (for a caller that stages the folder itself; :meth:`save` stages it). The
+        manifest records :attr:`report` under ``report`` unless it is empty, and every
+        field of :attr:`extra` at its top level."""
         files: dict[str, str | None] = {}
         for name, model in self.dynamics.items():
             save = getattr(model, "save", None)
@@ -278,7 +282,8 @@ class FittedModels:
                        option_names=self.option_names, stride=self.stride,
                        use_regions=self.use_regions, goal=(GOAL_FILE, goal_features),
                        regions=regions, dynamics=files,
-                       extra={"report": self.report, **self.extra}, initiation=initiation,
+                       extra={**({"report": self.report} if self.report else {}),
+                              **self.extra}, initiation=initiation,
                        failure=None if self.failure is None else FAILURE_FILE)
 
     @classmethod

@@ -9,7 +9,7 @@ from dynoplan.control.controller import flat_state
 from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.collect import ObservationFn
-from dynoplan.types import FloatArray
+from dynoplan.types import FloatArray, Generator
 
 
 def episode_states(episode: Episode, state_fn: ObservationFn = flat_state) -> FloatArray:
@@ -173,6 +173,37 @@ def _whole_runs(episodes: Sequence[Episode], option_names: Sequence[str],
             for n, (a, b, c) in found.items()}
 
 
+def split_runs(episodes: Sequence[Episode], fraction: float,
+               rng: Generator) -> tuple[list[Episode], list[Episode]]:
+    """Hold out ``fraction`` of each option's runs (at least one when it has two).
+
+    Each episode is one option's run, the option of its first label. Runs of one option
+    that share an ``env`` seed (cut from one demonstration, or started from one reset) go
+    to the same side, so that near-copies of a kept run never count as held out.
+
+    Returns:
+        ``(kept, held_out)``, each in the order of the options' labels, then of the
+        permutation ``rng`` draws per option.
+    """
+    train: list[Episode] = []
+    held: list[Episode] = []
+    groups: dict[int, dict[object, list[Episode]]] = {}
+    for index, episode in enumerate(episodes):
+        labels = episode.options
+        if labels is None or not len(labels):
+            raise DynoplanError(f"episode {index} has no option labels (infos['{OPTION_KEY}'])"
+                                ": runs are split by the option that acted")
+        key = episode.seed if episode.seed is not None else ("episode", index)
+        groups.setdefault(int(labels[0]), {}).setdefault(key, []).append(episode)
+    for k in sorted(groups):
+        runs = list(groups[k].values())
+        order = rng.permutation(len(runs))
+        n_held = min(max(1, round(fraction * len(runs))), len(runs) - 1)
+        held += [e for i in order[:n_held] for e in runs[i]]
+        train += [e for i in order[n_held:] for e in runs[i]]
+    return train, held
+
+
 def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
                      ) -> tuple[FloatArray, np.ndarray, np.ndarray]:
     """Every state an option acted in: ``(N, d)`` states, ``(N,)`` labels and episode ids."""
@@ -188,4 +219,4 @@ def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: Obser
 
 
 __all__ = ["episode_states", "labelled_states", "option_end_pairs", "option_labels",
-           "option_run_failures", "option_runs", "option_transitions"]
+           "option_run_failures", "option_runs", "option_transitions", "split_runs"]

@@ -16,7 +16,7 @@ from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import TrainingReport
 from dynoplan.options.termination import ConstantTermination, Termination
 from dynoplan.pipeline.collect import ObservationFn
-from dynoplan.pipeline.fit_data import option_runs
+from dynoplan.pipeline.fit_data import option_runs, split_runs
 from dynoplan.pipeline.fit_settings import FitSettings
 from dynoplan.types import FloatArray
 
@@ -45,13 +45,18 @@ def fit_ensemble(option: str, states: FloatArray, next_states: FloatArray, seed:
     return model, report
 
 
-def ensemble_fitter(settings: FitSettings) -> DynamicsFitter:
+def ensemble_fitter(settings: FitSettings,
+                    reports: dict[str, TrainingReport] | None = None) -> DynamicsFitter:
     """The default :data:`DynamicsFitter`: an MLP ensemble per option
-    (:func:`fit_ensemble`)."""
+    (:func:`fit_ensemble`); ``reports``, when given, receives each option's
+    :class:`~dynoplan.models.trainer.TrainingReport` by its name."""
 
     def fit(option: str, states: FloatArray, next_states: FloatArray,
             seed: int) -> DynamicsModel:
-        return fit_ensemble(option, states, next_states, seed, settings)[0]
+        model, report = fit_ensemble(option, states, next_states, seed, settings)
+        if reports is not None:
+            reports[option] = report
+        return model
 
     return fit
 
@@ -75,13 +80,26 @@ def dynamics_epochs(rows: int, settings: FitSettings) -> int:
 
 def fit_dynamics(transitions: dict[str, tuple[FloatArray, FloatArray]], seed: int,
                  fitter: DynamicsFitter, min_transitions: int = 10,
+                 calibration: Mapping[str, tuple[FloatArray, FloatArray]] | None = None,
+                 remedy: str = "collect more episodes or lower the stride",
                  ) -> tuple[dict[str, DynamicsModel], dict[str, dict[str, Any]]]:
     """Fit one dynamics model per option and report its one-step error.
+
+    Args:
+        transitions: per option its pairs ``(states (N, d), next_states (N, d))``; the
+            ``k``-th option's model is fitted from seed ``seed + k``.
+        calibration: per option, pairs ``(N, d)`` its model was not fitted on (whole
+            held-back runs: :func:`calibration_split`) that rescale its predicted spread
+            (``calibrate(states, next_states, CALIBRATION_LEVEL)``) when there are at
+            least ``min_transitions`` of them and the model can be calibrated.
+        remedy: what the error of too few transitions tells the user to do.
 
     Returns:
         The models by name, and per option ``{"transitions", "rmse", "no_change_rmse"}``
         (one-step error on its own training pairs, against predicting no change; for
-        models without ``predict`` the errors are ``None``).
+        models without ``predict`` the errors are ``None``); with ``calibration`` also
+        ``"std_scale"``: the ``(d,)`` factors of the spread as a list, or ``None`` (not
+        calibrated).
 
     Raises:
         DynoplanError: an option has fewer than ``min_transitions`` transitions.
@@ -92,15 +110,49 @@ def fit_dynamics(transitions: dict[str, tuple[FloatArray, FloatArray]], seed: in
         if len(s) < min_transitions:
             raise DynoplanError(
                 f"option '{name}': only {len(s)} transitions to learn its dynamics from "
-                f"(need >= {min_transitions}); collect more episodes or lower the stride")
+                f"(need >= {min_transitions}); {remedy}")
         model = fitter(name, s, nxt, seed + k)
         models[name] = model
         row: dict[str, Any] = {"transitions": len(s), "rmse": None, "no_change_rmse": None}
+        if calibration is not None:
+            held_s, held_next = calibration.get(name, (s[:0], nxt[:0]))
+            calibrate = getattr(model, "calibrate", None)
+            row["std_scale"] = (
+                np.asarray(calibrate(held_s, held_next, CALIBRATION_LEVEL)).tolist()
+                if callable(calibrate) and len(held_s) >= min_transitions else None)
         if callable(getattr(model, "predict", None)):
             err = one_step_error(model, s, nxt)  # type: ignore[arg-type]
             row["rmse"], row["no_change_rmse"] = err.model_rmse_total, err.baseline_rmse_total
         report[name] = row
     return models, report
+
+CALIBRATION_LEVEL = 0.9
+"""The central interval a calibrated model's spread covers that share of held-back next
+states with, per dimension (:meth:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics.
+calibrate`)."""
+
+
+def calibration_split(episodes: Sequence[Episode], option_names: Sequence[str],
+                      fraction: float, seed: int, min_groups: int = 4,
+                      ) -> dict[str, tuple[list[Episode], list[Episode]]]:
+    """Per option, its runs split into those its dynamics are fitted on and those held
+    back to calibrate the model's spread (:func:`fit_dynamics`'s ``calibration``).
+
+    Each episode is one run of the option of its first label. Of option ``k``'s runs,
+    ``fraction`` are held back, grouped by their ``seed``
+    (:func:`~dynoplan.pipeline.fit_data.split_runs`, drawn from generator
+    ``[seed, 4, k]``); none when its runs come from fewer than ``min_groups`` seeds.
+
+    Returns:
+        ``{name: (fitted runs, held-back runs)}`` for every option, in order.
+    """
+    out: dict[str, tuple[list[Episode], list[Episode]]] = {}
+    for k, name in enumerate(option_names):
+        own = [e for e in episodes if e.options is not None and int(e.options[0]) == k]
+        out[name] = (split_runs(own, fraction, np.random.default_rng([seed, 4, k]))
+                     if len({e.seed for e in own}) >= min_groups else (own, []))
+    return out
+
 
 class StridedTermination:
     """``1 - (1 - beta(s))^k``: the chance that an option stops within ``k`` steps."""
@@ -149,6 +201,6 @@ def strided(termination: Termination, stride: int) -> Termination:
     return StridedTermination(termination, stride)
 
 
-__all__ = ["DYNAMICS_BATCH", "GAP_ROLLOUTS", "DynamicsFitter", "StridedTermination",
-           "dynamics_epochs", "ensemble_fitter", "fit_dynamics", "fit_ensemble",
-           "goal_end_gaps", "strided"]
+__all__ = ["CALIBRATION_LEVEL", "DYNAMICS_BATCH", "GAP_ROLLOUTS", "DynamicsFitter",
+           "StridedTermination", "calibration_split", "dynamics_epochs", "ensemble_fitter",
+           "fit_dynamics", "fit_ensemble", "goal_end_gaps", "strided"]

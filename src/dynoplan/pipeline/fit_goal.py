@@ -63,7 +63,9 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
 def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
              state_fn: ObservationFn = flat_state,
              features: FeatureMap | None = None,
-             off: Sequence[Episode] = ()) -> tuple[GoalModel, dict[str, Any]]:
+             off: Sequence[Episode] = (),
+             training: list[GoalTrainingReport] | None = None,
+             ) -> tuple[GoalModel, dict[str, Any]]:
     """Fit the goal network on the demonstrations (progress ``t / T`` of each state), on
     ``features`` of the states when given (then wrapped to read full states).
 
@@ -72,7 +74,8 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
     last state of an episode that failed (``infos["failure"]``) with 0.
 
     Returns the goal heuristic and ``{"states", "off_demo_states", "spearman", "mae",
-    "coverage_90"}``, the last three measured on the training demonstrations.
+    "coverage_90"}``, the last three measured on the training demonstrations;
+    ``training``, when given, receives the network's training report (its losses).
     """
     states, progress, groups = goal_training_set(
         demos, lambda obs: _batch_states(obs, state_fn))
@@ -88,7 +91,9 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
         p_fit = np.concatenate([progress, labels])
         # one group per off state: the ranking loss pairs states of one demonstration only
         g_fit = np.concatenate([groups, groups.max() + 1 + np.arange(len(x_off))])
-    network, _ = fit_goal_network(x_fit, p_fit, g_fit, settings, seed)
+    network, trained = fit_goal_network(x_fit, p_fit, g_fit, settings, seed)
+    if training is not None:
+        training.append(trained)
     report = {"states": len(states), "off_demo_states": len(off_states),
               **evaluate_goal(network, x, progress)}
     return (network if features is None else GoalOnFeatures(network, features)), report

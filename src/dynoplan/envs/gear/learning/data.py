@@ -9,8 +9,8 @@
   ``(T+1,)`` and option labels ``(T,)``.
 - :func:`demonstration_transitions`: option transitions at the decision rate cut from
   demonstrations (a stand-in for ``dynoplan gear collect``);
-  :func:`split_episodes` holds out whole runs, :func:`option_trajectories` gives the
-  planner states of one option's runs.
+  :func:`option_trajectories` gives the planner states of one option's runs (the
+  pipeline's :func:`~dynoplan.pipeline.fit_data.split_runs` holds out whole runs).
 """
 
 from collections.abc import Iterable, Sequence
@@ -31,7 +31,7 @@ from dynoplan.envs.gear.options.catalog import CAUTIOUS_MOVE, PAPER_OPTIONS, gea
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.collect import decision_rows
-from dynoplan.types import FloatArray, Generator, IntArray
+from dynoplan.types import FloatArray, IntArray
 
 HELDOUT_SEED_OFFSET = 1000
 """Held-out trials are recorded from ``seed + HELDOUT_SEED_OFFSET`` (disjoint episodes)."""
@@ -143,31 +143,6 @@ def check_disjoint(train: Dataset, held: Dataset, where: Path) -> None:
     if shared:
         raise DynoplanError(f"{where}: held-out trials share episode seeds {sorted(shared)} "
                             "with the training demonstrations; use disjoint seeds")
-
-
-def split_episodes(episodes: Sequence[Episode], fraction: float,
-                    rng: Generator) -> tuple[list[Episode], list[Episode]]:
-    """Hold out ``fraction`` of each option's episodes (at least one when it has two).
-
-    Episodes of one option that share an ``env`` seed (runs cut from one demonstration,
-    or started from one reset) go to the same side, so that near-copies of a training
-    run never count as held out.
-    """
-    train: list[Episode] = []
-    held: list[Episode] = []
-    groups: dict[int, dict[object, list[Episode]]] = {}
-    for index, episode in enumerate(episodes):
-        labels = episode.options
-        assert labels is not None
-        key = episode.seed if episode.seed is not None else ("episode", index)
-        groups.setdefault(int(labels[0]), {}).setdefault(key, []).append(episode)
-    for k in sorted(groups):
-        runs = list(groups[k].values())
-        order = rng.permutation(len(runs))
-        n_held = min(max(1, round(fraction * len(runs))), len(runs) - 1)
-        held += [e for i in order[:n_held] for e in runs[i]]
-        train += [e for i in order[n_held:] for e in runs[i]]
-    return train, held
 
 
 def option_trajectories(episodes: Sequence[Episode], planner: PlannerState,

@@ -1,9 +1,10 @@
 """A gear models folder: the one models format of :mod:`dynoplan.models.folder`.
 
-:func:`~dynoplan.envs.gear.learning.training.train_gear_models` writes one safetensors file
-per model, ``metrics.json`` and the manifest ``models.json`` (:func:`models_manifest`:
-the library's format, with the gear's feature maps named and the training seed and
-settings as extra fields). :func:`load_gear_models` reads the folder back as
+:func:`~dynoplan.envs.gear.learning.training.train_gear_models` writes ``metrics.json``
+and, through the pipeline's :meth:`~dynoplan.pipeline.fit.FittedModels.write`, one
+safetensors file per model and the manifest ``models.json`` (:func:`gear_models`: the
+library's format, with the gear's feature maps named and the training seed and settings
+as extra fields). :func:`load_gear_models` reads the folder back as
 :class:`~dynoplan.pipeline.fit.FittedModels` and checks that it fits this version's gear
 assembly, so a missing, truncated, modified or mismatched file is rejected with one
 error line.
@@ -14,22 +15,17 @@ The goal heuristic and the regions read named feature maps of the planner state
 """
 
 import os
+from collections.abc import Mapping
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
 
 from dynoplan.envs.gear.features import FEATURE_MAPS
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
 from dynoplan.errors import DynoplanError
-from dynoplan.models.folder import (
-    GOAL_FILE,
-    MANIFEST_FILE,
-    REGIONS_FILE,
-    dynamics_file,
-    write_manifest,
-)
-from dynoplan.pipeline.fit import FitSettings, FittedModels
+from dynoplan.models.dynamics import DynamicsModel
+from dynoplan.models.folder import MANIFEST_FILE
+from dynoplan.pipeline.fit import FitSettings, FittedModels, GoalModel, RegionsModel
 
 TASK_NAME = "gear_assembly"
 METRICS_FILE = "metrics.json"
@@ -37,15 +33,25 @@ HELDOUT_DIR = "heldout-demos"
 RETRAIN = "train them with 'dynoplan gear train' or 'dynoplan gear run'"
 
 
-def models_manifest(out: Path, seed: int, cfg: FitSettings) -> dict[str, Any]:
-    """Write ``out/models.json`` for the model files in ``out``; return it."""
-    names = gear_option_names()
-    return write_manifest(
-        out, task=TASK_NAME, state_dim=STATE_DIM, option_names=names,
-        stride=DECISION_STEPS, use_regions=True, goal=(GOAL_FILE, cfg.goal_features),
-        regions=(REGIONS_FILE, cfg.region_features),
-        dynamics={name: dynamics_file(name) for name in names},
-        extra={"state_names": list(STATE_NAMES), "seed": seed, "settings": asdict(cfg)})
+def gear_models(dynamics: Mapping[str, DynamicsModel], goal: GoalModel,
+                regions: RegionsModel, seed: int, settings: FitSettings) -> FittedModels:
+    """The gear's fitted models in the pipeline's one in-memory form, which
+    :meth:`~dynoplan.pipeline.fit.FittedModels.write` writes as a models folder.
+
+    Args:
+        dynamics: every registered option's ``D_w`` on planner states ``(batch, 22)``,
+            one step per decision (:data:`~dynoplan.envs.gear.state.DECISION_STEPS`
+            environment steps).
+        goal, regions: the goal heuristic and the demonstrated options' regions, each on
+            a named feature map of the planner state (:mod:`dynoplan.envs.gear.features`).
+        seed, settings: what trained them, recorded in the manifest beside the state's
+            names (the gear's fit report is ``metrics.json``, not the manifest).
+    """
+    names = list(gear_option_names())
+    return FittedModels(names, {name: dynamics[name] for name in names}, goal, regions,
+                        DECISION_STEPS, {}, True, TASK_NAME,
+                        {"state_names": list(STATE_NAMES), "seed": seed,
+                         "settings": asdict(settings)})
 
 
 def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
@@ -76,4 +82,4 @@ def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
 
 
 __all__ = ["HELDOUT_DIR", "METRICS_FILE", "RETRAIN", "TASK_NAME",
-           "load_gear_models", "models_manifest"]
+           "gear_models", "load_gear_models"]

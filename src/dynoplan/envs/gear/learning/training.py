@@ -6,8 +6,7 @@ with, and measures it on held-out data:
 - the goal heuristic ``G`` (:class:`~dynoplan.models.goal_network.GoalNetwork`, a Beta
   over progress) on every demonstration state, target = the demonstration's normalised
   time ``t / T`` (what ``infos["progress"]`` records; ``0`` for the reset observation),
-  gathered as the pipeline's goal fit gathers it
-  (:func:`~dynoplan.models.goal_network.goal_training_set`);
+  fitted by the pipeline's :func:`~dynoplan.pipeline.fit_goal.fit_goal`;
 - the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`): a
   Gaussian mixture with ``M`` chosen by BIC on the demonstration states, components
   assigned to options by their states' labels, and per-option thresholds calibrated on
@@ -20,7 +19,10 @@ with, and measures it on held-out data:
   MLPEnsembleDynamics`) on transitions at the decision rate (one step =
   :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps), from the option
   transitions collected by ``dynoplan gear collect`` or, without them, from the
-  demonstrations subsampled (:func:`demonstration_transitions`).
+  demonstrations subsampled (:func:`demonstration_transitions`), fitted by the
+  pipeline's :func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`, each option's spread
+  calibrated on runs held back from its fit
+  (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`).
 
 The goal heuristic and the regions read named feature maps
 (:mod:`dynoplan.envs.gear.features`; ``objects`` and ``relative`` by default, the same
@@ -33,15 +35,14 @@ that reads the joints scores an imagined insertion far below what really comes o
 through the dynamics models (which predict all 22 columns), the terminations and the
 regions' capped distance.
 
-This module trains, with the pipeline's region fit
-(:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`), goal network
-(:func:`~dynoplan.pipeline.fit.fit_goal_network`) and dynamics ensembles
-(:func:`~dynoplan.pipeline.fit_dynamics.fit_ensemble`, the generic fit's own); the rest
-lives in
-:mod:`.settings` (the :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
+This module reads the data, calls the pipeline's three fits and writes their models with
+the pipeline's :meth:`~dynoplan.pipeline.fit.FittedModels.write`; what is the gear's own
+is the held-out measurement of ``metrics.json``. The rest lives in :mod:`.settings` (the
+:class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
 :class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
-(datasets to arrays, splits), :mod:`.metrics` (far-away states) and :mod:`.files` (the
-manifest and :func:`~dynoplan.envs.gear.learning.files.load_gear_models`).
+(datasets to arrays), :mod:`.metrics` (far-away states) and :mod:`.files`
+(:func:`~dynoplan.envs.gear.learning.files.gear_models` and
+:func:`~dynoplan.envs.gear.learning.files.load_gear_models`).
 """
 
 import time
@@ -63,9 +64,8 @@ from dynoplan.envs.gear.learning.data import (
     option_trajectories,
     read_demos,
     read_labelled,
-    split_episodes,
 )
-from dynoplan.envs.gear.learning.files import METRICS_FILE, models_manifest
+from dynoplan.envs.gear.learning.files import METRICS_FILE, gear_models
 from dynoplan.envs.gear.learning.metrics import far_states
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
@@ -78,23 +78,27 @@ from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
+from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.evaluation import (
     calibration,
     n_step_report,
     one_step_error,
     option_end_gap,
 )
-from dynoplan.models.features import RegionsOnFeatures
-from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
-from dynoplan.models.goal_network import GoalNetwork, evaluate_goal, goal_training_set
-from dynoplan.models.trainer import deterministic_training
-from dynoplan.pipeline.fit import (
-    FitSettings,
-    dynamics_epochs,
-    fit_goal_network,
+from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
+from dynoplan.models.folder import MANIFEST_FILE
+from dynoplan.models.goal import GoalHeuristic
+from dynoplan.models.goal_network import GoalTrainingReport, evaluate_goal
+from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
+from dynoplan.models.trainer import TrainingReport, deterministic_training
+from dynoplan.pipeline.fit import FitSettings, dynamics_epochs, fit_goal
+from dynoplan.pipeline.fit_data import labelled_states, option_transitions, split_runs
+from dynoplan.pipeline.fit_dynamics import (
+    CALIBRATION_LEVEL,
+    calibration_split,
+    ensemble_fitter,
+    fit_dynamics,
 )
-from dynoplan.pipeline.fit_data import labelled_states, option_transitions
-from dynoplan.pipeline.fit_dynamics import fit_ensemble
 from dynoplan.pipeline.fit_regions import fit_option_regions
 from dynoplan.progress import track
 from dynoplan.timing import StageClock
@@ -162,8 +166,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         if steps != DECISION_STEPS:
             raise DynoplanError(f"{transitions}: recorded every {steps} environment steps, "
                                 f"the models step every {DECISION_STEPS}")
-        dyn_train, dyn_held = split_episodes(list(collected), measure.dynamics_heldout_fraction,
-                                              np.random.default_rng([seed, 1]))
+        dyn_train, dyn_held = split_runs(list(collected), measure.dynamics_heldout_fraction,
+                                         np.random.default_rng([seed, 1]))
         dynamics_data = "option transitions"
 
     held = demo_arrays(held_set, planner)
@@ -171,31 +175,29 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     for stale in (MANIFEST_FILE, METRICS_FILE):
         (out / stale).unlink(missing_ok=True)
     results: dict[str, Any] = {}
-    goal_of: list[Callable[[FloatArray], FloatArray]] = []  # the fitted goal, for the dynamics
+    fitted: dict[str, Any] = {}  # the goal, the regions and the dynamics, by what they are
 
     def fit_goal() -> None:
-        report, network = _train_goal(list(train_set), held, out, cfg, seed, planner)
-        results["goal"] = report
-        features = gear_features(cfg.goal_features)
-        goal_of.append(lambda states: network.mean_std(features(states))[0])
+        results["goal"], fitted["goal"] = _train_goal(list(train_set), held, cfg, seed,
+                                                      planner)
+
+    def fit_regions() -> None:
+        results["regions"], fitted["regions"] = _train_regions(
+            list(train_set), list(held_set), planner, cfg, measure, seed)
+
+    dyn_reports: dict[str, Any] = {}
+
+    def fit_option_dynamics() -> None:
+        fitted["dynamics"] = _train_dynamics(dyn_train, dyn_held, planner, cfg, measure,
+                                             seed, fitted["goal"], dyn_reports)
 
     stages: list[tuple[str, Callable[[], None]]] = [
-        ("goal", fit_goal),
-        ("regions", lambda: results.update(
-            regions=_train_regions(list(train_set), list(held_set), planner, out, cfg,
-                                   measure, seed))),
-    ]
-    dyn_reports: dict[str, Any] = {}
-    for k, name in enumerate(gear_option_names()):
-        def fit_option(k: int = k, name: str = name) -> None:
-            dyn_reports[name] = _train_dynamics(k, name, dyn_train, dyn_held, planner, out,
-                                                cfg, measure, seed, goal_of[0])
-        stages.append((f"dynamics {name}", fit_option))
+        ("goal", fit_goal), ("regions", fit_regions), ("dynamics", fit_option_dynamics)]
     with deterministic_training():  # the same files whatever threads the caller set
         for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
             clock.stage(name, run)
 
-    models_manifest(out, seed, cfg)
+    gear_models(fitted["dynamics"], fitted["goal"], fitted["regions"], seed, cfg).write(out)
     # coverage over all held-out transitions (options without any do not count)
     dyn_rows = [r for r in dyn_reports.values() if r["coverage_90"] is not None]
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)
@@ -241,18 +243,19 @@ def gear_features(name: str | None) -> FeatureMap:
 
 
 def _train_goal(train_set: Sequence[Episode],
-                held: Sequence[tuple[FloatArray, FloatArray, IntArray]], out: Path,
+                held: Sequence[tuple[FloatArray, FloatArray, IntArray]],
                 cfg: FitSettings, seed: int, planner: PlannerState
-                ) -> tuple[dict[str, Any], GoalNetwork]:
-    """The goal network on the demonstrations' states and progress as the pipeline's goal
-    fit gathers them (:func:`~dynoplan.models.goal_network.goal_training_set`: ``t / T``,
-    which ``infos["progress"]`` records too) and fits them
-    (:func:`~dynoplan.pipeline.fit.fit_goal_network`), saved into ``out``; the report of
-    ``metrics.json``'s ``goal``, measured on the held-out trials ``held``."""
+                ) -> tuple[dict[str, Any], GoalOnFeatures]:
+    """The goal heuristic on the gear's goal features, fitted by the pipeline
+    (:func:`~dynoplan.pipeline.fit_goal.fit_goal`: on the demonstrations' states and their
+    progress ``t / T``, which ``infos["progress"]`` records too); the report of
+    ``metrics.json``'s ``goal``, measured on the held-out trials ``held``, and the goal
+    heuristic on planner states."""
     f = gear_features(cfg.goal_features)
-    states, y, groups = goal_training_set(train_set, planner)
-    network, report = fit_goal_network(f(states), y, groups, cfg, seed)
-    network.save(out / GOAL_FILE)
+    training: list[GoalTrainingReport] = []
+    goal, fit_report = fit_goal(train_set, cfg, seed, planner, f, training=training)
+    assert isinstance(goal, GoalOnFeatures)  # fitted on a feature map
+    network, report = goal.network, training[0]
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
     pooled = evaluate_goal(network, xh, yh)
@@ -278,7 +281,7 @@ def _train_goal(train_set: Sequence[Episode],
         "per_trial_interrupted": interrupted.tolist(),
         "uninterrupted": calm_metrics,
         "train_loss_first_last": [report.train_loss[0], report.train_loss[-1]],
-        "train_states": len(y),
+        "train_states": fit_report["states"],
         "note": "truth = the trial's normalised time (infos['progress']); spearman and "
                 "mae are means over held-out trials of each trial's rank correlation and "
                 "error along that trial (Fig. 3a's view: the planner ranks futures of one "
@@ -286,22 +289,21 @@ def _train_goal(train_set: Sequence[Episode],
                 "different normalised times in trials of different lengths. Trials "
                 "'interrupted' had cautious_move steps (the expert slowed, waited or "
                 "backed away for the human), where time advances but the state does not",
-    }, network
+    }, goal
 
 
 def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
-                   planner: PlannerState, out: Path,
-                   cfg: FitSettings, measure: GearMetricsSettings, seed: int) -> dict[str, Any]:
+                   planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
+                   seed: int) -> tuple[dict[str, Any], RegionsOnFeatures]:
     """The regions of the demonstrated options, fitted by the pipeline
     (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`; undemonstrated options get
-    none), saved into ``out``; the report of ``metrics.json``'s ``regions``."""
+    none); the report of ``metrics.json``'s ``regions`` and the regions."""
     features = gear_features(cfg.region_features)
     names = gear_option_names()
     regions, info = fit_option_regions(train_set, (), names, cfg, seed, state_fn=planner,
                                        features=features)
     assert isinstance(regions, RegionsOnFeatures)  # fitted on a feature map
     fitted = regions.regions
-    fitted.save(out / REGIONS_FILE)
     s, y, _ = labelled_states(train_set, len(names), planner)
     # ``column`` maps an option's label to its region, -1 for none
     column = np.full(len(names), -1)
@@ -330,34 +332,56 @@ def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
         "heldout_states": len(yh),
         **info,
         "members": fitted.members.astype(int).tolist(),
-    }
+    }, regions
 
 
-def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
-                    held_eps: Sequence[Episode], planner: PlannerState, out: Path,
-                    cfg: FitSettings, measure: GearMetricsSettings, seed: int,
-                    goal: Callable[[FloatArray], FloatArray]) -> dict[str, Any]:
-    own = [e for e in train_eps if e.options is not None and int(e.options[0]) == k]
-    fit_eps, cal_eps = (split_episodes(own, measure.dynamics_calibration_fraction,
-                                        np.random.default_rng([seed, 4, k]))
-                        if len({e.seed for e in own}) >= 4 else (own, []))
+def _train_dynamics(train_eps: Sequence[Episode], held_eps: Sequence[Episode],
+                    planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
+                    seed: int, goal: GoalHeuristic, reports: dict[str, Any]
+                    ) -> dict[str, DynamicsModel]:
+    """Every registered option's dynamics, fitted by the pipeline
+    (:func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`) on its runs among ``train_eps``
+    but those held back to calibrate its spread
+    (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`); each option's report of
+    ``metrics.json``'s ``dynamics`` goes into ``reports``, measured on ``held_eps``."""
     names = gear_option_names()
-    s, nxt = option_transitions(fit_eps, names, planner)[name]
+    split = calibration_split(train_eps, names, measure.dynamics_calibration_fraction, seed)
+    pairs = {n: option_transitions(runs, names, planner)[n] for n, (runs, _) in split.items()}
+    held_back = {n: option_transitions(back, names, planner)[n]
+                 for n, (_, back) in split.items() if back}
+    training: dict[str, TrainingReport] = {}
+    models, rows = fit_dynamics(
+        pairs, seed, ensemble_fitter(cfg, training), calibration=held_back,
+        remedy="record more episodes (an option the demonstrations do not show needs "
+               "`dynoplan gear collect`)")
+
+    def score(states: FloatArray) -> FloatArray:
+        return goal.mean_std(states)[0]
+
+    for k, name in enumerate(names):
+        model = models[name]
+        assert isinstance(model, MLPEnsembleDynamics)  # the default fitter's
+        reports[name] = _dynamics_report(k, name, model, training[name], rows[name],
+                                         len(split[name][1]), held_eps, planner, cfg,
+                                         measure, seed, score)
+    return models
+
+
+def _dynamics_report(k: int, name: str, model: MLPEnsembleDynamics, report: TrainingReport,
+                     fit_row: dict[str, Any], calibration_episodes: int,
+                     held_eps: Sequence[Episode], planner: PlannerState, cfg: FitSettings,
+                     measure: GearMetricsSettings, seed: int,
+                     goal: Callable[[FloatArray], FloatArray]) -> dict[str, Any]:
+    """Option ``name``'s (label ``k``) row of ``metrics.json``'s ``dynamics``: its fit
+    (``fit_row`` of :func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`, ``report`` of
+    its training) and, on its held-out runs among ``held_eps``, one-step, n-step and
+    calibration errors and the end gap of the goal's mean score ``goal``."""
+    names = gear_option_names()
     sh, nxth = option_transitions(held_eps, names, planner)[name]
-    if len(s) < 10:
-        raise DynoplanError(f"option '{name}': only {len(s)} transitions to learn its "
-                            "dynamics from (need >= 10); record more episodes (an option "
-                            "the demonstrations do not show needs `dynoplan gear collect`)")
-    model, report = fit_ensemble(name, s, nxt, seed + k, cfg)
-    epochs = dynamics_epochs(len(s), cfg)
-    std_scale = None
-    if cal_eps:
-        sc, nxtc = option_transitions(cal_eps, names, planner)[name]
-        if len(sc) >= 10:
-            std_scale = model.calibrate(sc, nxtc, 0.9)
-    model.save(out / dynamics_file(name))
+    epochs = dynamics_epochs(fit_row["transitions"], cfg)
+    std_scale = fit_row["std_scale"]
     row: dict[str, Any] = {
-        "transitions_train": len(s),
+        "transitions_train": fit_row["transitions"],
         "transitions_heldout": len(sh),
         "holdout_nll_first_best": [report.holdout_loss[0],
                                    report.holdout_loss[report.best_epoch]]
@@ -365,7 +389,7 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
         "train_nll_first_last": [report.train_loss[0], report.train_loss[-1]],
         "epochs": epochs,
         "best_epoch": report.best_epoch,
-        "calibration_episodes": len(cal_eps),
+        "calibration_episodes": calibration_episodes,
         "std_scale": None if std_scale is None else dict(zip(
             STATE_NAMES, np.round(std_scale, 3).tolist(), strict=True)),
     }
@@ -374,7 +398,7 @@ def _train_dynamics(k: int, name: str, train_eps: Sequence[Episode],
                 "one_step_ratio": None, "n_step": None, "goal_end_gap": None,
                 "coverage_90": None}
     one = one_step_error(model, sh, nxth)
-    cal = calibration(model, sh, nxth, 0.9)
+    cal = calibration(model, sh, nxth, CALIBRATION_LEVEL)
     trajectories = option_trajectories(held_eps, planner, k)
     multi = n_step_report(model, trajectories, measure.n_step, measure.rollouts,
                           np.random.default_rng([seed, 3, k]))
