@@ -66,4 +66,7 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
     assert len(row["disturbed_dynoplan"]) == 1
     run = result["runs"][0]
     assert set(run["controllers"]) >= {"demonstrator", "dynoplan", "random"}
+    # the cost of a task, on the clock and on the processor
+    assert row["cpu_s"] > 0 and row["wall_s"] > 0
     assert "| minigrid-doorkey |" in (tmp_path / "suite.md").read_text()
+    assert "CPU (s)" in (tmp_path / "suite.md").read_text()

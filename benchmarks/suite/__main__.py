@@ -17,8 +17,10 @@ one line.
 Writes ``OUT/suite.json`` (every number) and ``OUT/suite.md``: per task, the
 demonstrator, DynoPlan, the best option alone and random choice on every seed, the
 composition ratio (DynoPlan's mean success over the demonstrator's), the decision latency
-(p50 over all DynoPlan decisions), decisions per episode, both rows under the disturbance
-and the task's wall time.
+(p50 over all DynoPlan decisions), decisions per episode, both rows under the disturbance,
+and the task's wall time and CPU time (each summed over its seeds; a seed runs in one
+process, so on a quiet machine with ``--jobs 1`` the two agree, and the CPU time stays
+what the task costs when other work shares the cores).
 """
 
 import argparse
@@ -64,14 +66,15 @@ def parse_sets(items: list[str]) -> dict[str, Any]:
 
 def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
             out: Path) -> dict[str, Any]:
-    """One task on one seed: the pipeline's summary, the disturbed rows and the wall
-    time (``wall_s``), as written to ``out/summary.json`` (and ``out/suite-run.json``)."""
+    """One task on one seed: the pipeline's summary, the disturbed rows, the wall time
+    (``wall_s``) and this process's CPU time (``cpu_s``: what the run costs whatever else
+    shares the machine), as written to ``out/summary.json`` (and ``out/suite-run.json``)."""
     import torch
 
     torch.set_num_threads(1)
     task = entry.load()
     settings = pipeline_settings({**sets, "episodes": episodes, "seed": seed})
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DynoplanWarning)
         result = run_pipeline(task.make_env(), task.module.make_options(),
@@ -87,6 +90,7 @@ def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
             demonstrator=task.module.make_demonstrator(),
             state_scale=result.models.state_scale)
     run = {"task": entry.name, "seed": seed, "wall_s": time.perf_counter() - started,
+           "cpu_s": time.process_time() - cpu_started,
            "controllers": result.summary["controllers"],
            "composition_ratio": result.summary["composition_ratio"],
            "disturbed": disturbed, "disturbance": task.module.DISTURBANCE,
@@ -127,6 +131,7 @@ def task_row(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "disturbed_demonstrator": rates(DEMONSTRATOR, "disturbed"),
         "disturbed_dynoplan": rates(DYNOPLAN, "disturbed"),
         "wall_s": float(sum(r["wall_s"] for r in runs)),
+        "cpu_s": float(sum(r["cpu_s"] for r in runs)),
         "dynoplan_option_share": [r["controllers"][DYNOPLAN]["option_share"] for r in runs],
     }
 
@@ -142,13 +147,13 @@ def suite_table(rows: list[dict[str, Any]]) -> str:
                                             "random", "disturbed_demonstrator",
                                             "disturbed_dynoplan")},
           "best_option": _seeds(r["best_option"]) + f" ({r['best_option_names'][0]})",
-          "wall_s": f"{r['wall_s']:.0f}"} for r in rows],
+          "wall_s": f"{r['wall_s']:.0f}", "cpu_s": f"{r['cpu_s']:.0f}"} for r in rows],
         ["task", "demonstrator", "dynoplan", "composition_ratio", "best_option", "random",
          "disturbed_demonstrator", "disturbed_dynoplan", "latency_ms_p50",
-         "decisions_mean", "wall_s"],
+         "decisions_mean", "wall_s", "cpu_s"],
         ["task", "demonstrator", "DynoPlan", "composition ratio", "best option alone",
          "random", "demonstrator, disturbed", "DynoPlan, disturbed",
-         "decision p50 (ms)", "decisions / episode", "wall (s)"])
+         "decision p50 (ms)", "decisions / episode", "wall (s)", "CPU (s)"])
 
 
 def _commit() -> str | None:
