@@ -129,6 +129,10 @@ class Controller:
         replan_every: plan again after this many steps even if the option runs on
             (``None``: only when it stops).
         margin: score advantage another option needs to replace a running one.
+        commit: at a replan, the running option goes on without a comparison with the
+            others while its own score is at least the score it was chosen with minus
+            ``commit`` (its prospects have not fallen since); else the margin rule
+            decides (``None``: the margin rule always decides).
         hold_action: a safe action to take when no option is admissible, or a callable
             ``observation -> action`` giving one (for example "stay where you are");
             ``None``: end the episode instead.
@@ -162,6 +166,7 @@ class Controller:
         max_option_steps: int = 1000,
         replan_every: int | None = None,
         margin: float = 0.0,
+        commit: float | None = None,
         hold_action: Any = None,
         success_fn: Callable[[bool, dict[str, Any]], bool] = default_success,
         record_infos: bool = False,
@@ -187,6 +192,7 @@ class Controller:
         self.max_option_steps = max_option_steps
         self.replan_every = replan_every
         self.margin = margin
+        self.commit = commit
         self.hold_action = hold_action
         self.success_fn = success_fn
         self.record_infos = record_infos
@@ -208,6 +214,7 @@ class Controller:
         state = self.state_fn(obs)
         terminated = truncated = False
         running: int | None = None  # an option interrupted by ``replan_every``
+        committed = np.nan  # the score the running option was chosen with
         starts = _DecisionStarts()
         for k in range(self.max_decisions):
             if self.loop_tolerance is not None:
@@ -215,7 +222,7 @@ class Controller:
             t0 = time.perf_counter()
             plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
-            chosen = self._keep_running(plan, running)
+            chosen = self._keep_running(plan, running, committed)
             if chosen is None:
                 chosen = self._unstall(plan, trace, state)
             if chosen is None:
@@ -240,6 +247,7 @@ class Controller:
             fell_back = not outside and not option.may_run(state, chosen == running)
             if chosen != running:
                 option.start(obs, rng)
+                committed = float(plan.scores[chosen])
             start_step, start_state = trace.env_steps, state
             reason, steps = "step_cap", 0
             for steps in range(1, self.max_option_steps + 1):
@@ -298,14 +306,22 @@ class Controller:
         finite = np.flatnonzero(np.isfinite(plan.scores))
         return int(finite[np.argmax(plan.scores[finite])]) if finite.size else None
 
-    def _keep_running(self, plan: Plan, running: int | None) -> int | None:
-        """The margin rule: keep an interrupted option unless beaten by ``margin``.
+    def _keep_running(self, plan: Plan, running: int | None, committed: float) -> int | None:
+        """The commitment and margin rules: keep an interrupted option while its score
+        has not fallen by more than ``commit`` below ``committed`` (the score it was
+        chosen with), else unless beaten by ``margin``.
 
         The chooser judged the running option by its continuation set, so
         ``plan.admissible[running]`` says whether it may go on."""
-        if running is None or plan.chosen is None or not plan.admissible[running]:
+        if running is None or not plan.admissible[running]:
             return plan.chosen
-        best, current = plan.scores[plan.chosen], plan.scores[running]
+        current = plan.scores[running]
+        if (self.commit is not None and np.isfinite(current) and np.isfinite(committed)
+                and current >= committed - self.commit):
+            return running
+        if plan.chosen is None:
+            return plan.chosen
+        best = plan.scores[plan.chosen]
         if np.isfinite(current) and best - current <= self.margin:
             return running
         return plan.chosen

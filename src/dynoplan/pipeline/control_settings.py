@@ -22,6 +22,10 @@ class ControllerSettings:
         replan_every: plan again after this many environment steps (``None``: only
             when the option stops).
         margin: score advantage needed to replace a running option at a replan.
+        commit: at a replan, the running option goes on while its own score has not
+            fallen by more than this below the score it was chosen with, whatever the
+            others score (:class:`~dynoplan.control.Controller`; ``None``: the margin
+            rule alone decides).
         max_decisions: planning steps before an episode is given up.
         max_option_steps: environment steps one option may run between decisions.
         hold_action: action when no option is admissible (``None``: the task's own;
@@ -84,6 +88,7 @@ class ControllerSettings:
     risk: float = 0.0
     replan_every: int | None = 10
     margin: float = 0.0
+    commit: float | None = None
     max_decisions: int = 1000
     max_option_steps: int = 1000
     hold_action: Any = None
@@ -121,6 +126,8 @@ class ControllerSettings:
             raise DynoplanError(f"risk_level must be in [0, 1], got {self.risk_level}")
         if self.replan_every is not None and self.replan_every < 1:
             raise DynoplanError(f"replan_every must be >= 1 or None, got {self.replan_every}")
+        if self.commit is not None and not self.commit >= 0.0:
+            raise DynoplanError(f"commit must be >= 0 or None, got {self.commit}")
         if self.max_decisions < 1 or self.max_option_steps < 1:
             raise DynoplanError("max_decisions and max_option_steps must be >= 1")
         if self.no_effect_share is not None and not self.no_effect_share >= 0.0:
