@@ -8,6 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dynoplan.data.dataset import read_dataset, write_dataset
+from dynoplan.data.episodes import OPTION_KEY, Episode
+from dynoplan.data.metadata import DatasetMetadata
 from dynoplan.envs.random_walk import NoisyWalkGoal, make_random_walk_options
 from dynoplan.envs.random_walk.tasks import (
     make_demonstrator,
@@ -17,10 +20,13 @@ from dynoplan.envs.random_walk.tasks import (
     reach_20,
     walk_state,
 )
+from dynoplan.errors import DynoplanError
 from dynoplan.models.folder import file_sha256, read_manifest
 from dynoplan.options.state_map import CoordinateMap, IdentityMap, MappedDynamics
 from dynoplan.pipeline import ControllerSettings, FitSettings, PipelineSettings, run_pipeline
+from dynoplan.pipeline.collect import collect_transitions, make_env
 from dynoplan.pipeline.fit import FittedModels
+from dynoplan.pipeline.gym_task import task_env
 from dynoplan.pipeline.task_fit import run_task
 from dynoplan.planning import OptionPlanner
 
@@ -84,18 +90,80 @@ def test_a_task_with_an_option_the_folder_lacks_is_one_line(options_folder, tmp_
         "def make_options():\n"
         "    return [*walk_options(), option_spec('jump', lambda s: 1, termination=1.0)]\n")
     out = tmp_path / "out"
-    proc = subprocess.run(
-        [sys.executable, "-c", "from dynoplan.cli.main import main; main()", "task", "fit",
-         "--options-models", str(options_folder), "--env", WALK,
-         "--options", f"{module}:make_options", "--state-fn", f"{TASKS}:walk_state",
-         "--success", f"{TASKS}:reach_10", "--no-regions", "--workers", "1", "--quiet",
-         "--out", str(out)], capture_output=True, text=True, timeout=300)
+    proc = _task_fit_cli(options_folder, out, options=f"{module}:make_options")
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith("dynoplan: error: ") and "'jump'" in lines[0], lines[0]
     assert "right_0.9" in lines[0]  # says which options the folder has
     assert not out.exists()
+
+
+def _task_fit_cli(options_folder, out, *extra, options=f"{TASKS}:make_options"):
+    """``dynoplan task fit`` of "reach 10" on ``options_folder`` in a subprocess."""
+    return subprocess.run(
+        [sys.executable, "-c", "from dynoplan.cli.main import main; main()", "task", "fit",
+         "--options-models", str(options_folder), "--env", WALK, "--options", options,
+         "--state-fn", f"{TASKS}:walk_state", "--success", f"{TASKS}:reach_10",
+         "--no-regions", "--workers", "1", "--quiet", "--out", str(out), *extra],
+        capture_output=True, text=True, timeout=300)
+
+
+def test_the_tasks_own_option_runs_reach_its_fit(options_folder, two_tasks, tmp_path):
+    """``runs=``: the goal heuristic of "reach 10" is fitted with its own exploration in
+    place of the options folder's ("reach 20"); the dynamics stay the folder's, byte for
+    byte, and models.json says where the runs came from."""
+    names = [s.name for s in make_options()]
+    env = task_env(make_env(WALK), reach_10, walk_state)
+    own = collect_transitions(env, make_options(), 6, 7, max_option_steps=30)
+    write_dataset(tmp_path / "runs", own, DatasetMetadata("test/reach-10-runs-v0",
+                                                          option_names=names))
+    result = run_task(WALK, options_folder, make_options(), demonstrator=make_demonstrator(),
+                      settings=replace(SMALL, episodes=2), out=tmp_path / "out",
+                      state_fn=walk_state, success=reach_10, runs=tmp_path / "runs")
+    manifest = read_manifest(tmp_path / "out" / "models")
+    record = manifest.extra["options_models"]
+    assert record["runs"] == {"source": str((tmp_path / "runs").resolve()),
+                              "episodes": len(own), "steps": sum(len(e) for e in own)}
+    assert result.summary["task_fit"]["option_runs"] == record["runs"]
+    folder_runs = read_manifest(two_tasks[10][1] / "models").extra["options_models"]["runs"]
+    assert folder_runs["source"] == str((options_folder / "transitions").resolve())
+    source = read_manifest(options_folder / "models")
+    for name, file in source.dynamics.items():
+        assert file is not None and manifest.dynamics[name] is not None
+        assert manifest.dynamics[name].read_bytes() == file.read_bytes()
+    # the same demonstrations and seeds, other option runs: another goal heuristic
+    states = np.arange(19, dtype=np.float64)[:, None]
+    with_runs = result.models.goal.mean_std(states)[0]
+    without = two_tasks[10][0].models.goal.mean_std(states)[0]
+    assert result.summary["models"]["goal"]["off_demo_states"] == sum(
+        len(e) + 1 for e in own)
+    assert not np.allclose(with_runs, without)
+
+
+def test_option_runs_of_another_option_set_are_one_line(options_folder, tmp_path):
+    runs = read_dataset(options_folder / "transitions")
+    names = [s.name for s in make_options()]
+    write_dataset(tmp_path / "jump", runs.episodes[:2],
+                  DatasetMetadata("test/jump-v0", option_names=["jump", *names[1:]]))
+    for dataset, needles in ((tmp_path / "jump", ("'jump'", "option runs")),
+                             (tmp_path / "missing", ("dataset folder not found",))):
+        proc = _task_fit_cli(options_folder, tmp_path / "out", "--runs", str(dataset))
+        assert proc.returncode == 2, proc.stderr
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1, proc.stderr
+        assert lines[0].startswith(f"dynoplan: error: {dataset}"), lines[0]
+        assert all(n in lines[0] for n in needles), lines[0]
+        assert not (tmp_path / "out").exists()
+
+
+def test_option_runs_of_another_state_size_are_an_error(options_folder):
+    wide = Episode(np.zeros((3, 2)), np.zeros(2, np.int64), np.zeros(2), np.zeros(2, bool),
+                   np.zeros(2, bool), {OPTION_KEY: np.array([0, 1])})
+    with pytest.raises(DynoplanError, match="option run 0 has states of 2 values, the "
+                                            "option dynamics read 1"):
+        run_task(WALK, options_folder, make_options(), demonstrator=make_demonstrator(),
+                 settings=SMALL, state_fn=walk_state, success=reach_10, runs=[wide])
 
 
 def test_coordinate_map_round_trips():

@@ -277,17 +277,20 @@ def _row(evaluation: dict[str, Any], name: str) -> float | None:
 
 
 def solve_shared(task: str, options_folder: Path, out: Path, seed: int, demos: int,
-                 episodes: int) -> dict[str, Any]:
+                 episodes: int, runs: Path | None = None,
+                 controllers: str = "demonstrator,dynoplan,random") -> dict[str, Any]:
     """``task`` on the shared dynamics: only its goal heuristic and regions are fitted
-    (``dynoplan task fit``), then the demonstrator, DynoPlan and random choice."""
+    (``dynoplan task fit``; with ``runs``, a transitions dataset, on those option runs
+    in place of the options folder's: ``--runs``), then ``controllers``."""
     from dynoplan.pipeline.task_fit import run_task
 
     settings = _settings({"seed": seed, "demos": demos, "episodes": episodes,
-                          "controllers": "demonstrator,dynoplan,random"})
+                          "controllers": controllers})
+    what = task if runs is None else f"{task}, own runs"
     result = run_task(gym.make(ENV_IDS[task]), options_folder, make_options(),
                       demonstrator=make_demonstrator(task), settings=settings, out=out,
-                      state_fn=state, success=success,
-                      command=f"python -m benchmarks.transfer.metaworld_tasks ({task})")
+                      state_fn=state, success=success, runs=runs,
+                      command=f"python -m benchmarks.transfer.metaworld_tasks ({what})")
     fitted = result.summary["task_fit"]
     return {"expert": _row(result.evaluation, "demonstrator"),
             "shared": _row(result.evaluation, "dynoplan"),
@@ -317,28 +320,15 @@ def solve_refit(task: str, out: Path, seed: int, demos: int, exploration: int,
 
 def solve_own_runs(task: str, root: Path, seed: int, demos: int,
                    episodes: int) -> dict[str, Any]:
-    """A diagnostic: ``task`` on the shared dynamics, but with the option runs of its own
-    refit (``root/refit-TASK/transitions``: its exploration episodes) in place of the
-    options folder's, for its goal heuristic's off-demonstration states and its regions
-    (what ``run_task`` takes from an options folder beside the dynamics). Writes
-    ``root/ownruns-TASK`` (its options folder: the shared ``models/`` and those runs)."""
-    import shutil
-
-    from dynoplan.pipeline.task_fit import RUNS_FOLDER, run_task
-
-    folder = root / f"ownruns-{task}-options"
-    if folder.exists():
-        shutil.rmtree(folder)
-    shutil.copytree(root / "options" / "models", folder / "models")
-    shutil.copytree(root / f"refit-{task}" / "transitions", folder / RUNS_FOLDER)
-    settings = _settings({"seed": seed, "demos": demos, "episodes": episodes,
-                          "controllers": "dynoplan"})
-    result = run_task(gym.make(ENV_IDS[task]), folder, make_options(),
-                      demonstrator=make_demonstrator(task), settings=settings,
-                      out=root / f"ownruns-{task}", state_fn=state, success=success,
-                      command=f"python -m benchmarks.transfer.metaworld_tasks ({task}, "
-                              "own runs)")
-    return {"shared_own_runs": _row(result.evaluation, "dynoplan")}
+    """A diagnostic: ``task`` on the shared dynamics (``root/options``), with the option
+    runs of its own refit (``root/refit-TASK/transitions``: its exploration episodes) in
+    place of the options folder's for its goal heuristic's off-demonstration states and
+    its regions (:func:`solve_shared` with ``runs``: ``dynoplan task fit --runs``).
+    Writes ``root/ownruns-TASK``."""
+    row = solve_shared(task, root / "options", root / f"ownruns-{task}", seed, demos,
+                       episodes, runs=root / f"refit-{task}" / "transitions",
+                       controllers="dynoplan")
+    return {"shared_own_runs": row["shared"]}
 
 
 def _mean(values: Sequence[float | None]) -> str:

@@ -10,7 +10,9 @@ Mounted by ``cli/app.py`` as ``app.add_typer(task_app, name="task")``::
 The task is named as ``dynoplan pipeline`` names it (``--env``, ``--options``,
 ``--success``, ``--state-fn``, ``--demonstrator``, ``--demo-dataset``; or ``--config``, a
 ``settings.toml``); only the goal heuristic (and, unless ``--no-regions``, the regions)
-is fitted, from the task's own demonstrations (:mod:`dynoplan.pipeline.task_fit`).
+is fitted, from the task's own demonstrations and option runs: the options folder's, or
+with ``--runs DATASET`` the task's own (for example the ``transitions/`` of a ``dynoplan
+pipeline`` run on it) (:mod:`dynoplan.pipeline.task_fit`).
 """
 
 import shlex
@@ -58,6 +60,11 @@ def fit(
     demo_dataset: Path | None = typer.Option(
         None, "--demo-dataset", callback=folder,
         help="Use recorded demonstrations of the task (a dataset folder) instead."),
+    runs: Path | None = typer.Option(
+        None, "--runs", callback=folder,
+        help="The task's own option runs (a dataset folder with option labels, as dynoplan "
+             "pipeline writes under transitions/), for its goal heuristic and regions in "
+             "place of the options folder's runs; the dynamics stay the folder's."),
     success: str | None = typer.Option(
         None, "--success", help="MODULE:FUNCTION, success(observation, info) -> bool: the "
         "task's success test."),
@@ -92,8 +99,9 @@ def fit(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or stage lines."),
 ) -> None:
     """Fit a new task's goal heuristic (and regions) on an options folder's dynamics,
-    unchanged, and evaluate; writes OUT/summary.json (task_fit: demonstrations and
-    seconds the task needed), OUT/results.md, OUT/settings.toml, OUT/demos, OUT/models."""
+    unchanged (with --runs: and on the task's own option runs), and evaluate; writes
+    OUT/summary.json (task_fit: demonstrations, option runs and seconds the task needed),
+    OUT/results.md, OUT/settings.toml, OUT/demos, OUT/models."""
     from dynoplan.cli.lines import warnings_as_lines
     from dynoplan.data.dataset import read_dataset
     from dynoplan.io import staged_folder, write_text
@@ -145,12 +153,14 @@ def fit(
                           demonstrator=demo_maker, demos=demo_data, settings=settings,
                           out=staged, progress=not quiet,
                           status=None if quiet else lambda m: typer.echo(f"-- {m}", err=True),
-                          command=command, workers=pool, task=task)
+                          command=command, workers=pool, task=task, runs=runs)
         write_text(staged / "settings.toml", settings_toml(refs, settings))
     typer.echo(result.table)
     fitted = result.summary["task_fit"]
     typer.echo(f"task: {fitted['demonstrations']} demonstrations "
                f"({fitted['demonstration_steps']} steps, {fitted['demonstration_seconds']:.1f} s"
                f"), goal fitted in {fitted['fit_seconds']:.1f} s on the dynamics of "
-               f"{fitted['options_models']}; {result.summary['seconds']:.1f} s in all -> "
+               f"{fitted['options_models']} and {fitted['option_runs']['episodes']} option "
+               f"runs of {fitted['option_runs']['source'] or 'none'}; "
+               f"{result.summary['seconds']:.1f} s in all -> "
                f"{out}/summary.json")

@@ -176,24 +176,25 @@ def _env_id(env: gym.Env[Any, Any]) -> str | None:
     return env.spec.id if env.spec is not None else None
 
 
-def demos_from_dataset(dataset: Dataset | Sequence[Episode],
-                       option_names: Sequence[str]) -> list[Episode]:
-    """Demonstrations to fit from; labels are mapped from the dataset's option names.
+def demos_from_dataset(dataset: Dataset | Sequence[Episode], option_names: Sequence[str],
+                       what: str = "demonstration") -> list[Episode]:
+    """Demonstrations (or, ``what="run"``, option runs) to fit from; labels are mapped
+    from the dataset's option names onto ``option_names``.
 
     Raises:
-        DynoplanError: an episode without option labels, a dataset option name that is
-            not one of ``option_names``.
+        DynoplanError: no episodes, an episode without option labels, a dataset option
+            name that is not one of ``option_names`` (each message says ``what``).
     """
     episodes = list(dataset)
     if not episodes:
-        raise DynoplanError("no demonstrations given")
+        raise DynoplanError(f"no {what}s given")
     names = list(option_names)
     mapping: np.ndarray | None = None
     if isinstance(dataset, Dataset) and dataset.metadata.option_names:
         unknown = [n for n in dataset.metadata.option_names if n not in names]
         if unknown:
             raise DynoplanError(
-                f"the demonstrations' option names {unknown} are not among the options "
+                f"the {what}s' option names {unknown} are not among the options "
                 f"({', '.join(names)})")
         mapping = np.array([names.index(n) for n in dataset.metadata.option_names])
     out = []
@@ -201,11 +202,11 @@ def demos_from_dataset(dataset: Dataset | Sequence[Episode],
         labels = episode.infos.get(OPTION_KEY)
         if labels is None:
             raise DynoplanError(
-                f"demonstration {index} has no option labels (infos['{OPTION_KEY}']): the "
+                f"{what} {index} has no option labels (infos['{OPTION_KEY}']): the "
                 "regions and dynamics need the option that chose every action")
         if mapping is not None:
             if labels.size and labels.max() >= len(mapping):
-                raise DynoplanError(f"demonstration {index}: option label {int(labels.max())} "
+                raise DynoplanError(f"{what} {index}: option label {int(labels.max())} "
                                     f"has no name")
             infos = dict(episode.infos)
             infos[OPTION_KEY] = mapping[labels]
@@ -213,7 +214,7 @@ def demos_from_dataset(dataset: Dataset | Sequence[Episode],
                               episode.terminations, episode.truncations, infos, episode.seed)
         elif labels.size and labels.max() >= len(names):
             raise DynoplanError(
-                f"demonstration {index}: option label {int(labels.max())} but only "
+                f"{what} {index}: option label {int(labels.max())} but only "
                 f"{len(names)} options")
         out.append(episode)
     return out

@@ -9,11 +9,17 @@ those dynamics unchanged and fits, from the new task's own demonstrations,
 - its goal heuristic ``G_K`` (always),
 - its own initiation regions (Eq. 5; unless ``settings.fit.regions`` is off),
 
-then evaluates the controllers as :func:`~dynoplan.pipeline.run.run_pipeline` does, on the
-same seed streams. The result's ``models/`` is a complete models folder (the reused
-dynamics files are written into it, byte for byte the models of the options folder, and
-``models.json`` records where they came from), so it loads like any other, never reading
-outside itself.
+and, as :func:`~dynoplan.pipeline.fit.fit_models` does with a pipeline's exploration
+episodes, from option runs: the goal heuristic's off-demonstration states and the regions
+of options no demonstration shows. Those runs are the options folder's (its
+``transitions/``, runs of the task it was fitted for) unless the task brings its own
+(``run_task(runs=...)``, ``dynoplan task fit --runs DATASET``: for example the
+``transitions/`` of a ``dynoplan pipeline`` run on the new task), which then replace
+them; ``models.json`` records which. Then it evaluates the controllers as
+:func:`~dynoplan.pipeline.run.run_pipeline` does, on the same seed streams. The result's
+``models/`` is a complete models folder (the reused dynamics files are written into it,
+byte for byte the models of the options folder, and ``models.json`` records where they
+came from), so it loads like any other, never reading outside itself.
 
 What the options folder's first task learned beside the dynamics (its goal, its regions,
 its initiation learned from outcomes, which judged runs by that task's goal) is not used.
@@ -74,19 +80,39 @@ class OptionModels:
         folder: the models folder the dynamics come from.
         models: that folder, loaded (only ``dynamics``, ``stride``, ``option_model`` and
             ``state_scale`` are reused).
-        runs: the option runs (exploration episodes) beside it, labels indexing
-            ``models.option_names``; empty when the folder has none.
+        runs: the option runs (exploration episodes) a task's goal heuristic and regions
+            are fitted with, labels indexing ``models.option_names``: those beside the
+            folder (empty when it has none), or a task's own (:meth:`with_runs`).
         sha256: per option, the SHA-256 of its dynamics file in ``folder``.
+        runs_source: where ``runs`` were read (a dataset folder, resolved), ``None`` for
+            none or episodes given in memory.
     """
 
     folder: Path
     models: FittedModels
     runs: list[Episode]
     sha256: dict[str, str]
+    runs_source: str | None = None
 
     @property
     def option_names(self) -> list[str]:
         return list(self.models.option_names)
+
+    def with_runs(self, runs: "OptionRuns") -> "OptionModels":
+        """The same dynamics with ``runs`` (:func:`read_option_runs`) in place of the
+        folder's option runs: a task's own exploration of the options.
+
+        Raises:
+            DynoplanError: what :func:`read_option_runs` refuses.
+        """
+        episodes, source = read_option_runs(runs, self.option_names, self.models.state_dim)
+        return replace(self, runs=episodes, runs_source=source)
+
+    def runs_record(self) -> dict[str, Any]:
+        """Where the option runs came from and how many: ``{"source", "episodes",
+        "steps"}`` (recorded in the task's ``models.json`` and ``summary.json``)."""
+        return {"source": self.runs_source, "episodes": len(self.runs),
+                "steps": sum(len(e) for e in self.runs)}
 
     def check_task(self, names: Sequence[str], state_dim: int | None = None) -> None:
         """Refuse a task whose options are not all in the folder, or whose planner state
@@ -109,6 +135,48 @@ class OptionModels:
                 f"values, this task's planner state has {state_dim}")
 
 
+OptionRuns = str | Path | Dataset | Sequence[Episode]
+"""Option runs as :func:`read_option_runs` takes them: a dataset folder, a dataset read,
+or episodes."""
+
+
+def read_option_runs(runs: OptionRuns, option_names: Sequence[str], state_dim: int,
+                     ) -> tuple[list[Episode], str | None]:
+    """Option runs (exploration episodes: every step labelled with the option that acted,
+    as ``dynoplan pipeline`` writes them under ``transitions/``), checked against the
+    options they are for.
+
+    Args:
+        runs: a dataset folder, a dataset (its option names are mapped onto
+            ``option_names``), or episodes whose labels index ``option_names``.
+        option_names: the options of the dynamics (an options folder's).
+        state_dim: the planner state's size ``d`` the dynamics read.
+
+    Returns:
+        The episodes, labels indexing ``option_names``, observations ``(T+1, d)``; and
+        where they were read (the dataset folder, resolved; ``None`` for episodes).
+
+    Raises:
+        DynoplanError: one line naming the dataset: a missing or malformed dataset
+            (:func:`~dynoplan.data.dataset.read_dataset`), no episodes, an episode without
+            option labels, an option name not among ``option_names``, states of another
+            size than ``state_dim``.
+    """
+    dataset = read_dataset(runs) if isinstance(runs, str | Path) else runs
+    path = dataset.path if isinstance(dataset, Dataset) else None
+    where = f"{path}: " if path is not None else ""
+    try:
+        episodes = demos_from_dataset(dataset, option_names, "option run")
+    except DynoplanError as error:
+        raise DynoplanError(f"{where}{error}") from None
+    for index, episode in enumerate(episodes):
+        width = flat_state(episode.observations[0]).size
+        if width != state_dim:
+            raise DynoplanError(f"{where}option run {index} has states of {width} values, the "
+                                f"option dynamics read {state_dim}")
+    return episodes, None if path is None else str(Path(path).resolve())
+
+
 def load_option_models(path: str | Path) -> OptionModels:
     """An options folder: a pipeline run's folder (``models/`` and ``transitions/``) or a
     models folder (no runs).
@@ -126,11 +194,10 @@ def load_option_models(path: str | Path) -> OptionModels:
     models = FittedModels.load(models_dir, retrain=retrain)
     sha = {name: file_sha256(file) for name, file in manifest.dynamics.items()
            if file is not None}
-    runs: list[Episode] = []
+    folder = OptionModels(models_dir, models, [], sha)
     runs_dir = root / RUNS_FOLDER
-    if models_dir != root and runs_dir.is_dir():
-        runs = demos_from_dataset(read_dataset(runs_dir), models.option_names)
-    return OptionModels(models_dir, models, runs, sha)
+    return (folder.with_runs(runs_dir) if models_dir != root and runs_dir.is_dir()
+            else folder)
 
 
 def relabel(episodes: Sequence[Episode], names: Sequence[str],
@@ -153,10 +220,14 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
              settings: PipelineSettings, seed: int, task: str = "",
              say: Callable[[str], None] | None = None) -> FittedModels:
     """The task's models: the options' dynamics unchanged, its own goal heuristic (and
-    regions, with ``settings.fit.regions``) from ``demos`` (labels index ``specs``).
+    regions, with ``settings.fit.regions``) from ``demos`` (labels index ``specs``) and
+    ``options.runs`` (as :func:`~dynoplan.pipeline.fit.fit_models` uses exploration
+    episodes; give a task's own with :meth:`OptionModels.with_runs`).
 
     The goal and regions are fitted as ``settings.fit`` says; its stride and option
-    model are the options folder's (properties of the dynamics).
+    model are the options folder's (properties of the dynamics). ``models.json``
+    records the folder, its dynamics' SHA-256 and the runs' source
+    (``options_models``).
     """
     names = [s.name for s in specs]
     options.check_task(names)
@@ -185,7 +256,8 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
               "constant_dimensions": own.report.get("constant_dimensions"),
               "state_scale": own.report.get("state_scale"), "warnings": []}
     extra = {"options_models": {"folder": str(options.folder.resolve()),
-                                "task": own.task, "dynamics_sha256": options.sha256}}
+                                "task": own.task, "dynamics_sha256": options.sha256,
+                                "runs": options.runs_record()}}
     return FittedModels(folder_names, dict(own.dynamics), goal, regions, own.stride, report,
                         fit.regions, task, extra)
 
@@ -213,20 +285,28 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
              state_fn: StateFn | None = None, success: SuccessFn | None = None,
              progress: bool = False, status: Callable[[str], None] | None = None,
              command: str | None = None, workers: Workers = SERIAL,
-             task: Task | None = None) -> TaskResult:
+             task: Task | None = None, runs: OptionRuns | None = None) -> TaskResult:
     """A new task on the option dynamics of ``options_models`` (:func:`load_option_models`):
     record ``settings.demos`` demonstrations (or use ``demos``), fit the goal heuristic
     and regions (:func:`fit_task`), evaluate the controllers; arguments as
     :func:`~dynoplan.pipeline.run.run_pipeline` (``settings.exploration_*`` are not used:
-    the options' runs are the folder's).
+    nothing is explored).
+
+    Args:
+        runs: the task's own option runs (:func:`read_option_runs`: a dataset folder such
+            as a ``dynoplan pipeline`` run's ``transitions/`` on this task, a dataset, or
+            episodes; labels name or index the options folder's options), used in place of
+            the folder's runs for the goal heuristic and the regions; ``None``: the
+            folder's.
 
     ``summary["task_fit"]`` says what the new task needed: its demonstrations (episodes,
-    steps), the seconds to record them and to fit its models, and which options'
-    dynamics it reused.
+    steps), the seconds to record them and to fit its models, which options' dynamics it
+    reused, and which option runs it was fitted with (``option_runs``).
 
     Raises:
         DynoplanError: a task option the folder has no dynamics for, a planner state of
-            another size, and what :func:`~dynoplan.pipeline.run.run_pipeline` refuses.
+            another size, option runs :func:`read_option_runs` refuses, and what
+            :func:`~dynoplan.pipeline.run.run_pipeline` refuses.
     """
     from dynoplan.pipeline.collect import make_env
 
@@ -248,6 +328,8 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     seeds = _seeds(settings.seed)
     state_dim = probe_options(environment, options, flat_state, seeds["demos"])
     option_models.check_task(names, state_dim)
+    if runs is not None:
+        option_models = option_models.with_runs(runs)
     folder = ensure_writable_dir(out) if out is not None else None
     known = controller_names(specs, demonstrator is not None)
     unknown = [c for c in settings.controllers or () if c not in known]
@@ -276,6 +358,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     task_fit = {
         "options_models": str(option_models.folder),
         "reused_dynamics": names,
+        "option_runs": option_models.runs_record(),
         "demonstrations": len(demo_episodes),
         "demonstration_steps": sum(len(e) for e in demo_episodes),
         "demonstration_seconds": demo_seconds,
@@ -315,6 +398,10 @@ def _write(folder: Path, env: gym.Env[Any, Any], names: list[str], demos: list[E
                                   option_names=names, seed=settings.seed))
     write_json(folder / "summary.json", summary)
     fit = summary["task_fit"]
+    runs = fit["option_runs"]
+    source = f"of `{runs['source']}`" if runs["source"] else "given in memory"
+    runs_text = (f" and {runs['episodes']} option runs ({runs['steps']} steps, {source})"
+                 if runs["episodes"] else "")
     command = summary.get("command")
     head = f"Produced by `{command}`" if command else "Produced by run_task"
     write_text(folder / "results.md",
@@ -323,7 +410,7 @@ def _write(folder: Path, env: gym.Env[Any, Any], names: list[str], demos: list[E
                f"The option dynamics of `{fit['options_models']}`, unchanged; this task's "
                f"goal heuristic{' and regions' if settings.fit.regions else ''} from "
                f"{fit['demonstrations']} demonstrations ({fit['demonstration_steps']} steps, "
-               f"recorded in {fit['demonstration_seconds']:.1f} s), fitted in "
+               f"recorded in {fit['demonstration_seconds']:.1f} s){runs_text}, fitted in "
                f"{fit['fit_seconds']:.1f} s.\n\n"
                f"{results_table(summary['controllers'])}\n\n"
                "Which options each controller ran (share of its environment steps):\n\n"
@@ -333,5 +420,5 @@ def _write(folder: Path, env: gym.Env[Any, Any], names: list[str], demos: list[E
                + "".join(f"\n- warning: {w}" for w in summary["warnings"]))
 
 
-__all__ = ["RUNS_FOLDER", "OptionModels", "TaskResult", "fit_task", "load_option_models",
-           "relabel", "run_task"]
+__all__ = ["RUNS_FOLDER", "OptionModels", "OptionRuns", "TaskResult", "fit_task",
+           "load_option_models", "read_option_runs", "relabel", "run_task"]
