@@ -548,34 +548,42 @@ def decision_rows(last: int, steps: int, to_end: bool = False) -> Iterator[np.nd
 
 
 def decision_episodes(episode: Episode, steps: int, to_end: bool = False,
-                      summed: Sequence[str] = (), at_start: Sequence[str] = ()
+                      summed: Sequence[str] = (), at_start: Sequence[str] = (),
+                      span: tuple[int, int] | None = None, truncated: bool = False,
                       ) -> list[Episode]:
     """An episode recorded every env step as episodes at the decision rate (``steps``
     env steps per decision), one per phase offset ``o`` of the decision period: the
     observations at env steps ``o, o + steps, o + 2 steps, ...``, and with ``to_end`` the
     episode's last observation too when the offset misses it (a shorter last decision).
-    Offsets that give no decision are left out.
+    Offsets that give no decision are left out. With ``span = (a, b)`` only the env steps
+    ``a:b`` are cut (observations ``a..b``, offsets counted from ``a``): one option's run
+    inside a longer episode.
 
     Each step of a new episode is one decision: ``actions`` and ``infos["option"]`` are
-    the label of the option acting at its start, rewards 0, no termination or truncation
-    (an option's decisions, not a task's episode); ``infos[key]`` is, for ``key`` in
-    ``summed``, the sum of the decision's env steps' values and, for ``key`` in
-    ``at_start``, the value at its first env step. ``seed`` is kept.
+    the label of the option acting at its start, rewards 0, no termination (an option's
+    decisions, not a task's episode) and no truncation, unless ``truncated``: then the
+    last decision of each is truncated (the run was cut out of a longer episode);
+    ``infos[key]`` is, for ``key`` in ``summed``, the sum of the decision's env steps'
+    values and, for ``key`` in ``at_start``, the value at its first env step. ``seed`` is
+    kept.
     """
     labels = episode.infos[OPTION_KEY]
+    first, last = (0, len(episode.observations) - 1) if span is None else span
     sums = {key: np.r_[0, np.cumsum(episode.infos[key])] for key in summed}
     out = []
-    for rows in decision_rows(len(episode.observations) - 1, steps, to_end):
+    for rows in decision_rows(last - first, steps, to_end):
+        rows = first + rows
         n = len(rows) - 1
         label = labels[rows[:-1]]
         infos = {OPTION_KEY: label,
                  **{key: np.diff(c[rows]).astype(episode.infos[key].dtype)
                     for key, c in sums.items()},
                  **{key: np.asarray(episode.infos[key])[rows[:-1]] for key in at_start}}
+        ends = np.zeros(n, dtype=bool)
+        ends[-1] = truncated
         out.append(Episode(observations=episode.observations[rows], actions=label.copy(),
                            rewards=np.zeros(n), terminations=np.zeros(n, dtype=bool),
-                           truncations=np.zeros(n, dtype=bool), infos=infos,
-                           seed=episode.seed))
+                           truncations=ends, infos=infos, seed=episode.seed))
     return out
 
 
