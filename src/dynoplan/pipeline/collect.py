@@ -20,7 +20,7 @@ option that chose every action in ``infos["option"]``:
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, cast
+from typing import Any, Protocol, TypeVar, cast
 
 import gymnasium as gym
 import numpy as np
@@ -417,15 +417,53 @@ def _float_dtype(observations: list[Any]) -> Any:
     return dtype if np.issubdtype(dtype, np.floating) else np.float64
 
 
+R = TypeVar("R")
+
+
+def successful_attempts(wanted: int, attempts: int,
+                        run: Callable[[list[tuple[int, int]]], Sequence[R]],
+                        succeeded: Callable[[R], bool]) -> tuple[list[tuple[int, R] | None], int]:
+    """Attempts ``0, 1, ...`` (at most ``attempts``) until ``wanted`` requests ``0 ..
+    wanted - 1`` each have one that succeeded, in rounds: each round gives the next
+    attempts, in order, to the requests still without a success, in order, and runs them
+    together (``run``, for example on several workers). The attempts run are always the
+    first ones, up to the ``wanted``-th success: the same as trying them one by one and
+    stopping there.
+
+    Args:
+        run: the round's ``(request, attempt)`` pairs to their results, in that order.
+        succeeded: whether a result is a success.
+
+    Returns:
+        Per request, ``(attempt, result)`` of its success or ``None`` (the attempts ran
+        out), and the number of attempts run.
+    """
+    found: list[tuple[int, R] | None] = [None] * wanted
+    tried = 0
+    while tried < attempts:
+        todo = [j for j in range(wanted) if found[j] is None][:attempts - tried]
+        if not todo:
+            break
+        pairs = [(j, tried + k) for k, j in enumerate(todo)]
+        results = run(pairs)
+        tried += len(pairs)
+        for (j, attempt), result in zip(pairs, results, strict=True):
+            if succeeded(result):
+                found[j] = (attempt, result)
+    return found, tried
+
+
 def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
                           demonstrator: Any, episodes: int, seed: int,
                           max_attempts: int | None = None, max_steps: int | None = None,
                           progress: bool = False) -> list[Episode]:
     """``episodes`` successful demonstrations, with option and progress labels.
 
-    Episodes that fail are dropped (their progress would be meaningless); attempts stop
-    after ``max_attempts`` (default ``5 * episodes``). ``infos["progress"]`` after step
-    ``t`` of a ``T``-step demonstration is ``(t + 1) / T``.
+    Episodes that fail are dropped (their progress would be meaningless); the seeds
+    derived from ``seed`` are tried in order (:func:`successful_attempts`) and attempts
+    stop after ``max_attempts`` (default ``5 * episodes``). The demonstrations come in
+    the order of their seeds. ``infos["progress"]`` after step ``t`` of a ``T``-step
+    demonstration is ``(t + 1) / T``.
 
     Raises:
         DynoplanError: fewer than ``episodes`` demonstrations succeeded.
@@ -434,19 +472,20 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
         raise DynoplanError(f"the number of demonstrations must be >= 1, got {episodes}")
     demo = demonstrator_from(demonstrator)
     attempts = max_attempts if max_attempts is not None else 5 * episodes
+    seeds = episode_seeds(seed, attempts)
+
+    def run(pairs: list[tuple[int, int]]) -> list[Recording]:
+        return [record_episode(env, specs, demo, seeds[i].env_seed, seeds[i].rng(), max_steps)
+                for _, i in track(pairs, "demonstrations", total=len(pairs),
+                                  enabled=progress)]
+
+    found, tried = successful_attempts(episodes, attempts, run, lambda r: r.success)
     kept: list[Episode] = []
-    tried = 0
-    for s in track(episode_seeds(seed, attempts), "demonstrations", total=attempts,
-                   enabled=progress):
-        if len(kept) == episodes:
-            break
-        tried += 1
-        recording = record_episode(env, specs, demo, s.env_seed, s.rng(), max_steps)
-        if recording.success:
-            episode = recording.episode
-            t = len(episode)
-            episode.infos[PROGRESS_KEY] = np.arange(1, t + 1, dtype=np.float64) / t
-            kept.append(episode)
+    for _, recording in sorted((f for f in found if f is not None), key=lambda f: f[0]):
+        episode = recording.episode
+        t = len(episode)
+        episode.infos[PROGRESS_KEY] = np.arange(1, t + 1, dtype=np.float64) / t
+        kept.append(episode)
     if len(kept) < episodes:
         raise DynoplanError(
             f"only {len(kept)} of {tried} demonstrations reached the goal; {episodes} were "
