@@ -15,10 +15,7 @@ import pytest
 
 from dynoplan.data import Episode, read_dataset
 from dynoplan.envs.gear.features import RELATIVE, TASK
-from dynoplan.envs.gear.learning.data import (
-    demonstration_transitions,
-    write_demonstration_transitions,
-)
+from dynoplan.envs.gear.learning.data import write_demonstration_transitions
 from dynoplan.envs.gear.learning.demos import record_demos
 from dynoplan.envs.gear.learning.files import HELDOUT_DIR, METRICS_FILE, load_gear_models
 from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
@@ -33,7 +30,7 @@ from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynam
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.pipeline.fit import fit_regions_cross_validated
-from dynoplan.pipeline.fit_data import option_transitions
+from dynoplan.pipeline.fit_data import decision_runs, option_transitions
 
 pytestmark = pytest.mark.slow
 
@@ -224,7 +221,7 @@ def test_demonstrations_become_decision_rate_runs_of_one_option(tmp_path):
     demo = Episode(observations=obs, actions=np.zeros((steps, 13)), rewards=np.zeros(steps),
                    terminations=np.zeros(steps, bool), truncations=np.zeros(steps, bool),
                    infos={"option": labels}, seed=5)
-    runs = demonstration_transitions([demo])
+    runs = decision_runs([demo], DECISION_STEPS)
     # option 0: steps 0..24, one run per offset 0..9; option 1 (5 steps): none;
     # option 3: steps 30..41 (observations 30..42), offsets 0..2 reach a second decision
     assert [int(r.options[0]) for r in runs] == [0] * DECISION_STEPS + [3] * 3

@@ -24,6 +24,7 @@ from dynoplan.pipeline.collect import (
     decision_episodes,
     run_outcomes,
 )
+from dynoplan.pipeline.fit_data import decision_runs, label_runs
 
 
 class Line(gym.Env):
@@ -145,6 +146,27 @@ def test_decision_episodes_of_a_recorded_episode():
     assert all(e.rewards.tolist() == [0.0] and e.seed == 9 for e in cut)
     to_end = decision_episodes(episode, 3, to_end=True)
     assert [e.observations[:, 0].tolist() for e in to_end] == [[0, 3, 5], [1, 4, 5], [2, 5]]
+
+
+def test_decision_runs_cut_every_run_of_one_option_at_the_decision_rate():
+    labels = np.array([0, 0, 0, 0, 0, 1, 2, 2, 2])
+    episode = Episode(observations=np.arange(10.0)[:, None], actions=np.zeros((9, 1)),
+                      rewards=np.ones(9), terminations=np.zeros(9, bool),
+                      truncations=np.zeros(9, bool), infos={"option": labels}, seed=3)
+    assert label_runs(labels) == [(0, 5), (5, 6), (6, 9)]
+    cut = decision_runs([episode], 2)
+    # option 0: observations 0..5, offsets 0 and 1; option 1 (1 step): none; option 2:
+    # observations 6..9, offsets 0 and 1
+    assert [e.observations[:, 0].tolist() for e in cut] == [
+        [0, 2, 4], [1, 3, 5], [6, 8], [7, 9]]
+    assert [e.actions.tolist() for e in cut] == [[0, 0], [0, 0], [2], [2]]
+    assert all(e.truncations[-1] and not e.truncations[:-1].any() and e.seed == 3
+               for e in cut)
+    unlabelled = Episode(observations=np.zeros((2, 1)), actions=np.zeros((1, 1)),
+                         rewards=np.zeros(1), terminations=np.zeros(1, bool),
+                         truncations=np.zeros(1, bool))
+    with pytest.raises(DynoplanError, match="episode 0 has no option labels"):
+        decision_runs([unlabelled], 2)
 
 
 def test_option_runs_need_a_run_and_a_step():

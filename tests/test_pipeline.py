@@ -29,6 +29,7 @@ from dynoplan.pipeline import (
     record_demonstrations,
     run_pipeline,
 )
+from dynoplan.pipeline.collect import successful_attempts
 from dynoplan.pipeline.fit import strided
 
 
@@ -265,6 +266,23 @@ def test_demonstrators_that_misbehave_are_clear_errors():
                               max_attempts=2)
     with pytest.raises(DynoplanError, match="give a demonstrator"):
         run_pipeline(line_env(), specs, settings=SMALL)
+
+
+def test_successful_attempts_in_rounds_run_the_attempts_one_by_one_would():
+    ok = [False, True, False, True, True, False, True]  # attempt i succeeds
+    rounds = []
+
+    def run(pairs):
+        rounds.append(pairs)
+        return [ok[i] for _, i in pairs]
+
+    found, tried = successful_attempts(3, len(ok), run, bool)
+    # round 1: attempts 0..2 to requests 0..2; round 2: 3, 4 to the failed 0 and 2
+    assert rounds == [[(0, 0), (1, 1), (2, 2)], [(0, 3), (2, 4)]]
+    assert found == [(3, True), (1, True), (4, True)] and tried == 5  # stops at the 3rd
+    found, tried = successful_attempts(5, len(ok), lambda pairs: [ok[i] for _, i in pairs],
+                                       bool)
+    assert tried == len(ok) and sum(f is not None for f in found) == 4
 
 
 def test_a_demonstrator_may_restart_an_option_act_itself_and_read_the_info():

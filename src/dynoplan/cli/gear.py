@@ -296,14 +296,10 @@ def outcomes(
     import torch
 
     from dynoplan.data.dataset import DATA_DIR
-    from dynoplan.envs.gear.learning.outcomes import (
-        collect_outcomes,
-        fit_gear_initiation,
-        transitions_beyond,
-    )
     from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.io import check_writable, retarget, staged_folder, write_json
-    from dynoplan.parallel import parse_workers, ray_session
+    from dynoplan.experiments.gear_stages import outcome_initiation
+    from dynoplan.io import check_writable, retarget, staged_folder
+    from dynoplan.parallel import SERIAL, parse_workers, ray_session
 
     check_writable(models)  # initiation.json goes there, after the runs
     sizes = run_settings(quick).outcomes
@@ -318,24 +314,19 @@ def outcomes(
     # its runs, goes without --merge); other files of OUT stay
     previous = (DATA_DIR, "outcomes.json", "transitions-beyond") if collect else ()
     with staged_folder(out, keep=not collect, drop=previous) as stage, \
-            staged_folder(models, keep=True) as staged_models:
-        if collect:
-            with ray_session(pool):
-                summary = retarget(collect_outcomes(models, seed, stage, replace(
-                    sizes, runs=runs, max_decisions=max_decisions,
-                    lead_decisions=lead_decisions), progress=not quiet, workers=pool),
-                    stage, out)
-            write_json(stage / "outcomes.json", summary)
-            typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
-                f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
-                for n in summary["starts"]))
-        if merge is not None:
-            merged = retarget(transitions_beyond(merge, stage, stage / "transitions-beyond"),
-                              stage, out)
-            typer.echo(f"{merged['episodes']} episodes -> {merged['dataset']}")
-        report = retarget(fit_gear_initiation(staged_models, stage, seed), staged_models,
-                          models)
-        write_json(staged_models / "initiation.json", report)
+            staged_folder(models, keep=True) as staged_models, \
+            ray_session(pool if collect else SERIAL):  # Ray for the runs only
+        summary, merged, report = retarget(retarget(outcome_initiation(
+            staged_models, stage, seed, replace(sizes, runs=runs, max_decisions=max_decisions,
+                                                lead_decisions=lead_decisions),
+            progress=not quiet, workers=pool, collect=collect, merge=merge, networks=models),
+            stage, out), staged_models, models)
+    if summary is not None:
+        typer.echo(f"{summary['runs']} runs; starts that ended well: " + ", ".join(
+            f"{n} {summary['ended_well'][n]}/{summary['starts'][n]}"
+            for n in summary["starts"]))
+    if merged is not None:
+        typer.echo(f"{merged['episodes']} episodes -> {merged['dataset']}")
     typer.echo(json.dumps(report["options"]))
     typer.echo(f"-> {out}, {report['file']}, {models}/initiation.json")
 

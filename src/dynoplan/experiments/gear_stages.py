@@ -125,16 +125,47 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
 
 def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",
                        progress: bool = True, workers: Workers = SERIAL) -> dict[str, Any]:
-    """Stage ``outcomes``: the outcome runs into ``out`` and the initiation learned from
-    them into ``models`` (report: ``models/initiation.json``); their summary."""
-    from dynoplan.envs.gear.learning.outcomes import collect_outcomes, fit_gear_initiation
-
-    runs = collect_outcomes(models, seed, out, settings, progress=progress, workers=workers)
-    write_json(out / "outcomes.json", runs)
-    report = fit_gear_initiation(models, out, seed)
-    write_json(models / "initiation.json", report)
+    """Stage ``outcomes`` of ``gear run``: :func:`outcome_initiation`; the summary of its
+    runs and fit."""
+    runs, _, report = outcome_initiation(models, out, seed, settings, progress, workers)
+    assert runs is not None  # collected
     return {"runs": runs["runs"], "starts": runs["starts"], "ended_well": runs["ended_well"],
             "options": report["options"]}
+
+
+def outcome_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",
+                       progress: bool = True, workers: Workers = SERIAL,
+                       collect: bool = True, merge: Path | None = None,
+                       networks: Path | None = None,
+                       ) -> tuple[dict[str, Any] | None, dict[str, Any] | None, dict[str, Any]]:
+    """The outcome runs of every option into the dataset folder ``out`` (``outcomes.json``:
+    their summary; ``collect`` False: the runs already there), with ``merge`` also the
+    collected transitions ``merge`` and the runs' as one dataset ``out/transitions-beyond``,
+    and the initiation learned from the runs into ``models`` (``initiation.json``: the
+    fit's report), the option networks read from ``networks`` (default ``models``; ``gear
+    outcomes`` writes into a staged copy of the folder it reads). ``gear run``'s stage
+    (:func:`learned_initiation`) and ``gear outcomes`` both run it.
+
+    Returns:
+        The runs' summary (``None`` without ``collect``), the merged dataset's (``None``
+        without ``merge``) and the fit's report.
+    """
+    from dynoplan.envs.gear.learning.outcomes import (
+        collect_outcomes,
+        fit_gear_initiation,
+        transitions_beyond,
+    )
+
+    runs = None
+    if collect:
+        runs = collect_outcomes(models if networks is None else networks, seed, out,
+                                settings, progress=progress, workers=workers)
+        write_json(out / "outcomes.json", runs)
+    merged = (None if merge is None
+              else transitions_beyond(merge, out, out / "transitions-beyond"))
+    report = fit_gear_initiation(models, out, seed)
+    write_json(models / "initiation.json", report)
+    return runs, merged, report
 
 
 def heldout_trials(demos: Path, n: int, seed: int, out: Path, models: Path,
@@ -171,4 +202,4 @@ def figures(models: Path, demos: Path, heldout: Path | None, out: Path, seed: in
 
 __all__ = ["DEMONSTRATOR", "FIGURE_POINTS", "QUICK_FIGURE_POINTS", "demonstrations",
            "figures", "heldout_trials", "learned_initiation", "learned_models",
-           "option_networks", "option_transitions"]
+           "option_networks", "option_transitions", "outcome_initiation"]

@@ -20,7 +20,7 @@ option that chose every action in ``infos["option"]``:
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, cast
+from typing import Any, Protocol, TypeVar, cast
 
 import gymnasium as gym
 import numpy as np
@@ -417,15 +417,53 @@ def _float_dtype(observations: list[Any]) -> Any:
     return dtype if np.issubdtype(dtype, np.floating) else np.float64
 
 
+R = TypeVar("R")
+
+
+def successful_attempts(wanted: int, attempts: int,
+                        run: Callable[[list[tuple[int, int]]], Sequence[R]],
+                        succeeded: Callable[[R], bool]) -> tuple[list[tuple[int, R] | None], int]:
+    """Attempts ``0, 1, ...`` (at most ``attempts``) until ``wanted`` requests ``0 ..
+    wanted - 1`` each have one that succeeded, in rounds: each round gives the next
+    attempts, in order, to the requests still without a success, in order, and runs them
+    together (``run``, for example on several workers). The attempts run are always the
+    first ones, up to the ``wanted``-th success: the same as trying them one by one and
+    stopping there.
+
+    Args:
+        run: the round's ``(request, attempt)`` pairs to their results, in that order.
+        succeeded: whether a result is a success.
+
+    Returns:
+        Per request, ``(attempt, result)`` of its success or ``None`` (the attempts ran
+        out), and the number of attempts run.
+    """
+    found: list[tuple[int, R] | None] = [None] * wanted
+    tried = 0
+    while tried < attempts:
+        todo = [j for j in range(wanted) if found[j] is None][:attempts - tried]
+        if not todo:
+            break
+        pairs = [(j, tried + k) for k, j in enumerate(todo)]
+        results = run(pairs)
+        tried += len(pairs)
+        for (j, attempt), result in zip(pairs, results, strict=True):
+            if succeeded(result):
+                found[j] = (attempt, result)
+    return found, tried
+
+
 def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
                           demonstrator: Any, episodes: int, seed: int,
                           max_attempts: int | None = None, max_steps: int | None = None,
                           progress: bool = False) -> list[Episode]:
     """``episodes`` successful demonstrations, with option and progress labels.
 
-    Episodes that fail are dropped (their progress would be meaningless); attempts stop
-    after ``max_attempts`` (default ``5 * episodes``). ``infos["progress"]`` after step
-    ``t`` of a ``T``-step demonstration is ``(t + 1) / T``.
+    Episodes that fail are dropped (their progress would be meaningless); the seeds
+    derived from ``seed`` are tried in order (:func:`successful_attempts`) and attempts
+    stop after ``max_attempts`` (default ``5 * episodes``). The demonstrations come in
+    the order of their seeds. ``infos["progress"]`` after step ``t`` of a ``T``-step
+    demonstration is ``(t + 1) / T``.
 
     Raises:
         DynoplanError: fewer than ``episodes`` demonstrations succeeded.
@@ -434,19 +472,20 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
         raise DynoplanError(f"the number of demonstrations must be >= 1, got {episodes}")
     demo = demonstrator_from(demonstrator)
     attempts = max_attempts if max_attempts is not None else 5 * episodes
+    seeds = episode_seeds(seed, attempts)
+
+    def run(pairs: list[tuple[int, int]]) -> list[Recording]:
+        return [record_episode(env, specs, demo, seeds[i].env_seed, seeds[i].rng(), max_steps)
+                for _, i in track(pairs, "demonstrations", total=len(pairs),
+                                  enabled=progress)]
+
+    found, tried = successful_attempts(episodes, attempts, run, lambda r: r.success)
     kept: list[Episode] = []
-    tried = 0
-    for s in track(episode_seeds(seed, attempts), "demonstrations", total=attempts,
-                   enabled=progress):
-        if len(kept) == episodes:
-            break
-        tried += 1
-        recording = record_episode(env, specs, demo, s.env_seed, s.rng(), max_steps)
-        if recording.success:
-            episode = recording.episode
-            t = len(episode)
-            episode.infos[PROGRESS_KEY] = np.arange(1, t + 1, dtype=np.float64) / t
-            kept.append(episode)
+    for _, recording in sorted((f for f in found if f is not None), key=lambda f: f[0]):
+        episode = recording.episode
+        t = len(episode)
+        episode.infos[PROGRESS_KEY] = np.arange(1, t + 1, dtype=np.float64) / t
+        kept.append(episode)
     if len(kept) < episodes:
         raise DynoplanError(
             f"only {len(kept)} of {tried} demonstrations reached the goal; {episodes} were "
@@ -548,34 +587,42 @@ def decision_rows(last: int, steps: int, to_end: bool = False) -> Iterator[np.nd
 
 
 def decision_episodes(episode: Episode, steps: int, to_end: bool = False,
-                      summed: Sequence[str] = (), at_start: Sequence[str] = ()
+                      summed: Sequence[str] = (), at_start: Sequence[str] = (),
+                      span: tuple[int, int] | None = None, truncated: bool = False,
                       ) -> list[Episode]:
     """An episode recorded every env step as episodes at the decision rate (``steps``
     env steps per decision), one per phase offset ``o`` of the decision period: the
     observations at env steps ``o, o + steps, o + 2 steps, ...``, and with ``to_end`` the
     episode's last observation too when the offset misses it (a shorter last decision).
-    Offsets that give no decision are left out.
+    Offsets that give no decision are left out. With ``span = (a, b)`` only the env steps
+    ``a:b`` are cut (observations ``a..b``, offsets counted from ``a``): one option's run
+    inside a longer episode.
 
     Each step of a new episode is one decision: ``actions`` and ``infos["option"]`` are
-    the label of the option acting at its start, rewards 0, no termination or truncation
-    (an option's decisions, not a task's episode); ``infos[key]`` is, for ``key`` in
-    ``summed``, the sum of the decision's env steps' values and, for ``key`` in
-    ``at_start``, the value at its first env step. ``seed`` is kept.
+    the label of the option acting at its start, rewards 0, no termination (an option's
+    decisions, not a task's episode) and no truncation, unless ``truncated``: then the
+    last decision of each is truncated (the run was cut out of a longer episode);
+    ``infos[key]`` is, for ``key`` in ``summed``, the sum of the decision's env steps'
+    values and, for ``key`` in ``at_start``, the value at its first env step. ``seed`` is
+    kept.
     """
     labels = episode.infos[OPTION_KEY]
+    first, last = (0, len(episode.observations) - 1) if span is None else span
     sums = {key: np.r_[0, np.cumsum(episode.infos[key])] for key in summed}
     out = []
-    for rows in decision_rows(len(episode.observations) - 1, steps, to_end):
+    for rows in decision_rows(last - first, steps, to_end):
+        rows = first + rows
         n = len(rows) - 1
         label = labels[rows[:-1]]
         infos = {OPTION_KEY: label,
                  **{key: np.diff(c[rows]).astype(episode.infos[key].dtype)
                     for key, c in sums.items()},
                  **{key: np.asarray(episode.infos[key])[rows[:-1]] for key in at_start}}
+        ends = np.zeros(n, dtype=bool)
+        ends[-1] = truncated
         out.append(Episode(observations=episode.observations[rows], actions=label.copy(),
                            rewards=np.zeros(n), terminations=np.zeros(n, dtype=bool),
-                           truncations=np.zeros(n, dtype=bool), infos=infos,
-                           seed=episode.seed))
+                           truncations=ends, infos=infos, seed=episode.seed))
     return out
 
 

@@ -8,7 +8,7 @@ import numpy as np
 from dynoplan.control.controller import flat_state
 from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, Episode
 from dynoplan.errors import DynoplanError
-from dynoplan.pipeline.collect import ObservationFn
+from dynoplan.pipeline.collect import ObservationFn, decision_episodes
 from dynoplan.types import FloatArray, Generator
 
 
@@ -97,6 +97,38 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
                 np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
 
 
+def label_runs(labels: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of option labels ``(T,)``: every maximal stretch ``start:end`` of steps
+    with one label, in order (``T >= 1``)."""
+    cuts = np.flatnonzero(np.diff(labels)) + 1
+    return [(int(a), int(b)) for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(labels)],
+                                             strict=True)]
+
+
+def decision_runs(episodes: Sequence[Episode], steps: int) -> list[Episode]:
+    """Option transitions at the decision rate cut from labelled episodes recorded every
+    env step (demonstrations): every run of one option label (:func:`label_runs`) as
+    episodes at the decision rate (:func:`~dynoplan.pipeline.collect.decision_episodes`,
+    ``steps`` env steps per decision), one per phase offset ``o``: its observations
+    ``o, o + steps, ...`` up to the run's last observation, each step one decision of its
+    option, the last truncated. A run shorter than ``steps`` gives nothing.
+
+    Raises:
+        DynoplanError: an episode has no option labels.
+    """
+    out: list[Episode] = []
+    for index, episode in enumerate(episodes):
+        labels = episode.options
+        if labels is None:
+            raise DynoplanError(f"episode {index} has no option labels "
+                                f"(infos['{OPTION_KEY}']): runs are cut by the option that "
+                                "acted")
+        for start, end in label_runs(labels):
+            out += decision_episodes(episode, steps, span=(start, end),
+                                     truncated=True)
+    return out
+
+
 def _runs(episodes: Sequence[Episode], option_names: Sequence[str], state_fn: ObservationFn,
           ) -> Iterator[tuple[str, FloatArray, int, int, bool, bool]]:
     """Every run (a maximal stretch of steps with one option label) of ``episodes``: its
@@ -110,8 +142,7 @@ def _runs(episodes: Sequence[Episode], option_names: Sequence[str], state_fn: Ob
         interrupted = episode.infos.get(INTERRUPTED_KEY)
         failure = episode.infos.get(FAILURE_KEY)
         failed_end = failure is not None and len(failure) > 0 and bool(failure[-1])
-        cuts = np.flatnonzero(np.diff(labels)) + 1
-        for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(labels)], strict=True):
+        for start, end in label_runs(labels):
             cut = interrupted is not None and bool(interrupted[end - 1])
             yield (option_names[int(labels[start])], rows, int(start), int(end), cut,
                    failed_end and end == len(labels))
@@ -218,5 +249,6 @@ def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: Obser
     return np.concatenate(states), np.concatenate(labels), np.concatenate(groups)
 
 
-__all__ = ["episode_states", "labelled_states", "option_end_pairs", "option_labels",
-           "option_run_failures", "option_runs", "option_transitions", "split_runs"]
+__all__ = ["decision_runs", "episode_states", "label_runs", "labelled_states",
+           "option_end_pairs", "option_labels", "option_run_failures", "option_runs",
+           "option_transitions", "split_runs"]

@@ -31,7 +31,13 @@ from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.parallel import SERIAL, Workers, parallel_map
-from dynoplan.pipeline.collect import Decision, Demonstrator, RunStart, record_episode
+from dynoplan.pipeline.collect import (
+    Decision,
+    Demonstrator,
+    RunStart,
+    record_episode,
+    successful_attempts,
+)
 from dynoplan.reports.video import write_mp4
 from dynoplan.seeding import episode_seeds as derive_episode_seeds
 from dynoplan.types import Generator
@@ -267,25 +273,22 @@ def _successful_episodes(job: DemoJob, n: int, seed: int, human_mode: str | None
     """``n`` successful episodes (a demonstration shows the task done). Demonstration
     ``j`` has the human mode ``human_mode``, or without one ``DEMO_MODE_CYCLE[j % 3]``,
     so that ten demonstrations show every situation (block 4, cross 3, away 3). The
-    seeds derived from ``seed`` are tried in rounds: each round gives the next seeds in
-    order to the demonstrations still without a success, in order; at most ``3 n``
-    seeds are tried in all. The rounds' episodes run on ``workers``."""
+    seeds derived from ``seed`` are tried in the pipeline's rounds
+    (:func:`~dynoplan.pipeline.collect.successful_attempts`: each round gives the next
+    seeds in order to the demonstrations still without a success, in order), at most
+    ``3 n`` seeds in all; the rounds' episodes run on ``workers``. Demonstration ``j``
+    comes ``j``-th."""
     seeds = episode_seeds(seed, 3 * n)
     modes = [human_mode or DEMO_MODE_CYCLE[j % len(DEMO_MODE_CYCLE)] for j in range(n)]
-    found: list[Episode | None] = [None] * n
-    tried = 0
-    while tried < len(seeds):
-        todo = [j for j in range(n) if found[j] is None][:len(seeds) - tried]
-        if not todo:
-            return [e for e in found if e is not None]
-        items = [(seeds[tried + k], modes[j]) for k, j in enumerate(todo)]
-        episodes = parallel_map(build_demonstrator, demonstrated_episode, job, items,
-                                workers, f"gear demos (options, {len(todo)} tries)", progress)
-        tried += len(items)
-        for j, episode in zip(todo, episodes, strict=True):
-            if bool(np.asarray(episode["infos"]["success"])[-1]):
-                found[j] = episode
-    done = [e for e in found if e is not None]
+
+    def run(pairs: list[tuple[int, int]]) -> list[Episode]:
+        return parallel_map(build_demonstrator, demonstrated_episode, job,
+                            [(seeds[i], modes[j]) for j, i in pairs], workers,
+                            f"gear demos (options, {len(pairs)} tries)", progress)
+
+    found, _ = successful_attempts(n, len(seeds), run,
+                                   lambda e: bool(np.asarray(e["infos"]["success"])[-1]))
+    done = [e for _, e in (f for f in found if f is not None)]
     if len(done) < n:
         raise DynoplanError(f"only {len(done)} of {3 * n} option demonstrations succeeded; "
                             f"{n} were asked for")

@@ -7,13 +7,14 @@
   rejects shared seeds with the demonstrations.
 - :func:`demo_arrays`: per demonstration, planner states ``(T+1, 22)``, progress
   ``(T+1,)`` and option labels ``(T,)``.
-- :func:`demonstration_transitions`: option transitions at the decision rate cut from
-  demonstrations (a stand-in for ``dynoplan gear collect``);
+- :func:`write_demonstration_transitions`: option transitions at the decision rate cut
+  from demonstrations by the pipeline's :func:`~dynoplan.pipeline.fit_data.decision_runs`
+  (a stand-in for ``dynoplan gear collect``), as a dataset;
   :func:`option_trajectories` gives the planner states of one option's runs (the
   pipeline's :func:`~dynoplan.pipeline.fit_data.split_runs` holds out whole runs).
 """
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import gymnasium as gym
@@ -30,7 +31,7 @@ from dynoplan.envs.gear.env import OBS_DIM
 from dynoplan.envs.gear.options.catalog import CAUTIOUS_MOVE, PAPER_OPTIONS, gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.pipeline.collect import decision_rows
+from dynoplan.pipeline.fit_data import decision_runs
 from dynoplan.types import FloatArray, IntArray
 
 HELDOUT_SEED_OFFSET = 1000
@@ -40,45 +41,12 @@ CAUTIOUS = PAPER_OPTIONS.index(CAUTIOUS_MOVE.name)
 TRANSITIONS_ID = "dynoplan/gear-assembly/demo-transitions-v0"
 
 
-def demonstration_transitions(demos: Iterable[Episode],
-                              decision_steps: int = DECISION_STEPS) -> list[Episode]:
-    """A stand-in for collected option transitions, cut from expert demonstrations.
-
-    Every maximal run of one option label in a demonstration becomes ``decision_steps``
-    episodes, one per offset ``o``: its observations ``o, o + k, o + 2k, ...`` (``k =
-    decision_steps``) up to the run's last observation, so each step is one decision of
-    that option. ``actions`` and ``infos["option"]`` are the option index; rewards are 0.
-    Runs shorter than ``k`` steps give nothing.
-    """
-    out: list[Episode] = []
-    for index, episode in enumerate(demos):
-        labels = episode.options
-        if labels is None:
-            raise DynoplanError(f"demonstration {index} has no infos['option'] labels")
-        starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
-        ends = np.r_[starts[1:], len(labels)]
-        for a, b in zip(starts, ends, strict=True):
-            k = int(labels[a])
-            for rows in decision_rows(int(b - a), decision_steps):
-                idx = a + rows
-                steps = len(idx) - 1
-                out.append(Episode(
-                    observations=episode.observations[idx],
-                    actions=np.full(steps, k, dtype=np.int64),
-                    rewards=np.zeros(steps),
-                    terminations=np.zeros(steps, dtype=bool),
-                    truncations=np.r_[np.zeros(steps - 1, dtype=bool), True],
-                    infos={"option": np.full(steps, k, dtype=np.int64)},
-                    seed=episode.seed,
-                ))
-    return out
-
-
 def write_demonstration_transitions(demos: Path, out: Path,
                                     decision_steps: int = DECISION_STEPS) -> Path:
-    """Write :func:`demonstration_transitions` of the dataset ``demos`` as a dataset."""
+    """Write the option transitions at the decision rate cut from the dataset ``demos``
+    (the pipeline's :func:`~dynoplan.pipeline.fit_data.decision_runs`) as a dataset."""
     source = read_dataset(demos)
-    episodes = demonstration_transitions(source, decision_steps)
+    episodes = decision_runs(list(source), decision_steps)
     if not episodes:
         raise DynoplanError(f"{demos}: no option run lasts {decision_steps} steps")
     meta = source.metadata

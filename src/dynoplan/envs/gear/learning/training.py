@@ -19,7 +19,7 @@ with, and measures it on held-out data:
   MLPEnsembleDynamics`) on transitions at the decision rate (one step =
   :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps), from the option
   transitions collected by ``dynoplan gear collect`` or, without them, from the
-  demonstrations subsampled (:func:`demonstration_transitions`), fitted by the
+  demonstrations subsampled (:func:`~dynoplan.pipeline.fit_data.decision_runs`), fitted by the
   pipeline's :func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`, each option's spread
   calibrated on runs held back from its fit
   (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`).
@@ -60,7 +60,6 @@ from dynoplan.envs.gear.learning.data import (
     CAUTIOUS,
     check_disjoint,
     demo_arrays,
-    demonstration_transitions,
     option_trajectories,
     read_demos,
     read_labelled,
@@ -92,7 +91,12 @@ from dynoplan.models.goal_network import GoalTrainingReport, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import TrainingReport, deterministic_training
 from dynoplan.pipeline.fit import FitSettings, dynamics_epochs, fit_goal
-from dynoplan.pipeline.fit_data import labelled_states, option_transitions, split_runs
+from dynoplan.pipeline.fit_data import (
+    decision_runs,
+    labelled_states,
+    option_transitions,
+    split_runs,
+)
 from dynoplan.pipeline.fit_dynamics import (
     CALIBRATION_LEVEL,
     calibration_split,
@@ -118,7 +122,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
             progress; trains the goal heuristic and the regions (and the dynamics
             without ``transitions``).
         transitions: option transitions at the decision rate (``dynoplan gear collect``);
-            ``None``: the demonstrations subsampled (:func:`demonstration_transitions`).
+            ``None``: the demonstrations subsampled
+            (:func:`~dynoplan.pipeline.fit_data.decision_runs`).
         out: folder for the models, ``models.json`` and ``metrics.json``.
         seed: seeds every fit, split and evaluation draw.
         heldout_demos: held-out trials, not among ``demos``, for the goal and region
@@ -157,8 +162,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     held_set = read_demos(heldout_demos, "held-out trials")
     check_disjoint(train_set, held_set, heldout_demos)
     if transitions is None:
-        dyn_train = demonstration_transitions(train_set)
-        dyn_held = demonstration_transitions(held_set)
+        dyn_train = decision_runs(list(train_set), DECISION_STEPS)
+        dyn_held = decision_runs(list(held_set), DECISION_STEPS)
         dynamics_data = "demonstrations subsampled"
     else:
         collected = read_labelled(transitions, "option transitions")
