@@ -1,0 +1,93 @@
+"""The gear's controller settings against the generic defaults' rules, on the same episodes.
+
+Usage::
+
+    .venv/bin/python benchmarks/gear_controls.py --run results/gear --episodes 100
+    .venv/bin/python benchmarks/gear_controls.py --run DIR --each --out results/gear-controls.json
+
+DynoPlan on the models of one ``dynoplan gear run`` (``--run``: its output folder; the
+evaluation seeds of ``--seed``, the run's own), under the gear's controller settings
+(:data:`~dynoplan.envs.gear.controllers.GEAR_CONTROL`) and under the rules where those
+differ from :class:`~dynoplan.pipeline.control_settings.ControllerSettings`' defaults,
+which every other Task runs on (:data:`GENERIC_RULES`: an option may not start where its
+termination holds, a fallback must gain, the stall rule, no margin). With ``--each``, also
+each of those rules alone. The loop rule and the no-effect rule's share of the state
+scale, on by default elsewhere, need the state scale that a pipeline fit records; the
+gear's models do not record it yet, so they are not among the rows.
+
+Prints and writes (``--out``, JSON) one row per setting: success, median time to success,
+contacts with the person (all, and while the arm moved) and the failures by kind.
+"""
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+GENERIC_RULES: dict[str, Any] = {"start_where_done": False, "fallback_must_gain": True,
+                                 "stall_progress": 0.5, "margin": 0.0}
+"""The generic defaults where the gear's settings differ (the rules that act on the gear's
+models: every one but the loop rule and the no-effect share)."""
+
+SHOWN = ("success_rate", "time_to_success_s", "contacts", "contacts_moving",
+         "episodes_with_contact", "failures")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="benchmarks/gear_controls.py",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--run", type=Path, default=Path("results/gear"),
+                        help="a gear run's output folder (its models/)")
+    parser.add_argument("--seed", type=int, default=0, help="the run's seed [0]")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--each", action="store_true", help="also each rule alone")
+    parser.add_argument("--out", type=Path, help="write the rows as JSON")
+    args = parser.parse_args(argv)
+
+    import torch
+
+    from dynoplan.envs.gear.controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.evaluation import evaluation_seeds
+    from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.pipeline_task import GearTask
+    from dynoplan.envs.gear.reports.results import summarise
+    from dynoplan.errors import DynoplanError
+    from dynoplan.io import write_json
+    from dynoplan.parallel import SERIAL
+    from dynoplan.pipeline.evaluate import ControllerJob
+    from dynoplan.pipeline.jobs import evaluate_rows
+
+    torch.set_num_threads(1)
+    models = args.run / "models"
+    try:
+        if args.episodes < 1:
+            raise DynoplanError(f"--episodes must be >= 1, got {args.episodes}")
+        load_gear_models(models)
+    except DynoplanError as exc:
+        print(f"gear_controls: error: {exc}", file=sys.stderr)
+        return 2
+    rows: dict[str, dict[str, Any]] = {"the gear's settings": {}}
+    if args.each:
+        rows.update({f"{k}={v}": {k: v} for k, v in GENERIC_RULES.items()})
+    rows["the generic rules"] = GENERIC_RULES
+    seeds = evaluation_seeds(args.seed, args.episodes)
+    results: dict[str, Any] = {"run": str(args.run), "seed": args.seed,
+                               "episodes": args.episodes, "rows": {}}
+    for label, changes in rows.items():
+        started = time.perf_counter()
+        job = ControllerJob(GearTask(), models, "dynoplan", replace(GEAR_CONTROL, **changes))
+        episodes = evaluate_rows({label: (job, seeds)}, SERIAL, label)[label]
+        row = summarise("dynoplan", episodes)
+        results["rows"][label] = {"changes": changes, **{k: row[k] for k in SHOWN},
+                                  "seconds": round(time.perf_counter() - started, 1)}
+        print(label, json.dumps(results["rows"][label]), flush=True)
+        if args.out is not None:
+            write_json(args.out, results)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
