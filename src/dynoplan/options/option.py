@@ -218,7 +218,7 @@ class Option:
         """Draw termination after a step: ``beta_w(state)``, or the policy is finished."""
         if self.policy.finished():
             return True
-        if isinstance(self.termination, ConstantTermination):  # no array for a constant
+        if type(self.termination) is ConstantTermination:  # no array for a constant
             return bool(rng.random() < self.termination.beta)
         beta = float(self.termination.probability(np.asarray(state, dtype=np.float64)[None])[0])
         return bool(rng.random() < beta)
