@@ -66,6 +66,7 @@ COUNTS = [
     ("gear run", "--oracle-episodes", "-1"),
     ("gear evaluate", "--episodes", TOO_BIG), ("gear evaluate", "--horizon", TOO_BIG),
     ("gear evaluate", "--samples", TOO_BIG), ("gear evaluate", "--samples", "0"),
+    ("gear evaluate", "--depth", "0"), ("gear evaluate", "--depth", TOO_BIG),
     ("gear episode", "--index", "-1"), ("gear episode", "--index", str(EPISODES_MAX)),
     ("pipeline", "--episodes", TOO_BIG), ("pipeline", "--demos", "0"),
     ("pipeline", "--explore", TOO_BIG), ("pipeline", "--samples", TOO_BIG),

@@ -295,6 +295,16 @@ def test_gear_episode_rejects_an_unknown_controller_without_writing(tmp_path: Pa
     assert not out.exists()
 
 
+def test_the_gear_commands_set_the_planners_depth():
+    from dynoplan.cli.gear import _planner_settings
+
+    assert _planner_settings(None, None, None, False).depth == GEAR_CONTROL.depth == 1
+    assert _planner_settings(None, None, None, False, depth=2).depth == 2
+    for command in ("evaluate", "episode"):
+        shown = CliRunner().invoke(app, ["gear", command, "--help"], terminal_width=200)
+        assert "--depth" in shown.output
+
+
 def test_the_gear_controllers_do_not_repeat_an_option_without_effect_unless_told_to():
     from dynoplan.cli.gear import _planner_settings
 

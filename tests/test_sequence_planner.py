@@ -199,6 +199,34 @@ def test_rollouts_of_the_running_rows_only_equal_the_full_arrays_in_distribution
     assert not np.array_equal(a.steps, b.steps)
 
 
+@pytest.mark.parametrize("end_inside", [False, True])
+def test_rollouts_of_the_running_rows_stop_at_a_region_as_the_full_arrays_do(end_inside):
+    """Deterministic models (no misprediction, no termination): the rows and the full
+    arrays must end every rollout at the same state after the same steps, where an
+    option leaves its continuation set (``end_inside``: at its last state inside)."""
+    from dynoplan.envs.random_walk import NoisyWalkDynamics
+    from dynoplan.options.termination import ConstantTermination
+
+    below_six = InitiationFromCallable(lambda s: s[..., 0] <= 5)
+    right, left, stay = (Option(name, None, NoisyWalkDynamics(p, 0.0),  # type: ignore[arg-type]
+                                ConstantTermination(0.0), initiation=region)
+                         for name, p, region in [("right", 1.0, below_six),
+                                                 ("left", 0.0, below_six),
+                                                 ("wide", 1.0, InitiationFromCallable(
+                                                     lambda s: s[..., 0] <= 8))])
+    options = [right, left, stay]
+    plans = [SequencePlanner(options, NoisyWalkGoal(0.0), horizon=8, samples=3, depth=1,
+                             end_inside=end_inside, compact=compact)
+             for compact in (False, True)]
+    idx = (0, 1, 2, 0)
+    full, rows = (p.rollout(idx, np.array([2.0]), np.random.default_rng(0)) for p in plans)
+    np.testing.assert_array_equal(rows.end_states, full.end_states)
+    np.testing.assert_array_equal(rows.steps, full.steps)
+    assert rows.end_states[0, 0, 0] == (5.0 if end_inside else 6.0)
+    assert rows.end_states[1, 0, 0] == 0.0 and rows.steps[1, 0] == 8
+    assert rows.end_states[2, 0, 0] == (8.0 if end_inside else 9.0)
+
+
 def test_member_disagreements_equal_the_loop_over_options():
     from dynoplan.planning.option_planner import member_disagreement
     from dynoplan.planning.sequence_planner import member_disagreements

@@ -9,6 +9,7 @@ import typer
 from dynoplan.cli.params import folder, human_mode, models_folder, out_folder, require_gear
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
+    DEPTH_MAX,
     EPISODES_MAX,
     HORIZON_MAX,
     POINTS_MAX,
@@ -30,6 +31,12 @@ def _samples_option() -> Any:
     return typer.Option(None, min=1, max=SAMPLES_MAX,
                         help="Monte-Carlo rollouts per option (default 64; gear run "
                         "--quick: 32).")
+
+
+def _depth_option() -> Any:
+    return typer.Option(None, min=1, max=DEPTH_MAX,
+                        help="Options per imagined sequence of DynoPlan's planner (default "
+                        "1: the paper's Eq. 1; 2 looks one option further).")
 
 
 def _epistemic_option() -> Any:
@@ -503,6 +510,7 @@ def evaluate(
                              help="Episodes are gear run's for the same seed."),
     horizon: int | None = _horizon_option(),
     samples: int | None = _samples_option(),
+    depth: int | None = _depth_option(),
     epistemic: float | None = _epistemic_option(),
     end_inside: bool = _end_inside_option(),
     repeat_no_effect: bool = _repeat_option(),
@@ -521,7 +529,8 @@ def evaluate(
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)
-    planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect)
+    planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect,
+                                depth)
     task = _gear_task(human, shield)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
@@ -535,7 +544,8 @@ def evaluate(
 
 
 def _planner_settings(horizon: int | None, samples: int | None, epistemic: float | None,
-                      end_inside: bool, repeat_no_effect: bool = False) -> "ControllerSettings":
+                      end_inside: bool, repeat_no_effect: bool = False,
+                      depth: int | None = None) -> "ControllerSettings":
     """The gear's default controller settings with what the command line changed."""
     from dataclasses import replace
 
@@ -548,6 +558,8 @@ def _planner_settings(horizon: int | None, samples: int | None, epistemic: float
         planner = replace(planner, samples=samples)
     if epistemic is not None:
         planner = replace(planner, epistemic=epistemic)
+    if depth is not None:
+        planner = replace(planner, depth=depth)
     if end_inside:
         planner = replace(planner, end_inside=True)
     if repeat_no_effect:
@@ -572,6 +584,7 @@ def episode(
                                "to OUT/episode.mp4."),
     horizon: int | None = _horizon_option(),
     samples: int | None = _samples_option(),
+    depth: int | None = _depth_option(),
     epistemic: float | None = _epistemic_option(),
     end_inside: bool = _end_inside_option(),
     repeat_no_effect: bool = _repeat_option(),
@@ -589,7 +602,8 @@ def episode(
 
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
-    planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect)
+    planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect,
+                                depth)
     task = _gear_task(human, shield)
     metrics, rows, schedule = inspect_episode(models, controller, index, seed, planner,
                                               frames=frames, task=task)

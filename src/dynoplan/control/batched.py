@@ -28,6 +28,7 @@ from dynoplan.control.controller import (
     Decision,
     EpisodeTrace,
     default_success,
+    finite_state,
     flat_state,
 )
 from dynoplan.errors import DynoplanError
@@ -115,7 +116,7 @@ def run_batched(envs: Sequence[gym.Env[Any, Any]], options: Sequence[Option],
                 if term or trunc:
                     reason, ended[i], terminated[i] = "episode_end", True, bool(term)
                     break
-                if not np.isfinite(state).all():
+                if not finite_state(state):
                     reason = "invalid_state"
                     break
                 if not option.can_continue(state):

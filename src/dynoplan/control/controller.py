@@ -35,6 +35,7 @@ option it may start runs instead.
 """
 
 import itertools
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -54,6 +55,14 @@ def flat_state(observation: Any) -> FloatArray:
     """The observation flattened to a ``float64`` vector: the default planner state (a
     ``Box`` or a ``Discrete`` observation)."""
     return np.asarray(observation, dtype=np.float64).reshape(-1)
+
+
+def finite_state(state: FloatArray) -> bool:
+    """Whether every entry of ``state`` (``(state_dim,)``) is finite: asked after every
+    environment step, so a small state is judged without numpy's cost per call."""
+    if state.size <= 64:
+        return all(map(math.isfinite, state.tolist()))
+    return bool(np.isfinite(state).all())
 
 
 def default_success(terminated: bool, info: dict[str, Any]) -> bool:
@@ -257,7 +266,7 @@ class Controller:
                 if terminated or truncated:
                     reason = "episode_end"
                     break
-                if not np.isfinite(state).all():
+                if not finite_state(state):
                     reason = "invalid_state"
                     break
                 if not option.can_continue(state) and not (

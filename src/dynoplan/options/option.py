@@ -24,7 +24,7 @@ import numpy as np
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.options.initiation import Everywhere, Initiation
 from dynoplan.options.state_map import StateMap, planner_dynamics
-from dynoplan.options.termination import Termination
+from dynoplan.options.termination import ConstantTermination, Termination
 from dynoplan.types import BoolArray, Generator
 
 
@@ -151,8 +151,10 @@ class Option:
 
     def can_continue(self, state: np.ndarray) -> bool:
         """Whether a running option may go on in ``state`` (shape ``(state_dim,)``)."""
-        s = np.asarray(state, dtype=np.float64)[None]
-        return bool(self.continuation_set.contains(s)[0])
+        region = self.continuation_set
+        if isinstance(region, Everywhere):  # called after every step: no array for it
+            return True
+        return bool(region.contains(np.asarray(state, dtype=np.float64)[None])[0])
 
     def start(self, observation: Any, rng: Generator) -> None:
         self.policy.reset(observation, rng)
@@ -216,6 +218,8 @@ class Option:
         """Draw termination after a step: ``beta_w(state)``, or the policy is finished."""
         if self.policy.finished():
             return True
+        if type(self.termination) is ConstantTermination:  # no array for a constant
+            return bool(rng.random() < self.termination.beta)
         beta = float(self.termination.probability(np.asarray(state, dtype=np.float64)[None])[0])
         return bool(rng.random() < beta)
 

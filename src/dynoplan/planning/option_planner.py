@@ -338,15 +338,21 @@ class OptionPlanner:
         running (:meth:`_rollout_rows`).
         """
         idx = tuple(option_indices)
-        dynamics, termination = self._stack(idx)
         x = np.broadcast_to(state, (len(idx), self.samples, state.shape[-1])).copy()
         alive = np.ones(x.shape[:2], dtype=bool) if start_alive is None \
             else np.array(start_alive, dtype=bool)
         survival = self._survival(idx, np.asarray(state), x, alive)
-        if self.compact and callable(getattr(dynamics, "sample_rows", None)) \
-                and callable(getattr(termination, "probability_rows", None)):
-            return replace(self._rollout_rows(idx, dynamics, termination, x, alive, rng,
-                                              step_offset), survival=survival)
+        if self.compact:  # rows name their option: a stack of the distinct options
+            kinds = tuple(dict.fromkeys(idx))
+            dynamics, termination = self._stack(kinds)
+            if callable(getattr(dynamics, "sample_rows", None)) \
+                    and callable(getattr(termination, "probability_rows", None)):
+                where = np.zeros(max(kinds) + 1, dtype=np.int64)
+                where[list(kinds)] = np.arange(len(kinds))
+                return replace(self._rollout_rows(kinds, where[np.asarray(idx)], dynamics,
+                                                  termination, x, alive, rng, step_offset),
+                               survival=survival)
+        dynamics, termination = self._stack(idx)
         regions = self._region_groups(idx) if self.respect_regions else []
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
         blocks = getattr(dynamics, "block_sampler", None)
@@ -418,42 +424,62 @@ class OptionPlanner:
             out[rows] = 1.0 - np.clip(p, 0.0, 1.0)
         return np.where(alive, out, 1.0)
 
-    def _rollout_rows(self, idx: tuple[int, ...], dynamics: Any, termination: Any,
-                      x: FloatArray, alive: BoolArray, rng: Generator,
+    def _rollout_rows(self, kinds: tuple[int, ...], kind: IntArray, dynamics: Any,
+                      termination: Any, x: FloatArray, alive: BoolArray, rng: Generator,
                       step_offset: int) -> Rollouts:
         """:meth:`rollout` on the running rollouts only: ``x`` ``(branches, samples, d)``
-        start states (changed in place), ``alive`` ``(branches, samples)`` which run."""
+        start states (changed in place), ``alive`` ``(branches, samples)`` which run;
+        ``dynamics`` and ``termination`` stack the options ``kinds`` (distinct), and
+        branch ``b`` follows ``kinds[kind[b]]`` (``kind`` ``(branches,)``).
+
+        The running rollouts are carried as compact rows (their states, their slice of
+        the stack and their indices into ``x``); a rollout's end state and step count
+        are written once, when it stops.
+        """
         b, n, d = x.shape
         flat = x.reshape(-1, d)
-        branch = np.repeat(np.arange(b), n)
         steps = np.zeros(b * n, dtype=np.int64)
         valid = np.ones(b * n, dtype=bool)
         unsafe = None if self.constraint is None else np.zeros(b * n, dtype=bool)
-        regions = self._region_groups(idx) if self.respect_regions else []
-        live = np.flatnonzero(alive.reshape(-1))
+        regions = [(k, self.options[i].continuation_set) for k, i in enumerate(kinds)
+                   if self.respect_regions
+                   and not isinstance(self.options[i].continuation_set, Everywhere)]
+        live = np.flatnonzero(alive.reshape(-1))  # (rows,) indices into flat
+        now = flat.take(live, axis=0)  # (rows, d) their states
+        branch = kind.take(live // n)  # (rows,) their slices of the stack
         for t in range(self.horizon):
             if live.size == 0:
                 break
-            now = flat[live]
-            nxt = dynamics.sample_rows(now, branch[live], rng)
+            nxt = dynamics.sample_rows(now, branch, rng)
             finite = np.isfinite(nxt).all(axis=-1)
             if not finite.all():  # rare: stop diverged rollouts where they are
-                valid[live[~finite]] = False
-                live, now, nxt = live[finite], now[finite], nxt[finite]
+                gone = live[~finite]
+                valid[gone], steps[gone] = False, t
+                flat[gone] = now[~finite]
+                live, now, nxt, branch = live[finite], now[finite], nxt[finite], branch[finite]
             if unsafe is not None and self.constraint is not None:
                 unsafe[live] |= self.constraint.unsafe(now, nxt, step_offset + t + 1)
-            flat[live] = nxt
-            steps[live] += 1
-            go_on = rng.random(live.size) >= termination.probability_rows(nxt, branch[live])
-            for rows, initiation in regions:
-                mine = np.isin(branch[live], rows)
-                inside = np.asarray(initiation.contains(nxt[mine]), dtype=bool)
-                go_on[np.flatnonzero(mine)[~inside]] = False
+            go_on = rng.random(live.size) >= termination.probability_rows(nxt, branch)
+            took = None  # the rows that left their set and end where they were
+            for k, initiation in regions:
+                mine = np.flatnonzero(branch == k)
+                out = mine[~np.asarray(initiation.contains(nxt[mine]), dtype=bool)]
+                go_on[out] = False
                 if self.end_inside:  # back to the last state inside the set
-                    left = live[mine][~inside]
-                    flat[left] = now[mine][~inside]
-                    steps[left] -= 1
-            live = live[go_on]
+                    took = out if took is None else np.concatenate([took, out])
+            if took is not None and took.size:
+                nxt = nxt.copy()  # the model's array stays as it gave it
+                nxt[took] = now[took]
+            stop = np.flatnonzero(~go_on)
+            ended = live.take(stop)
+            flat[ended] = nxt.take(stop, axis=0)
+            steps[ended] = t + 1
+            if took is not None and took.size:
+                steps[live.take(took)] = t
+            keep = np.flatnonzero(go_on)
+            live, now, branch = live.take(keep), nxt.take(keep, axis=0), branch.take(keep)
+        flat[live] = now  # the horizon ran out
+        steps[live] = self.horizon
         return Rollouts(flat.reshape(b, n, d), steps.reshape(b, n), valid.reshape(b, n), None,
                         None if unsafe is None else unsafe.reshape(b, n))
 

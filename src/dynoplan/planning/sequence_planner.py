@@ -261,7 +261,8 @@ class SequencePlanner(OptionPlanner):
         end_states = np.full((n_root, n_opt, self.samples, d), np.nan)
         steps = np.zeros((n_root, n_opt, self.samples), dtype=np.int64)
         shares = None if self.constraint is None else np.full((n_root, n_opt), np.nan)
-        names: list[list[tuple[str, ...]]] = [[() for _ in range(n_opt)] for _ in range(n_root)]
+        names = np.empty((n_root, n_opt), dtype=object)  # the best sequences, by name
+        names.fill(())  # an option not admissible: no sequence
         if tree is not None:
             first = tree.levels[0]
             at = (first.parents, first.options)
@@ -280,10 +281,22 @@ class SequencePlanner(OptionPlanner):
             disagreements[leaf_at] = tree.leaf.disagreements[branch[done]]
             if shares is not None and tree.leaf.unsafe_shares is not None:
                 shares[leaf_at] = tree.leaf.unsafe_shares[branch[done]]
+            # name each distinct sequence once, then place the names by fancy indexing
+            # a sequence as one integer: option + 1 per level in base options + 1
+            code = np.zeros(len(first.options), dtype=np.int64)
+            for level_options in reversed(path):
+                code = code * (n_opt + 1) + level_options + 1
+            sequences, which = np.unique(code, return_inverse=True)
             option_names = self.option_names
-            for root, option, *rest in zip(first.parents.tolist(), *[p.tolist() for p in path],
-                                           strict=True):
-                names[root][option] = tuple(option_names[i] for i in (option, *rest) if i >= 0)
+            named = np.empty(len(sequences), dtype=object)
+            for k, c in enumerate(sequences.tolist()):  # element by element: a tuple
+                seq = []  # is one object
+                while c:
+                    c, digit = divmod(c, n_opt + 1)
+                    if digit:
+                        seq.append(option_names[digit - 1])
+                named[k] = tuple(seq)
+            names[first.parents, first.options] = named[which.reshape(-1)]
         best = np.argmax(np.where(may_run.T, np.nan_to_num(scores, nan=-np.inf), -np.inf),
                          axis=1)
         option_names = self.option_names
@@ -300,6 +313,6 @@ class SequencePlanner(OptionPlanner):
                     chosen, floor = None, here
             plans.append(Plan(option_names, may_run[:, r], scores[r], spreads[r],
                               end_states[r], steps[r], chosen, disagreements[r],
-                              None if shares is None else shares[r], tuple(names[r]),
+                              None if shares is None else shares[r], tuple(names[r].tolist()),
                               gain_floor=floor))
         return plans

@@ -61,6 +61,10 @@ class _StackedWalkDynamics:
         self.p_right = p_right[:, None, None]  # (options, 1, 1) against (O, S, 1)
         self.noise = noise[:, None, None]
         self.goal_state = goal_state
+        self._p_right = np.ascontiguousarray(p_right, dtype=np.float64)  # (options,)
+        # one misprediction probability for all options: a scalar, no gather per row
+        self._noise: float | FloatArray = float(noise[0]) if np.all(noise == noise[0]) \
+            else np.ascontiguousarray(noise, dtype=np.float64)
 
     def sample(self, states: FloatArray, rng: Generator) -> FloatArray:
         return _sample(states, self.p_right, self.noise, self.goal_state, rng)
@@ -68,8 +72,8 @@ class _StackedWalkDynamics:
     def sample_rows(self, states: FloatArray, branches: IntArray,
                     rng: Generator) -> FloatArray:
         """``(rows, 1)`` -> ``(rows, 1)``; row ``i`` follows option ``branches[i]``."""
-        return _sample(states, self.p_right[branches, 0], self.noise[branches, 0],
-                       self.goal_state, rng)
+        noise = self._noise if isinstance(self._noise, float) else self._noise.take(branches)
+        return _sample_rows(states, self._p_right.take(branches), noise, self.goal_state, rng)
 
 
 def _sample(states: FloatArray, p_right: FloatArray, noise: FloatArray, goal_state: int,
@@ -86,6 +90,29 @@ def _sample(states: FloatArray, p_right: FloatArray, noise: FloatArray, goal_sta
     return out
 
 
+def _sample_rows(states: FloatArray, p_right: FloatArray, noise: float | FloatArray,
+                 goal_state: int, rng: Generator) -> FloatArray:
+    """:func:`_sample` of ``(rows, 1)`` states, ``p_right`` and ``noise`` per row
+    (``(rows,)``, or one ``noise`` for all): the same draws and the same next states,
+    with the wrong states computed only where the model mispredicts."""
+    s = states.reshape(-1)
+    u = rng.random((2, s.size))  # the order of _sample's (2, rows, 1) draws
+    moved = (u[0] < p_right) * 2.0 - 1.0
+    moved += s
+    np.maximum(moved, 0.0, out=moved)
+    wrong_at = np.flatnonzero(u[1] < noise)
+    if wrong_at.size:
+        scale = goal_state / np.maximum(noise if isinstance(noise, float)
+                                        else noise.take(wrong_at), 1e-300)
+        wrong = np.floor(u[1].take(wrong_at) * scale)
+        wrong += wrong >= moved.take(wrong_at)
+        moved[wrong_at] = wrong
+    at_goal = np.flatnonzero(s >= goal_state)  # the goal is absorbing
+    if at_goal.size:
+        moved[at_goal] = s.take(at_goal)
+    return moved.reshape(states.shape)
+
+
 class NoisyWalkGoal:
     """``G(s) = s / goal`` observed through misprediction noise (a distribution)."""
 
@@ -99,8 +126,12 @@ class NoisyWalkGoal:
         """``(batch, 1)`` -> ``(batch,)`` progress draws in ``[0, 1]``."""
         s = np.clip(np.rint(states[..., 0]), 0, self.goal_state)
         u = rng.random((2, *s.shape))
-        shown = np.where(u[0] < self.noise, _wrong_state(s, self.goal_state, u[1]), s)
-        return shown / self.goal_state
+        shown = s.reshape(-1)  # a new array: the wrong states go in where drawn
+        wrong_at = np.flatnonzero(u[0] < self.noise)
+        if wrong_at.size:
+            shown[wrong_at] = _wrong_state(shown.take(wrong_at), self.goal_state,
+                                           u[1].reshape(-1).take(wrong_at))
+        return shown.reshape(s.shape) / self.goal_state
 
     def mean_std(self, states: FloatArray) -> tuple[FloatArray, FloatArray]:
         s = np.clip(np.rint(states[..., 0]), 0, self.goal_state)
