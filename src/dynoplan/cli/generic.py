@@ -191,6 +191,10 @@ def pipeline(
     margin: float | None = typer.Option(
         None, "--margin", **_bounds("control.margin"),
         help="Score advantage needed to replace a running option at a replan [0]."),
+    commit: float | None = typer.Option(
+        None, "--commit", **_bounds("control.commit"),
+        help="At a replan, the running option goes on while its own score has not fallen "
+             "by more than this since it was chosen, whatever the others score [off]."),
     max_decisions: int | None = typer.Option(
         None, "--max-decisions", **_bounds("control.max_decisions"),
         help="Planning steps before an episode is given up [1000]."),
