@@ -148,35 +148,29 @@ def test_an_option_started_under_its_fallback_goes_on_while_the_fallback_holds()
     assert [d.stop_reason for d in trace.decisions] == ["left_region", "episode_end"]
 
 
-def test_margin_keeps_a_running_option_unless_clearly_beaten():
+def _options_run_on_scores(calls, **rules):
+    """The options ("a", "b") a controller replanning at every step runs, given the
+    chooser's scores at each decision (``calls``) and the controller's ``rules``."""
     options = [_option("a", 0.5), _option("b", 0.5)]
+    chooser = ScriptedScores(["a", "b"], [list(c) for c in calls])
+    controller = Controller(options, chooser, max_decisions=len(calls), replan_every=1,
+                            **rules)
+    return [d.option for d in controller.run(Line(), np.random.default_rng(0)).decisions]
 
-    def run(margin, calls):
-        chooser = ScriptedScores(["a", "b"], calls)
-        controller = Controller(options, chooser, max_decisions=len(calls), replan_every=1,
-                                margin=margin)
-        return [d.option for d in controller.run(Line(), np.random.default_rng(0)).decisions]
 
+def test_margin_keeps_a_running_option_unless_clearly_beaten():
     calls = [[0.5, 0.1], [0.50, 0.55], [0.5, 0.7]]
-    assert run(0.1, [list(c) for c in calls]) == ["a", "a", "b"]
-    assert run(0.0, [list(c) for c in calls]) == ["a", "b", "b"]
+    assert _options_run_on_scores(calls, margin=0.1) == ["a", "a", "b"]
+    assert _options_run_on_scores(calls, margin=0.0) == ["a", "b", "b"]
 
 
 def test_commitment_keeps_a_running_option_while_its_own_prospects_hold():
     """With ``commit``, another option that promises more does not interrupt the running
     one until the running one's own score falls below what it was chosen with."""
-    options = [_option("a", 0.5), _option("b", 0.5)]
-
-    def run(commit, calls):
-        chooser = ScriptedScores(["a", "b"], calls)
-        controller = Controller(options, chooser, max_decisions=len(calls), replan_every=1,
-                                commit=commit)
-        return [d.option for d in controller.run(Line(), np.random.default_rng(0)).decisions]
-
     # "a" chosen at 0.5; "b" promises more and more while "a" holds, then "a" falls
     calls = [[0.5, 0.1], [0.49, 0.8], [0.5, 0.9], [0.3, 0.9], [0.9, 0.2]]
-    assert run(0.05, [list(c) for c in calls]) == ["a", "a", "a", "b", "a"]
-    assert run(None, [list(c) for c in calls]) == ["a", "b", "b", "b", "a"]
+    assert _options_run_on_scores(calls, commit=0.05) == ["a", "a", "a", "b", "a"]
+    assert _options_run_on_scores(calls, commit=None) == ["a", "b", "b", "b", "a"]
     with pytest.raises(DynoplanError, match="commit must be >= 0"):
         ControllerSettings(commit=-0.1).validate()
 
