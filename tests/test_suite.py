@@ -10,7 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from benchmarks.suite import __main__ as suite
-from benchmarks.suite import registry
+from benchmarks.suite import registry, rerun
 from dynoplan.pipeline import probe_options, record_demonstrations
 
 INSTALLED = [e for e in registry.TASKS if e.missing() is None]
@@ -70,3 +70,11 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
     assert row["cpu_s"] > 0 and row["wall_s"] > 0
     assert "| minigrid-doorkey |" in (tmp_path / "suite.md").read_text()
     assert "CPU (s)" in (tmp_path / "suite.md").read_text()
+    # DynoPlan again on the saved models, and with the goal fitted again as the run
+    # fitted it: the run's own row both times
+    for extra in ([], ["--set", "fit.goal_epochs=30"]):
+        table = tmp_path / "rerun.md"
+        assert rerun.main([str(tmp_path), *extra, "--out", str(table)]) == 0
+        cells = [c.strip() for c in table.read_text().splitlines()[-1].split("|")[1:-1]]
+        assert cells[0] == "minigrid-doorkey" and cells[1:3] == cells[3:5]
+    assert rerun.main([str(tmp_path), "--set", "fit.stride=2"]) == 2

@@ -1,8 +1,9 @@
-"""DynoPlan again on a suite run's fitted models, with other controller settings.
+"""DynoPlan again on a suite run's fitted models, with other controller or goal settings.
 
 Usage (from the repository root)::
 
     python -m benchmarks.suite.rerun results/suite --set control.replan_every=0
+    python -m benchmarks.suite.rerun results/suite --set fit.goal_members=5 --goal-seed 1
 
 A controller setting (``control.*``) changes nothing the pipeline fits, so its ablation
 row needs no new fit: for every task and seed of the suite run ``RUN`` (the ``--out`` of
@@ -12,6 +13,14 @@ settings given with ``--set`` and runs it on the run's own seeded evaluation epi
 gives the run's own DynoPlan row again. Prints one line per task: DynoPlan's success on
 every seed and its composition ratio against the run's demonstrator, beside the run's
 own DynoPlan; ``--out FILE`` writes the table too.
+
+A goal setting (``fit.goal_*``) or ``--goal-seed N`` fits the goal heuristic again on the
+run's own demonstrations and exploration episodes (``RUN/<task>/seed<s>/demos`` and
+``transitions``), with the run's fit settings but those given, from the run's fit seed
+plus ``N``, and keeps every other model (the dynamics are fitted before the goal and do
+not depend on it); the initiation learned from outcomes, which reads the goal, is
+fitted again with it when the run's settings use it. ``--goal-seed`` alone measures how
+much the goal's fit seed moves a row.
 """
 
 import argparse
@@ -30,15 +39,52 @@ from dynoplan.io import write_text
 from dynoplan.pipeline import evaluate_controllers
 from dynoplan.pipeline.config import pipeline_settings
 from dynoplan.pipeline.evaluate import DEMONSTRATOR, DYNOPLAN, learned_regions, planning_settings
-from dynoplan.pipeline.fit import FittedModels
+from dynoplan.pipeline.fit import FittedModels, named_feature_map
+from dynoplan.pipeline.fit_settings import FitSettings
 from dynoplan.reports.tables import markdown_table
+
+GOAL_KEYS = "fit.goal_"
+"""The prefix of the fit settings :func:`refit_goal` fits the goal heuristic again with."""
+
+
+def refit_goal(fitted: FittedModels, folder: Path, summary: dict[str, Any],
+               sets: dict[str, Any], goal_seed: int) -> FittedModels:
+    """``fitted`` with its goal heuristic fitted again on ``folder``'s demonstrations and
+    exploration episodes, with the run's fit settings (``summary``) but the ``fit.goal_*``
+    keys of ``sets``, from the run's fit seed plus ``goal_seed`` (and the initiation
+    learned from outcomes fitted again on it, when the run's settings use it)."""
+    from dataclasses import fields, replace
+
+    from dynoplan.data.dataset import read_dataset
+    from dynoplan.pipeline.fit_goal import fit_goal
+    from dynoplan.pipeline.fit_initiation import fit_outcome_initiation
+
+    known = {f.name for f in fields(FitSettings)}
+    recorded: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
+                for k, v in summary["settings"]["fit"].items() if k in known}
+    given = pipeline_settings({k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}).fit
+    names = [k.removeprefix("fit.") for k in sets if k.startswith(GOAL_KEYS)]
+    fit = replace(FitSettings(**recorded), **{n: getattr(given, n) for n in names})
+    fit.validate()
+    seed = int(summary["seeds"]["fit"]) + goal_seed
+    demos = read_dataset(folder / "demos").episodes
+    transitions = read_dataset(folder / "transitions").episodes
+    # the pipeline's runs have no named feature maps: a goal_features name is refused
+    goal, _ = fit_goal(demos, fit, seed, features=named_feature_map(fit.goal_features, None),
+                       off=transitions)
+    learned = fitted.learned_initiation
+    if fit.outcome_initiation:
+        learned, _ = fit_outcome_initiation(transitions, fitted.option_names, goal, fit, seed)
+    return replace(fitted, goal=goal, learned_initiation=learned)
 
 
 def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
-              disturbed: bool) -> tuple[float, float, float]:
+              disturbed: bool, goal_seed: int = 0) -> tuple[float, float, float]:
     """DynoPlan's success on ``settings`` over the evaluation episodes of one task and
     seed of the suite run ``run``; with it, the run's own DynoPlan and demonstrator
-    success on the same episodes (``disturbed``: the rows under the disturbance)."""
+    success on the same episodes (``disturbed``: the rows under the disturbance). With
+    ``fit.goal_*`` keys in ``sets`` or a ``goal_seed``, the goal is fitted again
+    (:func:`refit_goal`)."""
     import torch
 
     torch.set_num_threads(1)
@@ -48,8 +94,11 @@ def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
     recorded = json.loads((folder / "suite-run.json").read_text())
     summary = json.loads((folder / "summary.json").read_text())
     rows = recorded["disturbed"] if disturbed else recorded["controllers"]
-    settings = pipeline_settings({**sets, "episodes": int(rows[DYNOPLAN]["episodes"])})
+    control = {k: v for k, v in sets.items() if not k.startswith(GOAL_KEYS)}
+    settings = pipeline_settings({**control, "episodes": int(rows[DYNOPLAN]["episodes"])})
     fitted = FittedModels.load(folder / "models")
+    if goal_seed or len(control) < len(sets):
+        fitted = refit_goal(fitted, folder, summary, sets, goal_seed)
     options, planner_options = fitted.build(task.module.make_options())
     result = evaluate_controllers(
         task.make_env(disturbed=disturbed), options, fitted.goal,
@@ -71,17 +120,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tasks", help="comma-separated task names [every task of RUN]")
     parser.add_argument("--seeds", help="comma-separated seeds [the run's]")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a controller setting (control.*) for every task")
+                        help="a controller setting (control.*) or a goal setting (fit.goal_*) "
+                        "for every task")
+    parser.add_argument("--goal-seed", type=int, default=0, metavar="N",
+                        help="fit the goal heuristic again from the run's fit seed plus N")
     parser.add_argument("--disturbed", action="store_true",
                         help="under each task's disturbance")
     parser.add_argument("--out", type=Path, help="also write the table to this file")
     args = parser.parse_args(argv)
     try:
         sets = parse_sets(args.set)
-        fitted_keys = [k for k in sets if not k.startswith("control.")]
+        fitted_keys = [k for k in sets
+                       if not k.startswith("control.") and not k.startswith(GOAL_KEYS)]
         if fitted_keys:
-            raise DynoplanError(f"--set {fitted_keys[0]}: only control.* settings can change "
-                                "without fitting again (run python -m benchmarks.suite)")
+            raise DynoplanError(f"--set {fitted_keys[0]}: only control.* and fit.goal_* "
+                                "settings can change without fitting everything again (run "
+                                "python -m benchmarks.suite)")
+        if args.goal_seed < 0:
+            raise DynoplanError(f"--goal-seed must be >= 0, got {args.goal_seed}")
         pipeline_settings(sets)  # a mistake before any work
         suite_file = args.run / "suite.json"
         if not suite_file.is_file():
@@ -92,7 +148,8 @@ def main(argv: list[str] | None = None) -> int:
                  else [int(s) for s in suite["seeds"]])
         lines: list[dict[str, str]] = []
         for name in names:
-            got = [rerun_one(args.run, name, s, sets, args.disturbed) for s in seeds]
+            got = [rerun_one(args.run, name, s, sets, args.disturbed, args.goal_seed)
+                   for s in seeds]
             new, old, demo = (np.array(v) for v in zip(*got, strict=True))
             lines.append({"task": name, "new": _seeds(list(new)),
                           "new_ratio": f"{new.mean() / demo.mean():.2f}",
