@@ -30,6 +30,8 @@ from dynoplan.pipeline import (
     run_pipeline,
 )
 from dynoplan.pipeline.collect import successful_attempts
+from dynoplan.pipeline.diagnostics import episode_history_warning
+from dynoplan.pipeline.evaluate import evaluate_controllers
 from dynoplan.pipeline.fit import strided
 
 
@@ -143,6 +145,52 @@ def test_pipeline_is_deterministic_given_the_seed(result):
     again = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
                          settings=SMALL)
     assert _comparable(again.evaluation) == _comparable(res.evaluation)
+
+
+class WornLine(Line):
+    """:class:`Line` whose actions weaken with every step it ever took, across resets: an
+    environment that keeps state across ``reset`` (as PyBullet's contact solver does)."""
+
+    def __init__(self):
+        super().__init__()
+        self.wear = 0
+        self.closed = False
+
+    def step(self, action):
+        self.wear += 1
+        return super().step(np.asarray(action) * (1.0 - 0.01 * self.wear))
+
+    def close(self):
+        self.closed = True
+
+
+def test_an_environment_that_keeps_state_across_reset_is_reported_in_one_line():
+    assert episode_history_warning(line_env(), 3, 4) is None
+    message = episode_history_warning(gym.wrappers.TimeLimit(WornLine(), 40), 3, 4)
+    assert message is not None and "\n" not in message
+    assert "the episode of seed 3 went differently after another episode ran" in message
+
+
+def test_a_row_on_a_fresh_environment_is_the_same_alone_or_after_other_rows(result):
+    _, res = result
+    made = []
+
+    def fresh():
+        made.append(gym.wrappers.TimeLimit(WornLine(), 40))
+        return made[-1]
+
+    def rows(kinds, fresh_env):
+        evaluation = evaluate_controllers(
+            fresh(), res.options, res.models.goal, SMALL.control, 6, 11,
+            res.planner_options, kinds, fresh_env=fresh_env)
+        return {k: v["steps_to_success_mean"] for k, v in evaluation.items()}
+
+    alone = rows(["random"], None)
+    # on one environment, what ran before a row changes it; on fresh ones it does not
+    assert rows(["option:right", "random"], None)["random"] != alone["random"]
+    assert rows(["option:right", "random"], fresh)["random"] == rows(["random"], fresh)["random"]
+    # the row's own environment is closed after the rows; the caller's is left open
+    assert made[-1].unwrapped.closed and not made[-2].unwrapped.closed
 
 
 def test_recorded_demonstrations_can_be_reused_from_a_dataset(result, tmp_path):

@@ -88,7 +88,8 @@ def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
             result.planner_options, [DEMONSTRATOR, DYNOPLAN],
             regions=learned_regions(result.models),
             demonstrator=task.module.make_demonstrator(),
-            state_scale=result.models.state_scale)
+            state_scale=result.models.state_scale,
+            fresh_env=lambda: task.make_env(disturbed=True))
     run = {"task": entry.name, "seed": seed, "wall_s": time.perf_counter() - started,
            "cpu_s": time.process_time() - cpu_started,
            "controllers": result.summary["controllers"],

@@ -104,7 +104,8 @@ def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
         task.make_env(disturbed=disturbed), options, fitted.goal,
         planning_settings(settings.control, fitted), settings.episodes,
         summary["seeds"]["evaluation"], planner_options, [DYNOPLAN],
-        regions=learned_regions(fitted), state_scale=fitted.state_scale)
+        regions=learned_regions(fitted), state_scale=fitted.state_scale,
+        fresh_env=lambda: task.make_env(disturbed=disturbed))
     return (float(result[DYNOPLAN]["success_rate"]), float(rows[DYNOPLAN]["success_rate"]),
             float(rows[DEMONSTRATOR]["success_rate"]))
 

@@ -2,6 +2,9 @@
 
 - :func:`seeded_reset_warning`: ``reset(seed=s)`` does not reproduce its episode, so the
   rows of the evaluation would not be on the same episodes;
+- :func:`episode_history_warning`: a seeded episode goes differently after another one
+  ran on the same environment (state kept across ``reset``), so a row's episodes depend
+  on the ones before them;
 - :func:`constant_dimensions`: state dimensions that never change in the data (padding,
   a fixed goal); the dynamics keep them still and the regions do not test them
   (:class:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics`,
@@ -12,6 +15,7 @@
   the demonstration states, so there the planner has no choice to make.
 """
 
+import copy
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -22,6 +26,8 @@ from dynoplan.models.regions import constant_mask
 from dynoplan.options.option import Option, admissible
 from dynoplan.types import FloatArray
 
+HISTORY_STEPS = 30
+"""Steps of seeded random actions :func:`episode_history_warning` compares."""
 SOLE_SHARE = 0.25
 """An option that is the only admissible one at this share of the demonstration states
 (or more) is reported."""
@@ -45,6 +51,45 @@ def seeded_reset_warning(env: gym.Env[Any, Any], seed: int) -> str | None:
             "observations, so the controllers are not compared on the same episodes; make "
             "reset(seed=...) seed everything the episode draws (a wrapper that reseeds "
             "what the environment ignores)")
+
+
+def episode_history_warning(env: gym.Env[Any, Any], seed: int, other: int,
+                            steps: int = HISTORY_STEPS) -> str | None:
+    """Run the episode of ``seed`` for ``steps`` seeded random actions, then the episode
+    of ``other``, then the first again; a warning when the two runs of it differ.
+
+    An environment that keeps state across ``reset`` (PyBullet keeps its contact
+    solver's, as panda-gym's tasks show) makes an episode depend on the episodes run
+    before it on the same environment: a row of the evaluation then differs when it runs
+    alone, after other rows or on another number of workers. The actions come from a copy
+    of the action space seeded with the episode's seed (the environment's own space is
+    left alone).
+    """
+    def run(episode_seed: int) -> list[FloatArray]:
+        space = copy.deepcopy(env.action_space)
+        space.seed(episode_seed)
+        observation, _ = env.reset(seed=episode_seed)
+        seen = [np.asarray(gym.spaces.flatten(env.observation_space, observation),
+                           dtype=np.float64)]
+        for _ in range(steps):
+            observation, _, terminated, truncated, _ = env.step(space.sample())
+            seen.append(np.asarray(gym.spaces.flatten(env.observation_space, observation),
+                                   dtype=np.float64))
+            if terminated or truncated:
+                break
+        return seen
+
+    first = run(seed)
+    run(other)
+    again = run(seed)
+    if len(first) == len(again) and all(np.array_equal(a, b, equal_nan=True)
+                                        for a, b in zip(first, again, strict=True)):
+        return None
+    name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+    return (f"environment '{name}': the episode of seed {seed} went differently after "
+            "another episode ran on the same environment (it keeps state across reset): "
+            "an episode depends on the episodes before it in its row, so a row may differ "
+            "when it runs alone or on another number of workers")
 
 
 def constant_dimensions(states: FloatArray) -> list[int]:

@@ -599,7 +599,9 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                          models: Path | None = None,
                          regions: RegionModel | None = None,
                          demonstrator: Any = None,
-                         state_scale: FloatArray | None = None) -> dict[str, dict[str, Any]]:
+                         state_scale: FloatArray | None = None,
+                         fresh_env: Callable[[], gym.Env[Any, Any]] | None = None,
+                         ) -> dict[str, dict[str, Any]]:
     """Run each controller on the same ``episodes`` seeded episodes; one summary each.
 
     ``controllers`` defaults to :func:`controller_names` (the demonstrator when one is
@@ -612,6 +614,11 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
     the table is the same.
     Out-of-region starts are counted against ``regions`` (:class:`ControllerRunner`; a
     task's workers count as :meth:`~dynoplan.pipeline.task.Task.make_runner` says).
+    With ``fresh_env`` (an environment like ``env``, made anew at each call), each row
+    runs on one fresh environment of its own, so that a row does not depend on the rows
+    before it on an environment that keeps state across ``reset`` (a row evaluated alone
+    is the same; :func:`~dynoplan.pipeline.diagnostics.episode_history_warning`); the
+    environments are closed after the evaluation.
     """
     if episodes < 1:
         raise DynoplanError(f"episodes must be >= 1, got {episodes}")
@@ -619,6 +626,7 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
     kinds = list(controllers or controller_names(options, demonstrator is not None))
     if DEMONSTRATOR in kinds and demonstrator is None:
         raise DynoplanError("the demonstrator row needs a demonstrator")
+    row_envs: list[gym.Env[Any, Any]] = []  # made here, closed here
     if workers.parallel:
         if task is None or models is None:
             raise DynoplanError("evaluating on several workers needs the task and the "
@@ -626,15 +634,21 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
         jobs: list[EpisodeJob] = [ControllerJob(task, models, kind, settings)
                                   for kind in kinds]
     else:
-        jobs = [_LocalJob(DemonstratorRunner(env, [as_spec(o) for o in options],
+        row_envs = [] if fresh_env is None else [fresh_env() for _ in kinds]
+        jobs = [_LocalJob(DemonstratorRunner(row_env, [as_spec(o) for o in options],
                                              demonstrator_from(demonstrator),
                                              regions)) if kind == DEMONSTRATOR
-                else _LocalJob(ControllerRunner(env, make_controller(
-                    kind, options, goal, settings, planner_options, env.action_space,
+                else _LocalJob(ControllerRunner(row_env, make_controller(
+                    kind, options, goal, settings, planner_options, row_env.action_space,
                     state_scale), regions=regions))
-                for kind in kinds]
-    done = evaluate_many([(job, seeds) for job in jobs], workers,
-                         f"evaluate ({len(kinds)} controllers)", progress)
+                for kind, row_env in zip(kinds, row_envs or [env] * len(kinds),
+                                         strict=True)]
+    try:
+        done = evaluate_many([(job, seeds) for job in jobs], workers,
+                             f"evaluate ({len(kinds)} controllers)", progress)
+    finally:
+        for row_env in row_envs:
+            row_env.close()
     return {kind: summarize(records) for kind, records in zip(kinds, done, strict=True)}
 
 

@@ -45,6 +45,7 @@ from dynoplan.pipeline.collect import (
 )
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.diagnostics import (
+    episode_history_warning,
     seeded_reset_warning,
     sole_admissible_warnings,
     weak_dynamics_warnings,
@@ -312,7 +313,8 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
                                       settings.episodes, evaluation_seed, planner_options,
                                       settings.controllers, progress, workers, task,
                                       models_dir, learned_regions(models), demonstrator,
-                                      models.state_scale)
+                                      models.state_scale,
+                                      fresh_env=None if task is None else task.make_env)
     say("")
     return admissible, notes, evaluation
 
@@ -384,8 +386,11 @@ def run_pipeline(
     specs = [as_spec(o) for o in options]
     seeds = _seeds(settings.seed, settings.improve > 0)
     state_dim = probe_options(environment, options, flat_state, seeds["demos"])
-    notes = [n for n in [seeded_reset_warning(
-        environment, episode_seeds(seeds["evaluation"], 1)[0].env_seed)] if n is not None]
+    first, second = (s.env_seed for s in episode_seeds(seeds["evaluation"], 2))
+    reset_note = seeded_reset_warning(environment, first)
+    history_note = (episode_history_warning(environment, first, second)
+                    if reset_note is None else None)
+    notes = [n for n in (reset_note, history_note) if n is not None]
     folder = ensure_writable_dir(out) if out is not None else None
     names = [s.name for s in specs]
     known = controller_names(specs, demonstrator is not None)
