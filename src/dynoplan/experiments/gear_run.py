@@ -1,15 +1,18 @@
-"""``dynoplan gear run``: the gear assembly end to end, into one output folder.
+"""``dynoplan gear run``: the gear assembly end to end, into one output folder: the one
+pipeline (:func:`~dynoplan.pipeline.run.run_pipeline`) on the gear's stages
+(:class:`GearStages`), then the gear's reports (``results.md``, ``summary.json``).
 
-Stages, each timed in ``summary.json``'s ``stages_s``, with what they write:
-``networks`` (the options' networks, ``models/``), ``demos`` (demonstrations by
-:class:`~dynoplan.envs.gear.operator.OptionOperator` and held-out ones, ``demos/``,
-``heldout/``), ``collect`` (``transitions/``), ``train`` (goal, regions, dynamics;
-``models/metrics.json``), ``figures`` (Fig. 3(a), 3(b); ``figures/``), ``flat_ppo``
-(``flat_ppo/``), ``outcomes`` (outcome runs and the initiation learned from them;
-``outcomes/``, ``models/initiation.safetensors``), ``evaluate`` (every controller, the
-variants :data:`VARIANT_ROWS` and the ablation :data:`ABLATION_ROWS` on the same seeded
-episodes; ``results.csv``, ``results.md``), ``faults`` and ``video`` (``episode.mp4``).
-The first five are :mod:`dynoplan.experiments.gear_stages`, shared with the stage commands.
+Stages, each timed in ``summary.json``'s ``stages_s``, with what they write, in the
+pipeline's order: ``networks`` (the options' networks, ``models/``), ``demos``
+(demonstrations by :class:`~dynoplan.envs.gear.operator.OptionOperator` and held-out
+ones, ``demos/``, ``heldout/``), ``collect`` (``transitions/``), ``train`` (goal,
+regions, dynamics; ``models/metrics.json``), ``figures`` (Fig. 3(a), 3(b); ``figures/``),
+``flat_ppo`` (``flat_ppo/``), ``outcomes`` (outcome runs and the initiation learned from
+them; ``outcomes/``, ``models/initiation.safetensors``), ``evaluate`` (every controller,
+the variants :data:`VARIANT_ROWS` and the ablation :data:`ABLATION_ROWS` on the same
+seeded episodes; ``results.csv``, ``results.md``), ``faults`` and ``video``
+(``episode.mp4``). The first five are :mod:`dynoplan.experiments.gear_stages`, shared
+with the stage commands.
 
 The whole folder is staged (:func:`~dynoplan.io.staged_folder`, starting as a copy of
 the previous ``out``, whose option networks are reused): it replaces ``out`` only when
@@ -24,7 +27,6 @@ are their own durations, ``wall_s`` the run's. Results are the same on one worke
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -52,14 +54,17 @@ from dynoplan.envs.gear.reports.results import (
     summarise,
     write_results,
 )
+from dynoplan.errors import DynoplanError
 from dynoplan.experiments.gear_stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
 from dynoplan.io import retarget, staged_folder, write_json, write_text
 from dynoplan.parallel import SERIAL, Workers, ray_session
 from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.pipeline.fit import FitSettings
 from dynoplan.pipeline.jobs import evaluate_rows
-from dynoplan.timing import StageClock
+from dynoplan.pipeline.run import run_pipeline
+from dynoplan.pipeline.task import PipelineRun
 
 
 @dataclass(frozen=True)
@@ -127,11 +132,152 @@ def run_settings(quick: bool) -> GearRunSettings:
     return QUICK_RUN if quick else GearRunSettings()
 
 
+class GearStages:
+    """The gear assembly's stages of :func:`~dynoplan.pipeline.run.run_pipeline`
+    (:class:`~dynoplan.pipeline.task.TaskStages`) from ``seed`` with ``settings``, into
+    the run's folder (module docstring); each stage's data is the folder it wrote, and
+    :meth:`report` returns ``summary.json``'s content but ``wall_s``.
+
+    - ``prepare``: the option networks the operator and the options run (the flat PPO
+      baseline started beside the next stages on several workers);
+    - ``demonstrations``: the operator's demonstrations and held-out trials;
+    - ``option_runs``: every option's runs from its own starts;
+    - ``fit``: goal, regions and dynamics, measured on the held-out trials;
+    - ``after_fit``: Fig. 3 of the fitted models, the flat PPO baseline, and the
+      initiation learned from outcome runs (after every stage whose results it could
+      touch);
+    - ``evaluate``: every controller, the flat baseline, the variants and the ablation
+      rows (the oracle on the first episodes) on the same seeded episodes;
+    - ``report``: the faults and the video.
+    """
+
+    def __init__(self, seed: int = 0, settings: GearRunSettings = GearRunSettings()) -> None:
+        self.seed, self.settings = seed, settings
+        self.summary: dict[str, Any] = {}
+        self._flat: Callable[[], Any] | None = None
+
+    def prepare(self, run: PipelineRun) -> None:
+        if run.out is None:
+            raise DynoplanError("the gear's run writes into a folder: give one (out=...)")
+        import torch
+
+        from dynoplan.envs.gear.flat_policy import fit_flat_policy
+        from dynoplan.experiments.gear_stages import option_networks
+
+        torch.set_num_threads(1)
+        self.summary = {"seed": self.seed, "settings": asdict(self.settings), "stages_s": {},
+                        "workers": asdict(run.workers)}
+        if run.workers.parallel:
+            self._flat = run.clock.start("flat_ppo", fit_flat_policy, self.settings.ppo_steps,
+                                         self.seed, workers=run.workers)
+        self.summary["networks"] = run.clock.stage("networks", lambda: option_networks(
+            _folder(run) / "models", self.seed, workers=run.workers))
+
+    def demonstrations(self, run: PipelineRun) -> Path:
+        from dynoplan.experiments.gear_stages import demonstrations
+
+        out, seed, n = _folder(run), self.seed, self.settings.demos
+        self.summary["demos"] = run.clock.stage("demos", lambda: [
+            demonstrations(n, seed, out / "demos", out / "models", progress=run.progress,
+                           workers=run.workers),
+            demonstrations(n, seed, out / "heldout", out / "models", heldout=True,
+                           progress=run.progress, workers=run.workers)])
+        return out / "demos"
+
+    def option_runs(self, run: PipelineRun, demos: Path) -> Path:
+        from dynoplan.experiments.gear_stages import option_transitions
+
+        out, collect = _folder(run), self.settings.collect
+        self.summary["collect"] = run.clock.stage("collect", lambda: option_transitions(
+            out / "models", collect.runs, self.seed, out / "transitions",
+            collect.max_decisions, progress=run.progress, workers=run.workers))
+        return out / "transitions"
+
+    def fit(self, run: PipelineRun, demos: Path, runs: Path) -> Path:
+        from dynoplan.experiments.gear_stages import learned_models
+
+        out, settings = _folder(run), self.settings
+        metrics = run.clock.stage("train", lambda: learned_models(
+            demos, runs, out / "models", self.seed, out / "heldout", settings.fit,
+            settings.metrics, progress=run.progress, workers=run.workers))
+        self.summary["model_metrics"] = {k: v for k, v in metrics.items()
+                                         if not isinstance(v, dict)}
+        return out / "models"
+
+    def after_fit(self, run: PipelineRun, models: Path) -> Path:
+        from dynoplan.envs.gear.flat_policy import fit_flat_policy, save_flat_policy
+        from dynoplan.experiments.gear_stages import figures, learned_initiation
+
+        out, seed, settings = _folder(run), self.seed, self.settings
+        self.summary["figures"] = run.clock.stage("figures", lambda: figures(
+            models, out / "demos", out / "heldout", out / "figures", seed,
+            settings.figure_points))
+        if self._flat is None:
+            self._flat = run.clock.start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed,
+                                         workers=run.workers)
+        self.summary["flat_ppo"] = save_flat_policy(self._flat(), out / "flat_ppo")
+        if settings.outcomes.runs:  # after every stage whose results it could touch
+            self.summary["outcomes"] = run.clock.stage("outcomes", lambda: learned_initiation(
+                models, out / "outcomes", seed, settings.outcomes, run.progress,
+                run.workers))
+        return models
+
+    def evaluate(self, run: PipelineRun, models: Path) -> dict[str, list[EpisodeRecord]]:
+        out, sizes = _folder(run), self.settings.evaluation
+        load_gear_models(models)  # checked here once: workers load it again
+        seeds = evaluation_seeds(self.seed, sizes.episodes)
+        rows = controller_rows(models, seeds, sizes.planner, flat_folder=out / "flat_ppo",
+                               extra=VARIANT_ROWS, ablation=ABLATION_ROWS,
+                               oracle_episodes=sizes.oracle_episodes,
+                               ablation_episodes=sizes.ablation_episodes)
+        episodes = run.clock.stage("evaluate", lambda: evaluate_rows(
+            rows, run.workers, f"evaluate ({len(rows)} controllers)", run.progress,
+            ORACLE_FIRST))
+        self.summary["results"] = results_rows(episodes)
+        self.summary["ablation"] = [
+            summarise(name, episodes[name][:sizes.ablation_episodes])
+            for name in (*CONTROLLERS[:2], *VARIANT_ROWS, *ABLATION_ROWS)]
+        write_results(out, self.summary["results"], episodes)
+        return episodes
+
+    def report(self, run: PipelineRun, episodes: dict[str, list[EpisodeRecord]]
+               ) -> dict[str, Any]:
+        from dynoplan.envs.gear.reports.episode import render_video, save_video
+
+        out, sizes, faults = _folder(run), self.settings.evaluation, self.settings.faults
+        models = out / "models"
+        seeds = evaluation_seeds(self.seed, sizes.episodes)
+        video = None
+        if self.settings.video:
+            shown = video_episode(episodes["dynoplan"])
+            video = run.clock.start("video", render_video, models, seeds[shown],
+                                    sizes.planner, workers=run.workers)
+        fault_runs = fault_rows(models, seeds[:faults.episodes], sizes.planner,
+                                faults.dynamics_noise, faults.observation_noise)
+        self.summary["faults"] = run.clock.stage("faults", lambda: [
+            {"fault": fault, **summarise("dynoplan", records)}
+            for fault, records in evaluate_rows(fault_runs, run.workers,
+                                                f"faults ({len(fault_runs)})",
+                                                run.progress).items()])
+        if video is not None:
+            self.summary["video"] = save_video(video(), episodes["dynoplan"][shown], shown,
+                                               out / "episode.mp4")
+        self.summary["stages_s"] = run.clock.rounded(2)
+        return self.summary
+
+
+def _folder(run: PipelineRun) -> Path:
+    assert run.out is not None  # checked by GearStages.prepare
+    return run.out
+
+
 def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = GearRunSettings(),
                       progress: bool = True, log: Callable[[str], None] = lambda _: None,
                       workers: Workers = SERIAL) -> dict[str, Any]:
-    """Run every stage (module docstring) into ``out``, staged as a whole, on ``workers``
-    (one Ray runtime for the run); return ``summary.json``'s content.
+    """:func:`~dynoplan.pipeline.run.run_pipeline` on the gear's stages
+    (:class:`GearStages`) into ``out``, staged as a whole, on ``workers`` (one Ray
+    runtime for the run), ``log`` told of each stage as it starts; then ``results.md``
+    and ``summary.json``; return ``summary.json``'s content.
 
     Raises:
         DynoplanError: ``out`` cannot be written (checked before any stage runs).
@@ -139,7 +285,9 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     t0 = time.perf_counter()
     with staged_folder(out, keep=True) as stage:
         with ray_session(workers):
-            summary = _run_stages(stage, seed, settings, progress, log, workers)
+            summary = run_pipeline(stages=GearStages(seed, settings), out=stage,
+                                   progress=progress, status=lambda name: log(f"[{name}]"),
+                                   workers=workers)
         summary = retarget(summary, stage, out)
         summary["wall_s"] = round(time.perf_counter() - t0, 2)
         write_text(stage / "results.md", results_markdown(summary))
@@ -147,85 +295,5 @@ def run_gear_pipeline(out: Path, seed: int = 0, settings: GearRunSettings = Gear
     return summary
 
 
-def _run_stages(out: Path, seed: int, settings: GearRunSettings, progress: bool,
-                log: Callable[[str], None], workers: Workers) -> dict[str, Any]:
-    import torch
-
-    from dynoplan.envs.gear.flat_policy import fit_flat_policy, save_flat_policy
-    from dynoplan.envs.gear.reports.episode import render_video, save_video
-    from dynoplan.experiments.gear_stages import (
-        demonstrations,
-        figures,
-        learned_initiation,
-        learned_models,
-        option_networks,
-        option_transitions,
-    )
-
-    torch.set_num_threads(1)
-    models_dir = out / "models"
-    clock = StageClock(log, "[{}]")
-    stage = clock.stage
-    summary: dict[str, Any] = {"seed": seed, "settings": asdict(settings), "stages_s": {},
-                               "workers": asdict(workers)}
-    start = partial(clock.start, workers=workers)
-    flat = (start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
-            if workers.parallel else None)
-    summary["networks"] = stage("networks", lambda: option_networks(
-        models_dir, seed, workers=workers))
-    summary["demos"] = stage("demos", lambda: [
-        demonstrations(settings.demos, seed, out / "demos", models_dir, progress=progress,
-                       workers=workers),
-        demonstrations(settings.demos, seed, out / "heldout", models_dir, heldout=True,
-                       progress=progress, workers=workers)])
-    summary["collect"] = stage("collect", lambda: option_transitions(
-        models_dir, settings.collect.runs, seed, out / "transitions",
-        settings.collect.max_decisions, progress=progress, workers=workers))
-    metrics = stage("train", lambda: learned_models(
-        out / "demos", out / "transitions", models_dir, seed, out / "heldout", settings.fit,
-        settings.metrics, progress=progress, workers=workers))
-    summary["model_metrics"] = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
-    summary["figures"] = stage("figures", lambda: figures(
-        models_dir, out / "demos", out / "heldout", out / "figures", seed,
-        settings.figure_points))
-    if flat is None:
-        flat = start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed)
-    summary["flat_ppo"] = save_flat_policy(flat(), out / "flat_ppo")
-
-    if settings.outcomes.runs:  # after every stage whose results it could touch
-        summary["outcomes"] = stage("outcomes", lambda: learned_initiation(
-            models_dir, out / "outcomes", seed, settings.outcomes, progress, workers))
-    load_gear_models(models_dir)  # checked here once: workers load it again
-    sizes = settings.evaluation
-    seeds = evaluation_seeds(seed, sizes.episodes)
-    rows = controller_rows(models_dir, seeds, sizes.planner, flat_folder=out / "flat_ppo",
-                           extra=VARIANT_ROWS, ablation=ABLATION_ROWS,
-                           oracle_episodes=sizes.oracle_episodes,
-                           ablation_episodes=sizes.ablation_episodes)
-    episodes = stage("evaluate", lambda: evaluate_rows(
-        rows, workers, f"evaluate ({len(rows)} controllers)", progress, ORACLE_FIRST))
-    summary["results"] = results_rows(episodes)
-    summary["ablation"] = [summarise(name, episodes[name][:sizes.ablation_episodes])
-                           for name in (*CONTROLLERS[:2], *VARIANT_ROWS, *ABLATION_ROWS)]
-    write_results(out, summary["results"], episodes)
-
-    video = None
-    if settings.video:
-        shown = video_episode(episodes["dynoplan"])
-        video = start("video", render_video, models_dir, seeds[shown], sizes.planner)
-    faults = settings.faults
-    fault_runs = fault_rows(models_dir, seeds[:faults.episodes], sizes.planner,
-                            faults.dynamics_noise, faults.observation_noise)
-    summary["faults"] = stage("faults", lambda: [
-        {"fault": fault, **summarise("dynoplan", records)}
-        for fault, records in evaluate_rows(fault_runs, workers, f"faults ({len(fault_runs)})",
-                                            progress).items()])
-    if video is not None:
-        summary["video"] = save_video(video(), episodes["dynoplan"][shown], shown,
-                                      out / "episode.mp4")
-    summary["stages_s"] = clock.rounded(2)
-    return summary
-
-
-__all__ = ["QUICK_RUN", "EvaluationSettings", "FaultSettings", "GearRunSettings",
+__all__ = ["QUICK_RUN", "EvaluationSettings", "FaultSettings", "GearRunSettings", "GearStages",
            "run_gear_pipeline", "run_settings"]
