@@ -211,7 +211,7 @@ def gear_models(tmp_path_factory) -> Path:
     fitted = SafetyRegions.fit(regions(x), labels, names, n_components=len(names))
     dynamics = {name: MLPEnsembleDynamics(STATE_DIM, [4], 1, option=name) for name in names}
     gear_models(dynamics, GoalOnFeatures(goal, goal_map), RegionsOnFeatures(fitted, regions),
-                0, QUICK_SETTINGS).write(folder)
+                0, QUICK_SETTINGS, x.std(axis=0)).write(folder)
     load_gear_models(folder)  # valid as made
     return folder
 
