@@ -428,7 +428,7 @@ def test_failed_training_keeps_the_previous_models(tmp_path, monkeypatch, gear_m
     import dynoplan.envs.gear.learning.training as gear_models_module
     from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
-    from dynoplan.experiments.gear_stages import learned_models
+    from dynoplan.envs.gear.stages import learned_models
 
     folder = tmp_path / "models"
     shutil.copytree(gear_models, folder)

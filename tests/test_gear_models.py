@@ -24,9 +24,9 @@ from dynoplan.envs.gear.learning.training import train_gear_models
 from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.envs.gear.reports.figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
+from dynoplan.envs.gear.stages import learned_models
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_stages import learned_models
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from dynoplan import DynoplanError
-from dynoplan.experiments.gear_run import GearStages
+from dynoplan.envs.gear.pipeline_stages import GearStages
 from dynoplan.pipeline import run_pipeline
 from dynoplan.pipeline.task import PipelineRun
 from test_pipeline import SMALL, line_env, line_options

@@ -19,8 +19,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from dynoplan.envs.gear.pipeline_stages import GearStages
 from dynoplan.errors import DynoplanWarning
-from dynoplan.experiments.gear_run import GearStages
 from dynoplan.io import retarget, staged_folder, write_json
 from test_bad_input import leftovers
 

@@ -17,7 +17,7 @@ task's. A user's environment and options get the generic stages
 (:class:`~dynoplan.pipeline.run.GenericStages`: a demonstrator's episodes, exploration
 episodes of random options, :func:`~dynoplan.pipeline.fit.fit_models`, the default
 controllers); the gear assembly brings its own
-(:class:`~dynoplan.experiments.gear_run.GearStages`: its option networks, its operator's
+(:class:`~dynoplan.envs.gear.pipeline_stages.GearStages`: its option networks, its operator's
 demonstrations, option runs from each option's own starts, the models measured on
 held-out trials, the flat PPO baseline and outcome initiation, the oracle and the
 variant rows, the faults and the video).

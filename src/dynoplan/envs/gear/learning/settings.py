@@ -64,7 +64,7 @@ class GearMetricsSettings:
             imagined for the goal's end gap
             (:func:`~dynoplan.models.evaluation.option_end_gap`; the planner's horizon).
         heldout_episodes: held-out trials ``dynoplan gear train`` records when none are
-            given (:func:`~dynoplan.experiments.gear_stages.learned_models`; ``gear run``
+            given (:func:`~dynoplan.envs.gear.stages.learned_models`; ``gear run``
             records as many as demonstrations).
         far_states: candidate far-away states for ``region_far_outside_rate``.
     """

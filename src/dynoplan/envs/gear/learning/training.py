@@ -130,7 +130,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         heldout_demos: held-out trials, not among ``demos``, for the goal and region
             metrics (``dynoplan gear demos --heldout``; ``dynoplan gear train`` records
             them when none are given:
-            :func:`~dynoplan.experiments.gear_stages.learned_models`).
+            :func:`~dynoplan.envs.gear.stages.learned_models`).
         quick: :data:`QUICK_SETTINGS` and :data:`QUICK_METRICS` instead of
             :data:`DEFAULT_SETTINGS` and :data:`DEFAULT_METRICS`.
         progress: progress bars on stderr.
