@@ -70,9 +70,11 @@ def test_a_tasks_stages_run_once_each_in_order_given_what_the_last_returned(tmp_
     assert run.out == out and out.is_dir() and run.progress
 
 
-def test_stages_with_an_environment_or_neither_are_one_clear_error():
-    with pytest.raises(DynoplanError, match="not both"):
-        run_pipeline(line_env(), line_options(), settings=SMALL, stages=Recorded())
+def test_stages_with_what_the_generic_ones_take_or_neither_are_one_clear_error():
+    with pytest.raises(DynoplanError, match="give only out, progress, status and workers"):
+        run_pipeline(line_env(), line_options(), stages=Recorded())
+    with pytest.raises(DynoplanError, match="give only out, progress, status and workers"):
+        run_pipeline(stages=Recorded(), settings=SMALL)
     with pytest.raises(DynoplanError, match="give an environment and options"):
         run_pipeline()
 

@@ -575,15 +575,20 @@ def run_pipeline(
             ``state_fn``, a success function that raises, options that disagree with the
             environment or each other, demonstrations without option labels, no
             demonstrator and no demonstrations, a failing demonstrator; ``stages`` with
-            an environment or options; an unwritable ``out``.
+            any other argument than ``out``, ``progress``, ``status`` and ``workers``; an
+            unwritable ``out``.
     """
     if stages is None:
         if env is None:
             raise DynoplanError("give an environment and options, or a task's stages")
         stages = GenericStages(env, options, demonstrator, demos, settings, state_fn, success,
                                fitter, command, task, out, workers)
-    elif env is not None or options:
-        raise DynoplanError("give an environment and options, or a task's stages, not both")
+    elif env is not None or options or any(
+            given is not None for given in (demonstrator, demos, settings, state_fn, success,
+                                            fitter, command, task)):
+        raise DynoplanError("a task's stages come with their own environment, options, "
+                            "demonstrations and settings: give only out, progress, status "
+                            "and workers with them")
     folder = ensure_writable_dir(out) if out is not None else None
     # the clock times every stage from its status message to the next
     return run_stages(stages, PipelineRun(folder, StageClock(status), workers, progress))
