@@ -211,7 +211,7 @@ def gear_models(tmp_path_factory) -> Path:
     fitted = SafetyRegions.fit(regions(x), labels, names, n_components=len(names))
     dynamics = {name: MLPEnsembleDynamics(STATE_DIM, [4], 1, option=name) for name in names}
     gear_models(dynamics, GoalOnFeatures(goal, goal_map), RegionsOnFeatures(fitted, regions),
-                0, QUICK_SETTINGS).write(folder)
+                0, QUICK_SETTINGS, x.std(axis=0)).write(folder)
     load_gear_models(folder)  # valid as made
     return folder
 
@@ -428,7 +428,7 @@ def test_failed_training_keeps_the_previous_models(tmp_path, monkeypatch, gear_m
     import dynoplan.envs.gear.learning.training as gear_models_module
     from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
-    from dynoplan.experiments.gear_stages import learned_models
+    from dynoplan.envs.gear.stages import learned_models
 
     folder = tmp_path / "models"
     shutil.copytree(gear_models, folder)

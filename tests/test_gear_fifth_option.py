@@ -124,9 +124,9 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
     from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
+    from dynoplan.envs.gear.pipeline_stages import run_settings
     from dynoplan.envs.gear.reports.figures import make_gear_figures
-    from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.experiments.gear_stages import learned_initiation
+    from dynoplan.envs.gear.stages import learned_initiation
 
     models = tmp_path / "models"
     models.mkdir()

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from dynoplan.data import Episode, read_dataset
+from dynoplan.envs.gear.controllers import GEAR_CONTROL
 from dynoplan.envs.gear.features import RELATIVE, TASK
 from dynoplan.envs.gear.learning.data import write_demonstration_transitions
 from dynoplan.envs.gear.learning.demos import record_demos
@@ -23,14 +24,15 @@ from dynoplan.envs.gear.learning.training import train_gear_models
 from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.envs.gear.reports.figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
-from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
+from dynoplan.envs.gear.stages import learned_models
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.experiments.gear_stages import learned_models
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
+from dynoplan.pipeline.evaluate import no_effect_tolerance
 from dynoplan.pipeline.fit import fit_regions_cross_validated
-from dynoplan.pipeline.fit_data import decision_runs, option_transitions
+from dynoplan.pipeline.fit_data import decision_runs, episode_states, option_transitions
 
 pytestmark = pytest.mark.slow
 
@@ -85,6 +87,22 @@ def test_metrics_file_has_every_field_and_the_models_load(trained):
     assert models.regions.contains_all(states).shape == (5, len(gear_option_names()))
     nxt = models.stacked_dynamics().sample(np.zeros((4, 8, STATE_DIM)), np.random.default_rng(0))
     assert nxt.shape == (4, 8, STATE_DIM) and np.isfinite(nxt).all()
+
+
+def test_the_models_record_the_spread_of_the_fitted_states_for_the_controller(data, trained):
+    """As a pipeline fit, the gear's models record every planner-state coordinate's
+    spread over the fitted data (here the demonstrations and their decision-rate runs),
+    which the controller's no-effect share scales by."""
+    out, _ = trained
+    demos = list(read_dataset(data / "demos"))
+    planner = PlannerState()
+    fitted = [*decision_runs(demos, DECISION_STEPS), *demos]
+    spread = np.concatenate([episode_states(e, planner) for e in fitted]).std(axis=0)
+    scale = load_gear_models(out).state_scale
+    assert scale is not None and scale.shape == (STATE_DIM,)
+    np.testing.assert_array_equal(scale, spread)
+    share = replace(GEAR_CONTROL, no_effect_tolerance=None, no_effect_share=0.01)
+    np.testing.assert_array_equal(no_effect_tolerance(share, scale), 0.01 * spread)
 
 
 def test_task_feature_regions_reject_states_far_from_every_demonstration(data, tmp_path):

@@ -19,6 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from dynoplan.envs.gear.pipeline_stages import GearStages
 from dynoplan.errors import DynoplanWarning
 from dynoplan.io import retarget, staged_folder, write_json
 from test_bad_input import leftovers
@@ -66,10 +67,14 @@ def test_json_files_of_a_staged_folder_name_the_target(tmp_path):
 
 
 def _fake_stages(out: Path, failure: BaseException | None):
-    """A stand-in of gear run's stages: what they write (a stage's own staged folder
-    inside, a JSON file naming another stage's folder), then ``failure``."""
+    """A stand-in of the pipeline on gear run's stages: what they write (a stage's own
+    staged folder inside, a JSON file naming another stage's folder), then ``failure``."""
 
-    def stages(stage: Path, *args, **kwargs) -> dict:
+    def run_pipeline(*, stages: object, out: Path, **kwargs) -> dict:
+        assert isinstance(stages, GearStages)
+        return write(out)
+
+    def write(stage: Path) -> dict:
         assert stage != out and stage.parent == out.parent
         if (out / "models").is_dir():  # the previous networks are there to be reused
             assert (stage / "models" / "pick_policy.safetensors").read_bytes() == \
@@ -83,7 +88,7 @@ def _fake_stages(out: Path, failure: BaseException | None):
             raise failure
         return {"results": [], "figures": {"file": str(stage / "figures" / "a.png")}}
 
-    return stages
+    return run_pipeline
 
 
 @pytest.mark.parametrize("failure", FAILURES)
@@ -96,7 +101,7 @@ def test_gear_run_that_fails_leaves_the_target_and_its_parent_as_they_were(
     if previous:
         _previous_run(out)
     before = _snapshot(tmp_path)
-    monkeypatch.setattr(gear_run, "_run_stages", _fake_stages(out, failure))
+    monkeypatch.setattr(gear_run, "run_pipeline", _fake_stages(out, failure))
     with pytest.raises(type(failure)):
         gear_run.run_gear_pipeline(out)
     assert _snapshot(tmp_path) == before and not leftovers(tmp_path)
@@ -107,7 +112,7 @@ def test_gear_run_replaces_the_folder_whole_and_records_the_target(tmp_path, mon
 
     out = tmp_path / "run"
     _previous_run(out)
-    monkeypatch.setattr(gear_run, "_run_stages", _fake_stages(out, None))
+    monkeypatch.setattr(gear_run, "run_pipeline", _fake_stages(out, None))
     monkeypatch.setattr(gear_run, "results_markdown", lambda summary: "the table\n")
     summary = gear_run.run_gear_pipeline(out)
     figure = str(out / "figures" / "a.png")

@@ -143,8 +143,8 @@ def demos(
     demos stage)."""
     import torch
 
-    from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.experiments.gear_stages import DEMONSTRATOR, demonstrations
+    from dynoplan.envs.gear.pipeline_stages import run_settings
+    from dynoplan.envs.gear.stages import DEMONSTRATOR, demonstrations
     from dynoplan.parallel import parse_workers, ray_session
 
     pool = parse_workers(workers, ray_address)
@@ -208,7 +208,7 @@ def option(
 
     from dynoplan.envs.gear.options.catalog import gear_option
     from dynoplan.envs.gear.options.trials import run_option_trials
-    from dynoplan.experiments.gear_stages import option_networks
+    from dynoplan.envs.gear.stages import option_networks
 
     registered = gear_option(name)
     torch.set_num_threads(1)
@@ -250,8 +250,8 @@ def collect(
     collect stage)."""
     import torch
 
-    from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.experiments.gear_stages import option_transitions
+    from dynoplan.envs.gear.pipeline_stages import run_settings
+    from dynoplan.envs.gear.stages import option_transitions
     from dynoplan.parallel import parse_workers, ray_session
 
     pool = parse_workers(workers, ray_address)
@@ -303,8 +303,8 @@ def outcomes(
     import torch
 
     from dynoplan.data.dataset import DATA_DIR
-    from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.experiments.gear_stages import outcome_initiation
+    from dynoplan.envs.gear.pipeline_stages import run_settings
+    from dynoplan.envs.gear.stages import outcome_initiation
     from dynoplan.io import check_writable, retarget, staged_folder
     from dynoplan.parallel import SERIAL, parse_workers, ray_session
 
@@ -372,8 +372,8 @@ def train(
 
     import torch
 
-    from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.experiments.gear_stages import learned_models
+    from dynoplan.envs.gear.pipeline_stages import run_settings
+    from dynoplan.envs.gear.stages import learned_models
     from dynoplan.parallel import parse_workers, ray_session
 
     pool = parse_workers(workers, ray_address)
@@ -414,8 +414,8 @@ def figures(
 ) -> None:
     """Draw Fig. 3(a) (goal heuristic vs truth) and Fig. 3(b) (t-SNE with regions), as gear
     run's figures stage."""
-    from dynoplan.experiments.gear_run import run_settings
-    from dynoplan.experiments.gear_stages import figures as draw_figures
+    from dynoplan.envs.gear.pipeline_stages import run_settings
+    from dynoplan.envs.gear.stages import figures as draw_figures
 
     info = draw_figures(models, demos, heldout, out, seed,
                         run_settings(quick).figure_points if points is None else points,
@@ -450,8 +450,9 @@ def run(
 
     os.environ.setdefault("MUJOCO_GL", "egl")  # the video renders offscreen
 
+    from dynoplan.envs.gear.pipeline_stages import run_settings
     from dynoplan.errors import DynoplanError
-    from dynoplan.experiments.gear_run import run_gear_pipeline, run_settings
+    from dynoplan.experiments.gear_run import run_gear_pipeline
     from dynoplan.parallel import parse_workers
 
     pool = parse_workers(workers, ray_address)

@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import gymnasium as gym
 import numpy as np
@@ -70,7 +70,7 @@ from dynoplan.pipeline.fit import (
 )
 from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
 from dynoplan.pipeline.improve import own_episodes
-from dynoplan.pipeline.task import Task
+from dynoplan.pipeline.task import PipelineRun, Result, Task, TaskStages
 from dynoplan.reports.tables import markdown_table
 from dynoplan.seeding import episode_seeds
 from dynoplan.timing import StageClock
@@ -290,10 +290,12 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
                     evaluation_seed: int, folder: Path | None, notes: Sequence[str],
                     say: Callable[[str], None], progress: bool, workers: Workers,
                     task: Task | None, demonstrator: Any, later_notes: Sequence[str] = (),
+                    stacklevel: int = 3,
                     ) -> tuple[dict[str, Any], list[str], dict[str, dict[str, Any]]]:
     """The stages after a fit, the same for every run: where the options may start (its
-    notes, with ``notes``, as warnings), the models saved to ``folder/models`` (when
-    given) and every controller on the evaluation episodes.
+    notes, with ``notes``, as warnings, which point ``stacklevel`` frames up: at the
+    caller of the run), the models saved to ``folder/models`` (when given) and every
+    controller on the evaluation episodes.
 
     Returns:
         ``(admissibility, notes, evaluation)``: :func:`admissibility`'s shares, ``notes``
@@ -305,7 +307,7 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
     admissible, where = admissibility(run_options, starts, demo_episodes)
     notes = [*notes, *where, *later_notes]
     for note in notes:
-        warnings.warn(note, DynoplanWarning, stacklevel=3)
+        warnings.warn(note, DynoplanWarning, stacklevel=stacklevel)
     models_dir = models.save(folder / "models") if folder is not None else None
     say("evaluation")
     evaluation = evaluate_controllers(environment, run_options, models.goal,
@@ -319,6 +321,178 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
     return admissible, notes, evaluation
 
 
+class GenericStages:
+    """The stages (:class:`~dynoplan.pipeline.task.TaskStages`) of a run on a user's
+    environment and options: the demonstrator's episodes (or the given ones), exploration
+    episodes of random options, :func:`~dynoplan.pipeline.fit.fit_models`, the
+    improvement rounds, the default controllers; the result is a
+    :class:`PipelineResult`. The arguments are :func:`run_pipeline`'s.
+
+    Raises:
+        DynoplanError: invalid ``settings``, or several workers without a task, an output
+            folder and the default fitter, success function and ``state_fn`` (checked
+            here, before any work).
+    """
+
+    def __init__(self, env: str | gym.Env[Any, Any], options: Sequence[OptionSpec | Option],
+                 demonstrator: Any = None, demos: Dataset | Sequence[Episode] | None = None,
+                 settings: PipelineSettings | None = None, state_fn: StateFn | None = None,
+                 success: SuccessFn | None = None, fitter: DynamicsFitter | None = None,
+                 command: str | None = None, task: Task | None = None,
+                 out: str | Path | None = None, workers: Workers = SERIAL) -> None:
+        self.settings = settings or PipelineSettings()
+        self.settings.validate()
+        if workers.parallel and (task is None or out is None or fitter is not None
+                                 or state_fn is not None or success is not None):
+            raise DynoplanError("the pipeline on several workers needs a task and an output "
+                                "folder, and the default dynamics fitter; the success "
+                                "function and state_fn come from the task (workers rebuild "
+                                "the controllers from files)")
+        self.env, self.options, self.demonstrator, self.given = env, options, demonstrator, demos
+        self.state_fn, self.success, self.fitter = state_fn, success, fitter
+        self.command, self.task = command, task
+
+    def prepare(self, run: PipelineRun) -> None:
+        """The environment made and the options probed in it; the controllers checked."""
+        self.started = time.perf_counter()
+        env = self.env
+        self.environment = task_env(make_env(env) if isinstance(env, str) else env,
+                                    self.success, self.state_fn)
+        self.specs = [as_spec(o) for o in self.options]
+        self.seeds = _seeds(self.settings.seed, self.settings.improve > 0)
+        self.state_dim = probe_options(self.environment, self.options, flat_state,
+                                       self.seeds["demos"])
+        first, second = (s.env_seed for s in episode_seeds(self.seeds["evaluation"], 2))
+        reset_note = seeded_reset_warning(self.environment, first)
+        history_note = (episode_history_warning(self.environment, first, second)
+                        if reset_note is None else None)
+        self.notes = [n for n in (reset_note, history_note) if n is not None]
+        self.names = [s.name for s in self.specs]
+        known = controller_names(self.specs, self.demonstrator is not None)
+        unknown = [c for c in self.settings.controllers or () if c not in known]
+        if unknown:  # before any work
+            raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
+                                f"{', '.join(known)})")
+
+    def demonstrations(self, run: PipelineRun) -> list[Episode]:
+        """The given demonstrations, else ``settings.demos`` of the demonstrator's."""
+        if self.given is not None:
+            self.demos = demos_from_dataset(self.given, self.names)
+        elif self.demonstrator is not None:
+            run.clock.switch("demonstrations")
+            self.demos = record_demonstrations(self.environment, self.specs, self.demonstrator,
+                                               self.settings.demos, self.seeds["demos"],
+                                               progress=run.progress)
+        else:
+            raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
+        return self.demos
+
+    def option_runs(self, run: PipelineRun, demos: list[Episode]) -> list[Episode]:
+        """Exploration episodes of randomly chosen options
+        (:func:`~dynoplan.pipeline.collect.collect_transitions`)."""
+        run.clock.switch("option transitions")
+        settings = self.settings
+        self.transitions = collect_transitions(
+            self.environment, self.specs, settings.exploration_episodes,
+            self.seeds["exploration"], flat_state, settings.exploration_option_steps,
+            progress=run.progress, demos=demos, branches=settings.exploration_branches)
+        return self.transitions
+
+    def fit(self, run: PipelineRun, demos: list[Episode], runs: list[Episode]
+            ) -> FittedModels:
+        """:func:`~dynoplan.pipeline.fit.fit_models`."""
+        self.name = (self.task.name if self.task is not None
+                     else _env_id(self.environment) or "")
+        return fit_models(self.specs, runs, demos, self.settings.fit, self.seeds["fit"],
+                          flat_state, self.fitter, run.clock.switch, self.name)
+
+    def after_fit(self, run: PipelineRun, models: FittedModels) -> FittedModels:
+        """``settings.improve`` rounds of DynoPlan's own episodes, refitted on after each
+        (:mod:`~dynoplan.pipeline.improve`); the last models."""
+        settings, say = self.settings, run.clock.switch
+        run_options, planner_options = models.build(self.specs)
+        fit_demos, fit_transitions = list(self.demos), list(self.transitions)
+        own_seeds = (episode_seeds(self.seeds["improve"],
+                                   settings.improve * settings.improve_episodes)
+                     if settings.improve else [])
+        self.curve: list[dict[str, Any]] = []
+        for r in range(settings.improve):
+            say(f"improvement round {r + 1}")
+            controller = make_controller(DYNOPLAN, run_options, models.goal,
+                                         planning_settings(settings.control, models),
+                                         planner_options, self.environment.action_space,
+                                         models.state_scale)
+            n = settings.improve_episodes
+            own = own_episodes(self.environment, controller, own_seeds[r * n:(r + 1) * n])
+            added = [e.demonstration for e in own if e.demonstration is not None]
+            fit_demos += added
+            fit_transitions += [piece for e in own for piece in e.pieces]
+            self.curve.append({"round": r + 1, "episodes": n,
+                               "success_rate": float(np.mean([e.success for e in own])),
+                               "demonstrations_added": len(added)})
+            models = fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
+                                self.seeds["fit"], flat_state, self.fitter, say, self.name)
+            run_options, planner_options = models.build(self.specs)
+        self.run_options, self.planner_options = run_options, planner_options
+        return models
+
+    def evaluate(self, run: PipelineRun, models: FittedModels) -> dict[str, dict[str, Any]]:
+        """:func:`evaluate_fitted`: where the options may start, the models saved, every
+        controller's summary."""
+        self.models = models
+        demo_states = np.concatenate([episode_states(e, flat_state)[:-1] for e in self.demos])
+        self.admissible, self.notes, evaluation = evaluate_fitted(
+            self.environment, models, self.run_options, self.planner_options, self.demos,
+            self.settings, self.seeds["evaluation"], run.out, self.notes, run.clock.switch,
+            run.progress, run.workers, self.task, self.demonstrator,
+            [*weak_dynamics_warnings(models.report["dynamics"]),
+             *sole_admissible_warnings(self.run_options, demo_states)],
+            stacklevel=5)  # the caller of run_pipeline (through run_stages and this)
+        return evaluation
+
+    def report(self, run: PipelineRun, evaluation: dict[str, dict[str, Any]]
+               ) -> PipelineResult:
+        """``summary.json``, ``results.md`` and the datasets written to ``run.out``."""
+        models, settings = self.models, self.settings
+        region_warnings = (models.report.get("regions") or {}).get("warnings", [])
+        summary = {
+            "dynoplan_version": __version__,
+            "env_id": _env_id(self.environment),
+            "state_dim": self.state_dim,
+            "options": self.names,
+            "settings": _jsonable(asdict(settings)),
+            "seeds": self.seeds,
+            "demonstrations": {"episodes": len(self.demos),
+                               "steps": sum(len(e) for e in self.demos)},
+            "transitions": {"episodes": len(self.transitions),
+                            "steps": sum(len(e) for e in self.transitions)},
+            "models": models.report,
+            "admissibility": self.admissible,
+            "warnings": [*region_warnings, *self.notes],
+            "controllers": evaluation,
+            "composition_ratio": composition_ratio(evaluation),
+            **({"improvement": self.curve} if settings.improve else {}),
+            "stage_seconds": run.clock.rounded(3),
+            "seconds": time.perf_counter() - self.started,
+            "command": self.command,
+        }
+        if run.out is not None:
+            _write_outputs(run.out, self.environment, self.names, self.demos,
+                           self.transitions, summary, settings)
+        return PipelineResult(self.run_options, self.planner_options, models, self.demos,
+                              self.transitions, evaluation, summary)
+
+
+def run_stages(stages: TaskStages[Any, Any, Any, Any, Result], run: PipelineRun) -> Result:
+    """The one order of every run: ``stages``' hooks called once each on ``run``."""
+    stages.prepare(run)
+    demos = stages.demonstrations(run)
+    runs = stages.option_runs(run, demos)
+    models = stages.after_fit(run, stages.fit(run, demos, runs))
+    return stages.report(run, stages.evaluate(run, models))
+
+
+@overload
 def run_pipeline(
     env: str | gym.Env[Any, Any],
     options: Sequence[OptionSpec | Option],
@@ -334,8 +508,36 @@ def run_pipeline(
     command: str | None = None,
     workers: Workers = SERIAL,
     task: Task | None = None,
-) -> PipelineResult:
-    """Collect, fit, control and evaluate on any Gymnasium environment with a Box space.
+) -> PipelineResult: ...
+
+
+@overload
+def run_pipeline(*, stages: TaskStages[Any, Any, Any, Any, Result],
+                 out: str | Path | None = None, progress: bool = False,
+                 status: Callable[[str], None] | None = None,
+                 workers: Workers = SERIAL) -> Result: ...
+
+
+def run_pipeline(
+    env: str | gym.Env[Any, Any] | None = None,
+    options: Sequence[OptionSpec | Option] = (),
+    demonstrator: Any = None,
+    demos: Dataset | Sequence[Episode] | None = None,
+    settings: PipelineSettings | None = None,
+    out: str | Path | None = None,
+    state_fn: StateFn | None = None,
+    success: SuccessFn | None = None,
+    fitter: DynamicsFitter | None = None,
+    progress: bool = False,
+    status: Callable[[str], None] | None = None,
+    command: str | None = None,
+    workers: Workers = SERIAL,
+    task: Task | None = None,
+    stages: TaskStages[Any, Any, Any, Any, Any] | None = None,
+) -> Any:
+    """Collect, fit, control and evaluate on any Gymnasium environment with a Box space,
+    or run a task's own ``stages``: the same stages in the same order
+    (:func:`run_stages`), timed on one clock.
 
     Args:
         env: a Gymnasium id or an environment (a task's: ``task.make_env()``).
@@ -364,112 +566,36 @@ def run_pipeline(
             rebuilds the controllers from ``task`` and ``out/models``, so both are needed
             (the results are the same as on one).
         task: the same environment and options as references workers can rebuild.
+        stages: a task's own stages (:class:`~dynoplan.pipeline.task.TaskStages`), run
+            into ``out`` on ``workers`` instead of the generic ones
+            (:class:`GenericStages` of the arguments above, then not given); what their
+            ``report`` returns.
+
+    Returns:
+        A :class:`PipelineResult` (with ``stages``: what their ``report`` returns).
 
     Raises:
         DynoplanError: an observation space that does not flatten to a ``Box`` and no
             ``state_fn``, a success function that raises, options that disagree with the
             environment or each other, demonstrations without option labels, no
-            demonstrator and no demonstrations, a failing demonstrator.
+            demonstrator and no demonstrations, a failing demonstrator; ``stages`` with
+            any other argument than ``out``, ``progress``, ``status`` and ``workers``; an
+            unwritable ``out``.
     """
-    settings = settings or PipelineSettings()
-    settings.validate()
-    if workers.parallel and (task is None or out is None or fitter is not None
-                             or state_fn is not None or success is not None):
-        raise DynoplanError("the pipeline on several workers needs a task and an output "
-                            "folder, and the default dynamics fitter; the success function "
-                            "and state_fn come from the task (workers rebuild the "
-                            "controllers from files)")
-    clock = StageClock(status)  # times every stage from its status message to the next
-    say = clock.switch
-    started = time.perf_counter()
-    environment = task_env(make_env(env) if isinstance(env, str) else env, success, state_fn)
-    specs = [as_spec(o) for o in options]
-    seeds = _seeds(settings.seed, settings.improve > 0)
-    state_dim = probe_options(environment, options, flat_state, seeds["demos"])
-    first, second = (s.env_seed for s in episode_seeds(seeds["evaluation"], 2))
-    reset_note = seeded_reset_warning(environment, first)
-    history_note = (episode_history_warning(environment, first, second)
-                    if reset_note is None else None)
-    notes = [n for n in (reset_note, history_note) if n is not None]
+    if stages is None:
+        if env is None:
+            raise DynoplanError("give an environment and options, or a task's stages")
+        stages = GenericStages(env, options, demonstrator, demos, settings, state_fn, success,
+                               fitter, command, task, out, workers)
+    elif env is not None or options or any(
+            given is not None for given in (demonstrator, demos, settings, state_fn, success,
+                                            fitter, command, task)):
+        raise DynoplanError("a task's stages come with their own environment, options, "
+                            "demonstrations and settings: give only out, progress, status "
+                            "and workers with them")
     folder = ensure_writable_dir(out) if out is not None else None
-    names = [s.name for s in specs]
-    known = controller_names(specs, demonstrator is not None)
-    unknown = [c for c in settings.controllers or () if c not in known]
-    if unknown:  # before any work
-        raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
-                            f"{', '.join(known)})")
-
-    if demos is not None:
-        demo_episodes = demos_from_dataset(demos, names)
-    elif demonstrator is not None:
-        say("demonstrations")
-        demo_episodes = record_demonstrations(environment, specs, demonstrator, settings.demos,
-                                              seeds["demos"], progress=progress)
-    else:
-        raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
-    say("option transitions")
-    transitions = collect_transitions(environment, specs, settings.exploration_episodes,
-                                      seeds["exploration"], flat_state,
-                                      settings.exploration_option_steps, progress=progress,
-                                      demos=demo_episodes,
-                                      branches=settings.exploration_branches)
-    name = task.name if task is not None else _env_id(environment) or ""
-    models = fit_models(specs, transitions, demo_episodes, settings.fit, seeds["fit"],
-                        flat_state, fitter, say, name)
-    run_options, planner_options = models.build(specs)
-    fit_demos, fit_transitions = list(demo_episodes), list(transitions)
-    own_seeds = (episode_seeds(seeds["improve"], settings.improve * settings.improve_episodes)
-                 if settings.improve else [])
-    curve: list[dict[str, Any]] = []
-    for r in range(settings.improve):
-        say(f"improvement round {r + 1}")
-        controller = make_controller(DYNOPLAN, run_options, models.goal,
-                                     planning_settings(settings.control, models),
-                                     planner_options, environment.action_space,
-                                     models.state_scale)
-        n = settings.improve_episodes
-        own = own_episodes(environment, controller, own_seeds[r * n:(r + 1) * n])
-        added = [e.demonstration for e in own if e.demonstration is not None]
-        fit_demos += added
-        fit_transitions += [piece for e in own for piece in e.pieces]
-        curve.append({"round": r + 1, "episodes": n,
-                      "success_rate": float(np.mean([e.success for e in own])),
-                      "demonstrations_added": len(added)})
-        models = fit_models(specs, fit_transitions, fit_demos, settings.fit, seeds["fit"],
-                            flat_state, fitter, say, name)
-        run_options, planner_options = models.build(specs)
-    demo_states = np.concatenate([episode_states(e, flat_state)[:-1] for e in demo_episodes])
-    admissible, notes, evaluation = evaluate_fitted(
-        environment, models, run_options, planner_options, demo_episodes, settings,
-        seeds["evaluation"], folder, notes, say, progress, workers, task, demonstrator,
-        [*weak_dynamics_warnings(models.report["dynamics"]),
-         *sole_admissible_warnings(run_options, demo_states)])
-    region_warnings = (models.report.get("regions") or {}).get("warnings", [])
-    summary = {
-        "dynoplan_version": __version__,
-        "env_id": _env_id(environment),
-        "state_dim": state_dim,
-        "options": names,
-        "settings": _jsonable(asdict(settings)),
-        "seeds": seeds,
-        "demonstrations": {"episodes": len(demo_episodes),
-                           "steps": sum(len(e) for e in demo_episodes)},
-        "transitions": {"episodes": len(transitions), "steps": sum(len(e) for e in transitions)},
-        "models": models.report,
-        "admissibility": admissible,
-        "warnings": [*region_warnings, *notes],
-        "controllers": evaluation,
-        "composition_ratio": composition_ratio(evaluation),
-        **({"improvement": curve} if settings.improve else {}),
-        "stage_seconds": clock.rounded(3),
-        "seconds": time.perf_counter() - started,
-        "command": command,
-    }
-    if folder is not None:
-        _write_outputs(folder, environment, names, demo_episodes, transitions, summary,
-                       settings)
-    return PipelineResult(run_options, planner_options, models, demo_episodes, transitions,
-                          evaluation, summary)
+    # the clock times every stage from its status message to the next
+    return run_stages(stages, PipelineRun(folder, StageClock(status), workers, progress))
 
 
 def _jsonable(value: Any) -> Any:

@@ -3,7 +3,7 @@
 - :func:`read_demos` / :func:`read_labelled`: datasets of the gear assembly with option
   labels (``infos["option"]``) and, for demonstrations, ``infos["progress"]``;
   held-out trials come from ``seed + HELDOUT_SEED_OFFSET``
-  (:func:`~dynoplan.experiments.gear_stages.demonstrations`) and :func:`check_disjoint`
+  (:func:`~dynoplan.envs.gear.stages.demonstrations`) and :func:`check_disjoint`
   rejects shared seeds with the demonstrations.
 - :func:`demo_arrays`: per demonstration, planner states ``(T+1, 22)``, progress
   ``(T+1,)`` and option labels ``(T,)``.

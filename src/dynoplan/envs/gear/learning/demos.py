@@ -2,7 +2,7 @@
 
 ``record_demos`` runs a demonstrator (:mod:`dynoplan.envs.gear.demonstrations`: the
 scripted expert, or the operator chaining the option policies, which ``gear run`` and
-``gear demos`` use, :func:`dynoplan.experiments.gear_stages.demonstrations`) on seeded
+``gear demos`` use, :func:`dynoplan.envs.gear.stages.demonstrations`) on seeded
 episodes, with the human schedule drawn per episode (away, crossing or blocking), and
 writes them with option labels and progress as a Minari-layout dataset
 (``docs/dataset-format.md``).

@@ -38,8 +38,8 @@ DEFAULT_SETTINGS = FitSettings(
 - one-step dynamics, a goal on the demonstrations alone, constant dimensions learned
   as any other and no lower bound on the dynamics' gradient steps: the generic
   pipeline's remedies of the composition suite (``docs/suite.md``) are not measured on
-  the gear yet, whose own fit keeps its results
-  (the gear goes through ``run_pipeline`` in a later issue)."""
+  the gear yet, whose own fit (the ``fit`` stage of the gear's stages of
+  ``run_pipeline``) keeps its results."""
 
 QUICK_SETTINGS = replace(DEFAULT_SETTINGS, goal_hidden=32, goal_epochs=40,
                          region_max_components=4, dynamics_hidden=(64, 64), dynamics_epochs=15)
@@ -64,7 +64,7 @@ class GearMetricsSettings:
             imagined for the goal's end gap
             (:func:`~dynoplan.models.evaluation.option_end_gap`; the planner's horizon).
         heldout_episodes: held-out trials ``dynoplan gear train`` records when none are
-            given (:func:`~dynoplan.experiments.gear_stages.learned_models`; ``gear run``
+            given (:func:`~dynoplan.envs.gear.stages.learned_models`; ``gear run``
             records as many as demonstrations).
         far_states: candidate far-away states for ``region_far_outside_rate``.
     """

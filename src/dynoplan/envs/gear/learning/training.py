@@ -93,6 +93,7 @@ from dynoplan.models.trainer import TrainingReport, deterministic_training
 from dynoplan.pipeline.fit import FitSettings, dynamics_epochs, fit_goal
 from dynoplan.pipeline.fit_data import (
     decision_runs,
+    episode_states,
     labelled_states,
     option_transitions,
     split_runs,
@@ -129,7 +130,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         heldout_demos: held-out trials, not among ``demos``, for the goal and region
             metrics (``dynoplan gear demos --heldout``; ``dynoplan gear train`` records
             them when none are given:
-            :func:`~dynoplan.experiments.gear_stages.learned_models`).
+            :func:`~dynoplan.envs.gear.stages.learned_models`).
         quick: :data:`QUICK_SETTINGS` and :data:`QUICK_METRICS` instead of
             :data:`DEFAULT_SETTINGS` and :data:`DEFAULT_METRICS`.
         progress: progress bars on stderr.
@@ -202,7 +203,11 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
             clock.stage(name, run)
 
-    gear_models(fitted["dynamics"], fitted["goal"], fitted["regions"], seed, cfg).write(out)
+    # the spread of every coordinate over the fitted data, as fit_models records it
+    state_scale = np.concatenate([episode_states(e, planner)
+                                  for e in [*dyn_train, *train_set]]).std(axis=0)
+    gear_models(fitted["dynamics"], fitted["goal"], fitted["regions"], seed, cfg,
+                state_scale).write(out)
     # coverage over all held-out transitions (options without any do not count)
     dyn_rows = [r for r in dyn_reports.values() if r["coverage_90"] is not None]
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)

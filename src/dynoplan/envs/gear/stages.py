@@ -1,9 +1,10 @@
 """The stages of ``dynoplan gear run`` that have a command of their own, one function each.
 
-``gear run`` and the commands ``gear demos``, ``collect``, ``train``, ``figures`` and
-``outcomes`` call them with the same sizes
-(:func:`~dynoplan.experiments.gear_run.run_settings`), so chained into one folder they
-write what ``gear run --out DIR`` writes for the same seed (``--quick``: add it to each)::
+``gear run``'s stages (:class:`~dynoplan.envs.gear.pipeline_stages.GearStages`) and the
+commands ``gear demos``, ``collect``, ``train``, ``figures`` and ``outcomes`` call them
+with the same sizes (:func:`~dynoplan.envs.gear.pipeline_stages.run_settings`), so
+chained into one folder they write what ``gear run --out DIR`` writes for the same seed
+(``--quick``: add it to each)::
 
     dynoplan gear demos --models DIR/models --out DIR/demos
     dynoplan gear demos --heldout --models DIR/models --out DIR/heldout
