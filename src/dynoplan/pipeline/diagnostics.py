@@ -42,12 +42,10 @@ def seeded_reset_warning(env: gym.Env[Any, Any], seed: int) -> str | None:
     with the same seeds. An environment whose ``reset(seed=...)`` ignores the seed (or
     draws from a global generator) breaks that silently.
     """
-    a, b = (np.asarray(gym.spaces.flatten(env.observation_space, env.reset(seed=seed)[0]),
-                       dtype=np.float64) for _ in range(2))
+    a, b = (_flat(env, env.reset(seed=seed)[0]) for _ in range(2))
     if a.shape == b.shape and np.array_equal(a, b, equal_nan=True):
         return None
-    name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
-    return (f"environment '{name}': two resets with seed {seed} gave different "
+    return (f"environment '{_name(env)}': two resets with seed {seed} gave different "
             "observations, so the controllers are not compared on the same episodes; make "
             "reset(seed=...) seed everything the episode draws (a wrapper that reseeds "
             "what the environment ignores)")
@@ -68,13 +66,10 @@ def episode_history_warning(env: gym.Env[Any, Any], seed: int, other: int,
     def run(episode_seed: int) -> list[FloatArray]:
         space = copy.deepcopy(env.action_space)
         space.seed(episode_seed)
-        observation, _ = env.reset(seed=episode_seed)
-        seen = [np.asarray(gym.spaces.flatten(env.observation_space, observation),
-                           dtype=np.float64)]
+        seen = [_flat(env, env.reset(seed=episode_seed)[0])]
         for _ in range(steps):
             observation, _, terminated, truncated, _ = env.step(space.sample())
-            seen.append(np.asarray(gym.spaces.flatten(env.observation_space, observation),
-                                   dtype=np.float64))
+            seen.append(_flat(env, observation))
             if terminated or truncated:
                 break
         return seen
@@ -85,11 +80,21 @@ def episode_history_warning(env: gym.Env[Any, Any], seed: int, other: int,
     if len(first) == len(again) and all(np.array_equal(a, b, equal_nan=True)
                                         for a, b in zip(first, again, strict=True)):
         return None
-    name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
-    return (f"environment '{name}': the episode of seed {seed} went differently after "
+    return (f"environment '{_name(env)}': the episode of seed {seed} went differently after "
             "another episode ran on the same environment (it keeps state across reset): "
             "an episode depends on the episodes before it in its row, so a row may differ "
             "when it runs alone or on another number of workers")
+
+
+def _flat(env: gym.Env[Any, Any], observation: Any) -> FloatArray:
+    """``observation`` flattened by ``env``'s observation space, as float64 ``(n,)``."""
+    return np.asarray(gym.spaces.flatten(env.observation_space, observation),
+                      dtype=np.float64)
+
+
+def _name(env: gym.Env[Any, Any]) -> str:
+    """The environment's registered id, else its class's name."""
+    return env.spec.id if env.spec is not None else type(env.unwrapped).__name__
 
 
 def constant_dimensions(states: FloatArray) -> list[int]:
