@@ -48,10 +48,10 @@ GOAL_KEYS = "fit.goal_"
 
 
 def refit_goal(fitted: FittedModels, folder: Path, summary: dict[str, Any],
-               sets: dict[str, Any], goal_seed: int) -> FittedModels:
+               goal_sets: dict[str, Any], goal_seed: int) -> FittedModels:
     """``fitted`` with its goal heuristic fitted again on ``folder``'s demonstrations and
     exploration episodes, with the run's fit settings (``summary``) but the ``fit.goal_*``
-    keys of ``sets``, from the run's fit seed plus ``goal_seed`` (and the initiation
+    keys ``goal_sets``, from the run's fit seed plus ``goal_seed`` (and the initiation
     learned from outcomes fitted again on it, when the run's settings use it)."""
     from dataclasses import fields, replace
 
@@ -62,8 +62,8 @@ def refit_goal(fitted: FittedModels, folder: Path, summary: dict[str, Any],
     known = {f.name for f in fields(FitSettings)}
     recorded: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
                 for k, v in summary["settings"]["fit"].items() if k in known}
-    given = pipeline_settings({k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}).fit
-    names = [k.removeprefix("fit.") for k in sets if k.startswith(GOAL_KEYS)]
+    given = pipeline_settings(goal_sets).fit
+    names = [k.removeprefix("fit.") for k in goal_sets]
     fit = replace(FitSettings(**recorded), **{n: getattr(given, n) for n in names})
     fit.validate()
     seed = int(summary["seeds"]["fit"]) + goal_seed
@@ -94,11 +94,12 @@ def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
     recorded = json.loads((folder / "suite-run.json").read_text())
     summary = json.loads((folder / "summary.json").read_text())
     rows = recorded["disturbed"] if disturbed else recorded["controllers"]
-    control = {k: v for k, v in sets.items() if not k.startswith(GOAL_KEYS)}
+    goal_sets = {k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}
+    control = {k: v for k, v in sets.items() if k not in goal_sets}
     settings = pipeline_settings({**control, "episodes": int(rows[DYNOPLAN]["episodes"])})
     fitted = FittedModels.load(folder / "models")
-    if goal_seed or len(control) < len(sets):
-        fitted = refit_goal(fitted, folder, summary, sets, goal_seed)
+    if goal_seed or goal_sets:
+        fitted = refit_goal(fitted, folder, summary, goal_sets, goal_seed)
     options, planner_options = fitted.build(task.module.make_options())
     result = evaluate_controllers(
         task.make_env(disturbed=disturbed), options, fitted.goal,
