@@ -196,12 +196,11 @@ class StackedMLPEnsemble:
             lay.state.shape)
         self._forward(lay, rng)
         result = np.empty((lay.result_rows, d))
-        result[scatter] = lay.next_np.reshape(-1, d)
+        result[scatter] = lay.state.reshape(-1, d)
         return result[:o * s].reshape(o, s, d)
 
     def _forward(self, lay: "_Layout", rng: Generator) -> None:
-        """``lay.next`` from ``lay.x``: one draw of every block row's next state."""
-        d = self.state_dim
+        """One draw of every block row's next state, in place of its state (``lay.x``)."""
         rng.standard_normal(dtype=np.float32, out=lay.noise_drawn)  # in the draw order
         with torch.inference_mode():
             lay.gather_noise()
@@ -210,13 +209,12 @@ class StackedMLPEnsemble:
             for i in range(len(self._weights) - 1):
                 h = torch.baddbmm(self._biases[i], h, self._weights[i], out=lay.hidden[i + 1])
                 F.silu(h, inplace=True)
-            out = torch.baddbmm(self._biases[-1], h, self._weights[-1], out=lay.hidden[-1])
-            t = F.softplus(torch.sub(self._max_logvar, out[..., d:], out=lay.tmp))
+            torch.baddbmm(self._biases[-1], h, self._weights[-1], out=lay.hidden[-1])
+            t = F.softplus(torch.sub(self._max_logvar, lay.raw_logvar, out=lay.tmp))
             t = F.softplus(torch.sub(self._logvar_span, t, out=lay.tmp))
             std = torch.add(self._log_std_offset, t, alpha=0.5, out=lay.tmp).exp_()
-            nxt = torch.addcmul(lay.x[..., :d], std, lay.noise, out=lay.next)
-            nxt.add_(out[..., :d])
-        self.rows_computed += lay.next.shape[0] * lay.next.shape[1]
+            torch.addcmul(lay.x_state, std, lay.noise, out=lay.x_state).add_(lay.mean_change)
+        self.rows_computed += lay.x.shape[0] * lay.x.shape[1]
 
 
 class BlockSampler:
@@ -228,10 +226,11 @@ class BlockSampler:
     Place ``j`` of slice ``k`` holds sample ``rows[k, j]`` of branch ``branches[k, j]``
     and is run by member ``members[k, j]``; places with ``real[k, j]`` False are
     padding (a member's slot left over when ``members`` does not divide ``samples``, or
-    a model with fewer branches than another): they hold a copy of some real row and
-    their results mean nothing. ``self(states)`` maps ``(models, places, d)`` states
-    (any float dtype) to the next states, a float32 ``(models, places, d)`` array that
-    the next call overwrites.
+    a model with fewer branches than another): their results mean nothing.
+
+    The sampler keeps the states itself: :meth:`start` sets them, and every call of
+    :meth:`advance` moves every place one step on from where the last one left it (a
+    caller that stops some rollouts simply ignores their further states).
 
     Attributes:
         branches, rows, members: ``(models, places)`` int64, see above.
@@ -247,13 +246,17 @@ class BlockSampler:
         self.rows = (gather % s).reshape(shape)
         self.real = (scatter < engine.options * s).reshape(shape)
         self.members = np.broadcast_to(lay.member_of_row.reshape(shape), self.real.shape)
-        self._x = lay.state.reshape(engine.models, -1, engine.state_dim)
-        self._next = lay.next_np.reshape(engine.models, -1, engine.state_dim)
+        self._state = lay.state.reshape(engine.models, -1, engine.state_dim)
 
-    def __call__(self, states: np.ndarray) -> np.ndarray:
-        self._x[...] = states
+    def start(self, states: np.ndarray) -> None:
+        """Set the states of every place, ``(models, places, d)`` (any float dtype)."""
+        self._state[...] = states
+
+    def advance(self) -> np.ndarray:
+        """One step of every place: the new states, a float32 ``(models, places, d)``
+        view of the sampler's own states (the next call changes it)."""
         self._engine._forward(self._lay, self._rng)
-        return self._next
+        return self._state
 
 
 class _Layout:
@@ -296,10 +299,10 @@ class _Layout:
         self.member_of_row = (np.arange(len(self.order)) // rows) % e
         self.x = torch.ones(groups, rows, d + 1)  # the states, and ones for the bias
         self.state = self.x.numpy()[..., :d]
+        self.x_state = self.x[..., :d]
         self.hidden = [torch.empty(groups, rows, w) for w in widths]
+        self.mean_change, self.raw_logvar = self.hidden[-1][..., :d], self.hidden[-1][..., d:]
         self.tmp = torch.empty(groups, rows, d)
-        self.next = torch.empty(groups, rows, d)
-        self.next_np = self.next.numpy()
         self.noise_drawn = np.empty((o * e, m, d), dtype=np.float32)  # drawn in place
         drawn = torch.from_numpy(self.noise_drawn)
         self._in_order = len(self.order) == o * e * m and bool(

@@ -357,18 +357,24 @@ class OptionPlanner:
         slices = self._engine_options(idx, dynamics) if callable(blocks) else None
         order: BlockOrder | None = None
         if callable(blocks) and slices is not None:  # the ensembles' own order, no reordering
-            step = blocks(self.samples, rng)  # a member per rollout, as trajectory_sampler
-            order = BlockOrder(step.branches, step.rows, step.real, alive.shape)
+            sampler = blocks(self.samples, rng)  # a member per rollout, as trajectory_sampler
+            members = sampler.members
+            order = BlockOrder(sampler.branches, sampler.rows, sampler.real, alive.shape)
             termination = self._termination(slices)  # slice k of the blocks runs slices[k]
-            x, alive, stop_draws = order.to_blocks(x), order.to_blocks(alive) & step.real, \
+            x, alive, stop_draws = order.to_blocks(x), order.to_blocks(alive) & sampler.real, \
                 order.to_blocks(stop_draws, axis=1)
+            sampler.start(x)
+            advance = sampler.advance
         else:
             slices = idx
             step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
+            members = getattr(step, "members", None)
+
+            def advance() -> np.ndarray:
+                return step(x)
         regions = self._region_groups(slices) if self.respect_regions else []
-        steps, valid, unsafe = self._advance(step, x, alive, stop_draws, termination, regions,
-                                             step_offset)
-        members = getattr(step, "members", None)
+        steps, valid, unsafe = self._advance(advance, x, alive, stop_draws, termination,
+                                             regions, step_offset)
         if order is not None:
             x, steps, valid = order.to_rows(x), order.to_rows(steps), order.to_rows(valid)
             unsafe = None if unsafe is None else order.to_rows(unsafe)
@@ -376,12 +382,13 @@ class OptionPlanner:
         return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
                         unsafe, survival)
 
-    def _advance(self, step: Callable[[FloatArray], FloatArray], x: FloatArray,
+    def _advance(self, advance: Callable[[], np.ndarray], x: FloatArray,
                  alive: BoolArray, stop_draws: FloatArray, termination: StackedTermination,
                  regions: list[tuple[IntArray, Initiation]],
                  step_offset: int) -> tuple[IntArray, BoolArray, BoolArray | None]:
         """Run rollouts for up to ``horizon`` steps: ``x`` ``(slices, places, d)`` their
-        start states (changed in place to where they stop), ``alive`` ``(slices,
+        start states (changed in place to where they stop), ``advance()`` the next state
+        of every place from ``x`` (at places whose rollouts run), ``alive`` ``(slices,
         places)`` which run, ``stop_draws`` ``(horizon, slices, places)`` the uniform
         draws of the terminations, ``termination`` and ``regions`` over the slices.
 
@@ -394,7 +401,7 @@ class OptionPlanner:
         for t in range(self.horizon):
             if not alive.any():
                 break
-            nxt = step(x)
+            nxt = advance()
             moved = alive
             if not np.isfinite(nxt).all():  # rare: stop diverged rollouts where they are
                 finite = np.isfinite(nxt).all(axis=-1)
