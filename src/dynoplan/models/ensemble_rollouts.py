@@ -309,14 +309,14 @@ class _Layout:
             (self.order == np.arange(len(self.order))).all())
         self.noise = drawn.view(groups, rows, d) if self._in_order \
             else torch.empty(groups, rows, d)
-        self._noise_rows = drawn.view(-1, d)
-        self._noise_index = torch.from_numpy(np.maximum(self.order, 0))
+        self._noise_rows = self.noise.numpy().reshape(-1, d)
+        self._noise_index = np.maximum(self.order, 0)
 
     def gather_noise(self) -> None:
         """``noise`` (block order) from ``noise_drawn`` (draw order)."""
         if not self._in_order:
-            torch.index_select(self._noise_rows, 0, self._noise_index,
-                               out=self.noise.view(-1, self.noise.shape[-1]))
+            np.take(self.noise_drawn.reshape(-1, self.noise_drawn.shape[-1]),
+                    self._noise_index, axis=0, out=self._noise_rows)
 
     def draw(self, rng: Generator) -> tuple[np.ndarray, np.ndarray]:
         """A fresh assignment: for every block row, ``(models * members * rows,)``, the
