@@ -192,19 +192,20 @@ class StackedMLPEnsemble:
     def _sample(self, states: FloatArray, lay: "_Layout", gather: np.ndarray,
                 scatter: np.ndarray, rng: Generator) -> FloatArray:
         o, s, d = states.shape
-        lay.state[...] = np.take(states.reshape(o * s, d), gather, axis=0).reshape(
-            lay.state.shape)
-        self._forward(lay, rng)
+        own = lay.states
+        own.array[...] = np.take(states.reshape(o * s, d), gather, axis=0).reshape(
+            own.array.shape)
+        self._forward(lay, own, rng)
         result = np.empty((lay.result_rows, d))
-        result[scatter] = lay.state.reshape(-1, d)
+        result[scatter] = own.array.reshape(-1, d)
         return result[:o * s].reshape(o, s, d)
 
-    def _forward(self, lay: "_Layout", rng: Generator) -> None:
-        """One draw of every block row's next state, in place of its state (``lay.x``)."""
+    def _forward(self, lay: "_Layout", states: "_States", rng: Generator) -> None:
+        """One draw of every block row's next state, in place of ``states``."""
         rng.standard_normal(dtype=np.float32, out=lay.noise_drawn)  # in the draw order
         with torch.inference_mode():
             lay.gather_noise()
-            h = torch.bmm(lay.x, self._first, out=lay.hidden[0])  # the bias: x's ones
+            h = torch.bmm(states.x, self._first, out=lay.hidden[0])  # the bias: x's ones
             F.silu(h, inplace=True)
             for i in range(len(self._weights) - 1):
                 h = torch.baddbmm(self._biases[i], h, self._weights[i], out=lay.hidden[i + 1])
@@ -213,8 +214,8 @@ class StackedMLPEnsemble:
             t = F.softplus(torch.sub(self._max_logvar, lay.raw_logvar, out=lay.tmp))
             t = F.softplus(torch.sub(self._logvar_span, t, out=lay.tmp))
             std = torch.add(self._log_std_offset, t, alpha=0.5, out=lay.tmp).exp_()
-            torch.addcmul(lay.x_state, std, lay.noise, out=lay.x_state).add_(lay.mean_change)
-        self.rows_computed += lay.x.shape[0] * lay.x.shape[1]
+            torch.addcmul(states.state, std, lay.noise, out=states.state).add_(lay.mean_change)
+        self.rows_computed += states.x.shape[0] * states.x.shape[1]
 
 
 class BlockSampler:
@@ -228,9 +229,10 @@ class BlockSampler:
     padding (a member's slot left over when ``members`` does not divide ``samples``, or
     a model with fewer branches than another): their results mean nothing.
 
-    The sampler keeps the states itself: :meth:`start` sets them, and every call of
-    :meth:`advance` moves every place one step on from where the last one left it (a
-    caller that stops some rollouts simply ignores their further states).
+    The sampler keeps the states itself (its own float32 buffer): :meth:`start` sets
+    them, and every call of :meth:`advance` moves every place one step on from where the
+    last one left it (a caller that stops some rollouts simply ignores their further
+    states, which therefore cost no copy).
 
     Attributes:
         branches, rows, members: ``(models, places)`` int64, see above.
@@ -246,7 +248,8 @@ class BlockSampler:
         self.rows = (gather % s).reshape(shape)
         self.real = (scatter < engine.options * s).reshape(shape)
         self.members = np.broadcast_to(lay.member_of_row.reshape(shape), self.real.shape)
-        self._state = lay.state.reshape(engine.models, -1, engine.state_dim)
+        self._states = _States(lay.groups, lay.rows, engine.state_dim)  # its own
+        self._state = self._states.array.reshape(engine.models, -1, engine.state_dim)
 
     def start(self, states: np.ndarray) -> None:
         """Set the states of every place, ``(models, places, d)`` (any float dtype)."""
@@ -255,8 +258,19 @@ class BlockSampler:
     def advance(self) -> np.ndarray:
         """One step of every place: the new states, a float32 ``(models, places, d)``
         view of the sampler's own states (the next call changes it)."""
-        self._engine._forward(self._lay, self._rng)
+        self._engine._forward(self._lay, self._states, self._rng)
         return self._state
+
+
+class _States:
+    """Rollout states in block order, float32: ``x`` ``(groups, rows, d + 1)`` with a
+    last column of ones (the first layer's bias is its last weight row), ``state`` its
+    first ``d`` columns (a view) and ``array`` the same as a numpy view."""
+
+    def __init__(self, groups: int, rows: int, d: int) -> None:
+        self.x = torch.ones(groups, rows, d + 1)
+        self.state = self.x[..., :d]
+        self.array = self.x.numpy()[..., :d]
 
 
 class _Layout:
@@ -295,11 +309,10 @@ class _Layout:
             self._gather_ext[:, samples] = self._row_base[:, 0]  # padding reads row 0
             self._scatter_ext[:, samples] = o * samples  # ... and writes the extra row
         self.order = _block_order(branches, models, e, m)  # block row -> draw place, or -1
-        groups, rows = models * e, len(self.order) // (models * e)
+        groups = self.groups = models * e
+        rows = self.rows = len(self.order) // groups
         self.member_of_row = (np.arange(len(self.order)) // rows) % e
-        self.x = torch.ones(groups, rows, d + 1)  # the states, and ones for the bias
-        self.state = self.x.numpy()[..., :d]
-        self.x_state = self.x[..., :d]
+        self.states = _States(groups, rows, d)  # for ``sample`` and ``trajectory_sampler``
         self.hidden = [torch.empty(groups, rows, w) for w in widths]
         self.mean_change, self.raw_logvar = self.hidden[-1][..., :d], self.hidden[-1][..., d:]
         self.tmp = torch.empty(groups, rows, d)
