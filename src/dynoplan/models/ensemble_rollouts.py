@@ -202,18 +202,22 @@ class StackedMLPEnsemble:
 
     def _forward(self, lay: "_Layout", states: "_States", rng: Generator) -> None:
         """One draw of every block row's next state, in place of ``states``."""
-        rng.standard_normal(dtype=np.float32, out=lay.noise_drawn)  # in the draw order
         with torch.inference_mode():
-            lay.gather_noise()
             h = torch.bmm(states.x, self._first, out=lay.hidden[0])  # the bias: x's ones
             F.silu(h, inplace=True)
             for i in range(len(self._weights) - 1):
                 h = torch.baddbmm(self._biases[i], h, self._weights[i], out=lay.hidden[i + 1])
                 F.silu(h, inplace=True)
             torch.baddbmm(self._biases[-1], h, self._weights[-1], out=lay.hidden[-1])
-            t = F.softplus(torch.sub(self._max_logvar, lay.raw_logvar, out=lay.tmp))
-            t = F.softplus(torch.sub(self._logvar_span, t, out=lay.tmp))
-            std = torch.add(self._log_std_offset, t, alpha=0.5, out=lay.tmp).exp_()
+            # the noise now, not first: its buffer is still in cache for the tail
+            rng.standard_normal(dtype=np.float32, out=lay.noise_drawn)  # in the draw order
+            lay.gather_noise()
+            std = lay.tmp  # the bounded log-variance, then sigma, in place (aten's
+            # softplus.out: the stubs do not list ``out``)
+            F.softplus(torch.sub(self._max_logvar, lay.raw_logvar, out=std),
+                       out=std)  # type: ignore[call-arg]
+            F.softplus(torch.sub(self._logvar_span, std, out=std), out=std)  # type: ignore[call-arg]
+            torch.add(self._log_std_offset, std, alpha=0.5, out=std).exp_()
             torch.addcmul(states.state, std, lay.noise, out=states.state).add_(lay.mean_change)
         self.rows_computed += states.x.shape[0] * states.x.shape[1]
 
