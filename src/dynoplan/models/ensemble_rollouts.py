@@ -106,7 +106,9 @@ class StackedMLPEnsemble:
             ``k`` follows ``models[k]``).
 
     Attributes:
-        branches: ``(branches,)`` as given.
+        models: the number of distinct ensembles.
+        branches: ``(branches,)`` as given; ``options`` is their number (the stacked
+            slices).
         rows_computed: member-forward rows evaluated so far (including padding rows);
             for FLOP counts.
     """
@@ -303,15 +305,7 @@ class _Layout:
         self.result_rows = o * samples + 1  # padding writes to the extra last row
         self._row_base = (np.arange(o) * samples)[:, None]
         if self.padded:
-            rot = np.arange(e)[:, None, None]
-            # [c, e * m + j] -> position read by member e's slot j, or ``samples`` (padding)
-            pos = (np.arange(e)[None, :, None] - rot) % e + e * np.arange(m)[None, None, :]
-            self._pos_of_slot = np.where(pos < samples, pos, samples).reshape(e, e * m)
-            self._ext_base = (np.arange(o) * (samples + 1))[:, None]
-            self._gather_ext = np.empty((o, samples + 1), dtype=np.intp)
-            self._scatter_ext = np.empty((o, samples + 1), dtype=np.intp)
-            self._gather_ext[:, samples] = self._row_base[:, 0]  # padding reads row 0
-            self._scatter_ext[:, samples] = o * samples  # ... and writes the extra row
+            self._init_rotations()
         self.order = _block_order(branches, models, e, m)  # block row -> draw place, or -1
         groups = self.groups = models * e
         rows = self.rows = len(self.order) // groups
@@ -320,12 +314,33 @@ class _Layout:
         self.hidden = [torch.empty(groups, rows, w) for w in widths]
         self.mean_change, self.raw_logvar = self.hidden[-1][..., :d], self.hidden[-1][..., d:]
         self.tmp = torch.empty(groups, rows, d)
-        self.noise_drawn = np.empty((o * e, m, d), dtype=np.float32)  # drawn in place
-        drawn = torch.from_numpy(self.noise_drawn)
-        self._in_order = len(self.order) == o * e * m and bool(
-            (self.order == np.arange(len(self.order))).all())
-        self.noise = drawn.view(groups, rows, d) if self._in_order \
-            else torch.empty(groups, rows, d)
+        self._init_noise(d)
+
+    def _init_rotations(self) -> None:
+        """The tables of :meth:`_draw_places` where ``members`` does not divide
+        ``samples``."""
+        o, e, m, s = self.options, self.members, self.slots, self.samples
+        rot = np.arange(e)[:, None, None]
+        # [c, e * m + j] -> position read by member e's slot j, or ``samples`` (padding)
+        pos = (np.arange(e)[None, :, None] - rot) % e + e * np.arange(m)[None, None, :]
+        self._pos_of_slot = np.where(pos < s, pos, s).reshape(e, e * m)
+        self._ext_base = (np.arange(o) * (s + 1))[:, None]
+        self._gather_ext = np.empty((o, s + 1), dtype=np.intp)
+        self._scatter_ext = np.empty((o, s + 1), dtype=np.intp)
+        self._gather_ext[:, s] = self._row_base[:, 0]  # padding reads row 0
+        self._scatter_ext[:, s] = o * s  # ... and writes the extra row
+
+    def _init_noise(self, d: int) -> None:
+        """``noise_drawn`` ``(branches * members, slots, d)`` float32, filled in the draw
+        order, and ``noise``, the same values in the block order (the same memory where
+        the two orders agree)."""
+        self.noise_drawn = np.empty((self.options * self.members, self.slots, d),
+                                    dtype=np.float32)
+        n = len(self.order)
+        self._in_order = n == self.noise_drawn.size // d and bool(
+            (self.order == np.arange(n)).all())
+        self.noise = torch.from_numpy(self.noise_drawn).view(self.groups, self.rows, d) \
+            if self._in_order else torch.empty(self.groups, self.rows, d)
         self._noise_rows = self.noise.numpy().reshape(-1, d)
         self._noise_index = np.maximum(self.order, 0)
 
