@@ -73,7 +73,7 @@ def layer_items(gen: torch.Generator) -> tuple[dict[str, Callable[[], object]], 
             "folded": partial(torch.bmm, ones, wb, out=out),
             "addmm loop": partial(_addmm_loop, per),
         }
-        if fan_in == H:  # a hidden layer's output would need its own column of ones
+        if fan_in == fan_out == H:  # a hidden output would need its own column of ones
             with_ones = torch.ones(16, 16, fan_out + 1)
             variants["folded, output into a view"] = partial(torch.bmm, ones, wb,
                                                              out=with_ones[..., :fan_out])
