@@ -214,10 +214,9 @@ class StackedMLPEnsemble:
             # the noise now, not first: its buffer is still in cache for the tail
             rng.standard_normal(dtype=np.float32, out=lay.noise_drawn)  # in the draw order
             lay.gather_noise()
-            std = lay.tmp  # the bounded log-variance, then sigma, in place (aten's
-            # softplus.out: the stubs do not list ``out``)
-            F.softplus(torch.sub(self._max_logvar, lay.raw_logvar, out=std),
-                       out=std)  # type: ignore[call-arg]
+            std = lay.tmp  # the bounded log-variance, then sigma, in place; softplus
+            # takes ``out`` (aten's softplus.out), which torch's stubs do not list
+            F.softplus(torch.sub(self._max_logvar, lay.raw_logvar, out=std), out=std)  # type: ignore[call-arg]
             F.softplus(torch.sub(self._logvar_span, std, out=std), out=std)  # type: ignore[call-arg]
             torch.add(self._log_std_offset, std, alpha=0.5, out=std).exp_()
             torch.addcmul(states.state, std, lay.noise, out=states.state).add_(lay.mean_change)
