@@ -143,10 +143,10 @@ def profile_breakdown(planner: OptionPlanner, state: FloatArray, rng: Generator,
                       decisions: int = 50) -> dict[str, float]:
     """Where a decision's time goes (ms per decision), from ``torch.profiler``.
 
-    ``matmul`` is the ensembles' ``baddbmm`` calls (the counted FLOPs), ``silu`` the
-    activations, ``other_torch`` every other torch op (log-variance bounds, noise
-    scaling, bias copies), ``numpy_python`` the rest of the wall time (random draws,
-    gathers, the planner's bookkeeping, the goal heuristic, interpreter overhead).
+    ``matmul`` is the ensembles' ``bmm`` and ``baddbmm`` calls (the counted FLOPs),
+    ``silu`` the activations, ``other_torch`` every other torch op (log-variance bounds,
+    noise scaling, bias copies), ``numpy_python`` the rest of the wall time (random
+    draws, gathers, the planner's bookkeeping, the goal heuristic, interpreter overhead).
     """
     from torch.profiler import ProfilerActivity, profile
 
@@ -158,7 +158,7 @@ def profile_breakdown(planner: OptionPlanner, state: FloatArray, rng: Generator,
     self_ms: dict[str, float] = {}
     for event in prof.key_averages():
         self_ms[event.key] = event.self_cpu_time_total / 1e3 / decisions
-    matmul = self_ms.get("aten::baddbmm", 0.0)
+    matmul = self_ms.get("aten::baddbmm", 0.0) + self_ms.get("aten::bmm", 0.0)
     silu = self_ms.get("aten::silu_", 0.0)
     torch_total = sum(self_ms.values())
     return {"profile_wall_ms": wall, "profile_matmul_ms": matmul, "profile_silu_ms": silu,

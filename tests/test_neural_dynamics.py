@@ -1,5 +1,7 @@
 """Neural ensemble dynamics: training, storage, stacking, seeding, evaluation helpers."""
 
+import copy
+
 import numpy as np
 import pytest
 import torch
@@ -219,6 +221,46 @@ def test_one_model_stacked_alone_gives_the_same_draws():
     alone = model.sample(x, np.random.default_rng(3))
     stacked = MLPEnsembleDynamics.stack([model]).sample(x[None], np.random.default_rng(3))[0]
     assert np.array_equal(alone, stacked)
+
+
+@pytest.mark.parametrize("members, samples", [(4, 12), (3, 10)])
+def test_a_model_in_several_slices_of_a_stack_gives_the_draws_of_separate_copies(members,
+                                                                                  samples):
+    # a level of the sequence planner stacks each option once per parent branch: the
+    # engine computes each distinct model once per member, for all its slices, with
+    # the draws a stack of separate copies makes from the same generator
+    a, b = _distinct_models(members)[:2]
+    shared = MLPEnsembleDynamics.stack([a, b, a, a])
+    copies = MLPEnsembleDynamics.stack([a, b, copy.deepcopy(a), copy.deepcopy(a)])
+    assert isinstance(shared, StackedMLPEnsemble) and isinstance(copies, StackedMLPEnsemble)
+    assert (shared.models, copies.models) == (2, 4)
+    states = np.random.default_rng(1).normal(size=(4, samples, 2))
+    close = {"rtol": 1e-6, "atol": 1e-6}  # the products' blocks differ in size: rounding
+    np.testing.assert_allclose(shared.sample(states, np.random.default_rng(0)),
+                               copies.sample(states, np.random.default_rng(0)), **close)
+    steps = [s.trajectory_sampler(samples, np.random.default_rng(2)) for s in (shared, copies)]
+    for _ in range(3):
+        np.testing.assert_allclose(steps[0](states), steps[1](states), **close)
+    np.testing.assert_array_equal(steps[0].members, steps[1].members)
+
+
+def test_options_that_share_one_model_roll_out_as_with_copies_of_it():
+    # two options with one model object but different terminations: the planner keeps
+    # their rollouts apart (row order) and draws as it does for two copies of the model
+    a, b = _distinct_models(3)[:2]
+
+    def options(third):
+        return [Option(f"o{k}", FunctionPolicy(lambda obs, rng: 0), model,
+                       ConstantTermination(beta))
+                for k, (model, beta) in enumerate([(a, 0.0), (b, 0.1), (third, 0.3)])]
+
+    idx, start = (0, 1, 2, 0), np.zeros(2)
+    rolls = [OptionPlanner(options(m), _SigmoidGoal(), horizon=6, samples=9).rollout(
+        idx, start, np.random.default_rng(0)) for m in (a, copy.deepcopy(a))]
+    np.testing.assert_allclose(rolls[0].end_states, rolls[1].end_states, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(rolls[0].steps, rolls[1].steps)
+    np.testing.assert_array_equal(rolls[0].members, rolls[1].members)
+    assert 0 < rolls[0].steps[2].mean() < rolls[0].steps[0].mean() == 6
 
 
 def test_mixed_architectures_fall_back_to_a_loop():

@@ -270,10 +270,14 @@ class MLPEnsembleDynamics:
         """Several options' ensembles as one ``(options, samples, d)`` sampler.
 
         Ensembles of one architecture become a :class:`StackedMLPEnsemble` (one batched
-        tensor program); mixed architectures fall back to a loop over options.
+        tensor program; a model that appears more than once, as the options of a level of
+        the sequence planner do, is computed once per member for all its slices); mixed
+        architectures fall back to a loop over options.
         """
         if len({m.architecture for m in items}) == 1:
-            return StackedMLPEnsemble([m.sampling_layers() for m in items])
+            index = {m: k for k, m in enumerate(dict.fromkeys(items))}  # by identity
+            return StackedMLPEnsemble([m.sampling_layers() for m in index],
+                                      [index[m] for m in items])
         return LoopStackedDynamics(items)
 
     def sampling_layers(self) -> EnsembleLayers:

@@ -18,7 +18,7 @@ All admissible options x samples advance together, one stacked array computation
 horizon step; the only Python loop is over the horizon.
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -157,29 +157,27 @@ def member_disagreements(g: FloatArray, members: IntArray | None) -> FloatArray:
 
 class BlockOrder:
     """The map between rollouts in row order, ``(branches, samples, ...)``, and in an
-    engine's block order, ``(branches, slots, ...)``: place ``j`` of branch ``b`` holds
-    sample ``rows[b, j]``; places with ``real`` False are padding (no sample)."""
+    engine's block order, ``(slices, places, ...)``: place ``j`` of slice ``k`` holds
+    sample ``rows[k, j]`` of branch ``branches[k, j]``; places with ``real`` False are
+    padding (no sample). ``shape`` is ``(branches, samples)``."""
 
-    def __init__(self, rows: IntArray, real: BoolArray) -> None:
-        self.rows, self.real = rows, real
-        self.samples = rows.shape[1] - int((~real[0]).sum())
-        self._branch = np.arange(rows.shape[0])[:, None]
+    def __init__(self, branches: IntArray, rows: IntArray, real: BoolArray,
+                 shape: tuple[int, int]) -> None:
+        self.branches, self.rows, self.real, self.shape = branches, rows, real, shape
         self._all_real = bool(real.all())
 
     def to_blocks(self, a: np.ndarray, axis: int = 0) -> np.ndarray:
         """``a`` with axes ``axis, axis + 1`` = ``(branches, samples)`` in block order."""
-        index: tuple[Any, ...] = (*(slice(None),) * axis, self._branch, self.rows)
+        index: tuple[Any, ...] = (*(slice(None),) * axis, self.branches, self.rows)
         return a[index]
 
     def to_rows(self, a: np.ndarray) -> np.ndarray:
-        """``(branches, slots, ...)`` back to ``(branches, samples, ...)``."""
+        """``(slices, places, ...)`` back to ``(branches, samples, ...)``."""
+        out = np.empty((*self.shape, *a.shape[2:]), dtype=a.dtype)
         if self._all_real:
-            out = np.empty_like(a)
-            out[self._branch, self.rows] = a
-            return out
-        out = np.empty((a.shape[0], self.samples, *a.shape[2:]), dtype=a.dtype)
-        b = np.broadcast_to(self._branch, self.rows.shape)
-        out[b[self.real], self.rows[self.real]] = a[self.real]
+            out[self.branches, self.rows] = a
+        else:
+            out[self.branches[self.real], self.rows[self.real]] = a[self.real]
         return out
 
 
@@ -247,6 +245,7 @@ class OptionPlanner:
         self.fallback_must_gain = bool(fallback_must_gain)
         self.compact = bool(compact)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
+        self._terminations: dict[tuple[int, ...], StackedTermination] = {}
 
     @property
     def option_names(self) -> tuple[str, ...]:
@@ -353,24 +352,57 @@ class OptionPlanner:
                                                   termination, x, alive, rng, step_offset),
                                survival=survival)
         dynamics, termination = self._stack(idx)
-        regions = self._region_groups(idx) if self.respect_regions else []
         stop_draws = rng.random((self.horizon, *alive.shape))  # beta draws, one per step
         blocks = getattr(dynamics, "block_sampler", None)
+        slices = self._engine_options(idx, dynamics) if callable(blocks) else None
         order: BlockOrder | None = None
-        if callable(blocks):  # the rollouts in the ensembles' own row order, no reordering
-            step = blocks(self.samples, rng)  # a member per rollout, as trajectory_sampler
-            order = BlockOrder(step.rows, step.real)
-            x, alive, stop_draws = order.to_blocks(x), order.to_blocks(alive) & step.real, \
+        if callable(blocks) and slices is not None:  # the ensembles' own order, no reordering
+            sampler = blocks(self.samples, rng)  # a member per rollout, as trajectory_sampler
+            members = sampler.members
+            order = BlockOrder(sampler.branches, sampler.rows, sampler.real, alive.shape)
+            termination = self._termination(slices)  # slice k of the blocks runs slices[k]
+            x, alive, stop_draws = order.to_blocks(x), order.to_blocks(alive) & sampler.real, \
                 order.to_blocks(stop_draws, axis=1)
+            sampler.start(x)
+            advance = sampler.advance
         else:
+            slices = idx
             step = trajectory_sampler(dynamics, self.samples, rng)  # a member per rollout
+            members = getattr(step, "members", None)
+
+            def advance() -> np.ndarray:
+                return step(x)
+        regions = self._region_groups(slices) if self.respect_regions else []
+        steps, valid, unsafe = self._advance(advance, x, alive, stop_draws, termination,
+                                             regions, step_offset)
+        if order is not None:
+            x, steps, valid = order.to_rows(x), order.to_rows(steps), order.to_rows(valid)
+            unsafe = None if unsafe is None else order.to_rows(unsafe)
+            members = None if members is None else order.to_rows(np.asarray(members))
+        return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
+                        unsafe, survival)
+
+    def _advance(self, advance: Callable[[], np.ndarray], x: FloatArray,
+                 alive: BoolArray, stop_draws: FloatArray, termination: StackedTermination,
+                 regions: list[tuple[IntArray, Initiation]],
+                 step_offset: int) -> tuple[IntArray, BoolArray, BoolArray | None]:
+        """Run rollouts for up to ``horizon`` steps: ``x`` ``(slices, places, d)`` their
+        start states (changed in place to where they stop), ``advance()`` the next state
+        of every place from ``x`` (at places whose rollouts run), ``alive`` ``(slices,
+        places)`` which run, ``stop_draws`` ``(horizon, slices, places)`` the uniform
+        draws of the terminations, ``termination`` and ``regions`` over the slices.
+
+        Returns ``(steps, valid, unsafe)``, each ``(slices, places)`` (``unsafe`` is
+        ``None`` without a safety constraint).
+        """
         valid = np.ones(x.shape[:2], dtype=bool)
         steps = np.zeros(x.shape[:2], dtype=np.int64)
         unsafe = None if self.constraint is None else np.zeros_like(alive)
+        places = alive.size
         for t in range(self.horizon):
-            if not alive.any():
+            if not np.count_nonzero(alive):  # count_nonzero: less overhead than any()
                 break
-            nxt = step(x)
+            nxt = advance()
             moved = alive
             if not np.isfinite(nxt).all():  # rare: stop diverged rollouts where they are
                 finite = np.isfinite(nxt).all(axis=-1)
@@ -380,13 +412,13 @@ class OptionPlanner:
                 unsafe |= moved & self.constraint.unsafe(x, np.where(moved[..., None], nxt, x),
                                                          step_offset + t + 1)
             before = x.copy() if self.end_inside and regions else None
-            if moved.all():  # the common case: a plain copy is several times faster
+            if np.count_nonzero(moved) == places:  # the common case: a plain copy is faster
                 x[...] = nxt
             else:
                 np.copyto(x, nxt, where=moved[..., None])
             steps += moved
             alive = moved & (stop_draws[t] >= termination.probability(x))
-            for rows, initiation in regions:  # one call per option, over all its branches
+            for rows, initiation in regions:  # one call per option, over all its slices
                 inside = initiation.contains(x[rows].reshape(-1, x.shape[-1])).reshape(
                     len(rows), -1)
                 alive[rows] &= inside
@@ -394,13 +426,18 @@ class OptionPlanner:
                     left = moved[rows] & ~inside
                     x[rows] = np.where(left[..., None], before[rows], x[rows])
                     steps[rows] -= left
-        members = getattr(step, "members", None)
-        if order is not None:
-            x, steps, valid = order.to_rows(x), order.to_rows(steps), order.to_rows(valid)
-            unsafe = None if unsafe is None else order.to_rows(unsafe)
-            members = None if members is None else order.to_rows(np.asarray(members))
-        return Rollouts(x, steps, valid, None if members is None else np.asarray(members),
-                        unsafe, survival)
+        return steps, valid, unsafe
+
+    def _engine_options(self, idx: tuple[int, ...], dynamics: Any) -> tuple[int, ...] | None:
+        """The option of every slice of an engine's block order (the engine stacks each
+        distinct model once, ``dynamics.branches`` ``(branches,)`` names the model of
+        every branch), or ``None`` where one model serves two options of ``idx`` (their
+        terminations and sets may differ: the rollouts stay in row order)."""
+        models = np.asarray(dynamics.branches)
+        options = np.asarray(idx)
+        of = np.empty(int(models.max()) + 1, dtype=np.int64)
+        of[models] = options
+        return tuple(of.tolist()) if (of[models] == options).all() else None
 
     def _survival(self, idx: tuple[int, ...], state: FloatArray, x: FloatArray,
                   alive: BoolArray) -> FloatArray | None:
@@ -495,10 +532,23 @@ class OptionPlanner:
         return groups
 
     def _stack(self, idx: tuple[int, ...]) -> tuple[StackedDynamics, StackedTermination]:
+        """The dynamics and terminations of the options ``idx``, stacked (cached)."""
         if idx not in self._stacks:
-            if len(self._stacks) >= 256:  # batches over many states: each key is new
-                self._stacks.clear()
             chosen = [self.options[i] for i in idx]
-            self._stacks[idx] = (stack_dynamics([o.planner_dynamics for o in chosen]),
-                                 stack_terminations([o.termination for o in chosen]))
+            self._remember(self._stacks, idx,
+                           (stack_dynamics([o.planner_dynamics for o in chosen]),
+                            stack_terminations([o.termination for o in chosen])))
         return self._stacks[idx]
+
+    def _termination(self, idx: tuple[int, ...]) -> StackedTermination:
+        """The terminations of the options ``idx``, stacked (cached)."""
+        if idx not in self._terminations:
+            self._remember(self._terminations, idx,
+                           stack_terminations([self.options[i].termination for i in idx]))
+        return self._terminations[idx]
+
+    @staticmethod
+    def _remember(cache: dict[tuple[int, ...], Any], key: tuple[int, ...], value: Any) -> None:
+        if len(cache) >= 256:  # batches over many states: each key is new
+            cache.clear()
+        cache[key] = value
