@@ -10,10 +10,13 @@ evaluation seeds of ``--seed``, the run's own), under the gear's controller sett
 (:data:`~dynoplan.envs.gear.controllers.GEAR_CONTROL`) and under the rules where those
 differ from :class:`~dynoplan.pipeline.control_settings.ControllerSettings`' defaults,
 which every other Task runs on (:data:`GENERIC_RULES`: an option may not start where its
-termination holds, a fallback must gain, the stall rule, no margin). With ``--each``, also
-each of those rules alone. The loop rule and the no-effect rule's share of the state
-scale, on by default elsewhere, need the state scale that a pipeline fit records; the
-gear's models do not record it yet, so they are not among the rows.
+termination holds, a fallback must gain, the stall rule, no margin, the no-effect rule's
+tolerance as a share of the state scale, the loop rule). With ``--each``, also each of
+those rules alone; with ``--sizes``, also the generic defaults whole
+(:class:`~dynoplan.pipeline.control_settings.ControllerSettings()`, its horizon and
+samples too; the gear's decision period and episode limits kept). The last two rules
+need the state scale that the fit records (``models.json``'s ``report.state_scale``);
+models trained before it was recorded get one error line.
 
 Prints and writes (``--out``, JSON) one row per setting: success, median time to success,
 contacts with the person (all, and while the arm moved) and the failures by kind.
@@ -28,9 +31,14 @@ from pathlib import Path
 from typing import Any
 
 GENERIC_RULES: dict[str, Any] = {"start_where_done": False, "fallback_must_gain": True,
-                                 "stall_progress": 0.5, "margin": 0.0}
-"""The generic defaults where the gear's settings differ (the rules that act on the gear's
-models: every one but the loop rule and the no-effect share)."""
+                                 "stall_progress": 0.5, "margin": 0.0,
+                                 "no_effect_tolerance": None, "no_effect_share": 0.01,
+                                 "loop_share": 0.05}
+"""The generic defaults' rules where the gear's settings differ (its sizes aside)."""
+
+GENERIC_SIZES = ("horizon", "samples")
+"""The generic defaults' sizes that ``--sizes`` adds (the decision period and the episode
+limits are the gear's own: they are in its units)."""
 
 SHOWN = ("success_rate", "time_to_success_s", "contacts", "contacts_moving",
          "episodes_with_contact", "failures")
@@ -44,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="the run's seed [0]")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--each", action="store_true", help="also each rule alone")
+    parser.add_argument("--sizes", action="store_true",
+                        help="also the generic defaults' horizon and samples")
     parser.add_argument("--out", type=Path, help="write the rows as JSON")
     args = parser.parse_args(argv)
 
@@ -57,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     from dynoplan.errors import DynoplanError
     from dynoplan.io import write_json
     from dynoplan.parallel import SERIAL
+    from dynoplan.pipeline.control_settings import ControllerSettings
     from dynoplan.pipeline.evaluate import ControllerJob
     from dynoplan.pipeline.jobs import evaluate_rows
 
@@ -65,7 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.episodes < 1:
             raise DynoplanError(f"--episodes must be >= 1, got {args.episodes}")
-        load_gear_models(models)
+        if load_gear_models(models).state_scale is None:
+            raise DynoplanError(f"{models}: the models record no state scale (trained before "
+                                "it was recorded); train them again with 'dynoplan gear run'")
     except DynoplanError as exc:
         print(f"gear_controls: error: {exc}", file=sys.stderr)
         return 2
@@ -73,6 +86,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.each:
         rows.update({f"{k}={v}": {k: v} for k, v in GENERIC_RULES.items()})
     rows["the generic rules"] = GENERIC_RULES
+    if args.sizes:
+        defaults = ControllerSettings()
+        rows["the generic defaults"] = {**GENERIC_RULES,
+                                        **{k: getattr(defaults, k) for k in GENERIC_SIZES}}
     seeds = evaluation_seeds(args.seed, args.episodes)
     results: dict[str, Any] = {"run": str(args.run), "seed": args.seed,
                                "episodes": args.episodes, "rows": {}}
