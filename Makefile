@@ -34,9 +34,12 @@ lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
+# Tests on TEST_WORKERS processes (pytest-xdist); the tests sharing a costly session
+# fixture (a quick gear run, a Ray runtime) run on one worker (tests/conftest.py).
+TEST_WORKERS ?= 2
 test: lint
-	$(BIN)/pytest -m "not slow"
-	$(BIN)/pytest -m slow
+	$(BIN)/pytest -m "not slow" -n $(TEST_WORKERS) --dist loadgroup
+	$(BIN)/pytest -m slow -n $(TEST_WORKERS) --dist loadgroup
 
 test-fast: $(VENV)/.installed-dev
 	$(BIN)/pytest -m "not slow" -x

@@ -13,6 +13,17 @@ def pytest_configure(config):
     torch.set_num_threads(1)
 
 
+def pytest_collection_modifyitems(config, items):
+    """Under ``pytest -n N`` (pytest-xdist, ``--dist loadgroup``) the tests that use the
+    session's Ray runtime run on one worker, so that one Ray runtime serves them all; every
+    other test, those on the quick gear run too, goes to whichever worker is free (each
+    worker builds its own quick gear run: a few minutes, against about ten of the tests
+    that read it)."""
+    for item in items:
+        if "ray_runtime" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("ray"))
+
+
 def run_quick_gear(out):
     """``dynoplan gear run --quick`` on 3 episodes (the oracle on 1, no video) into ``out``,
     in this process; returns ``out``."""
