@@ -249,7 +249,7 @@ def fit_shared(out: Path, seed: int, demos: int, exploration: int,
     episode of random choice, unused)."""
     from dynoplan.pipeline import run_pipeline, task_env
     from dynoplan.pipeline.collect import record_demonstrations
-    from dynoplan.pipeline.run import _seeds
+    from dynoplan.pipeline.run_settings import run_seeds
 
     specs = make_options()
     started = time.perf_counter()
@@ -257,7 +257,7 @@ def fit_shared(out: Path, seed: int, demos: int, exploration: int,
     for task in train:
         env = task_env(gym.make(ENV_IDS[task]), success, state)
         pooled += record_demonstrations(env, specs, make_demonstrator(task), demos,
-                                        _seeds(seed)["demos"])
+                                        run_seeds(seed)["demos"])
     settings = _settings({"seed": seed, "exploration_episodes": exploration, "episodes": 1,
                           "controllers": "random"})
     pooled_env = (gym.make(TRAIN_ENV_ID) if tuple(train) == TRAIN else
@@ -378,7 +378,7 @@ def end_errors(out: Path, seeds: Sequence[int], tasks: Sequence[str]) -> str:
     from dynoplan.pipeline.collect import flat_state
     from dynoplan.pipeline.fit import FittedModels
     from dynoplan.pipeline.fit_data import option_runs
-    from dynoplan.pipeline.run import demos_from_dataset
+    from dynoplan.pipeline.generic_stages import demos_from_dataset
     from dynoplan.pipeline.task_fit import load_option_models
 
     names = [s.name for s in make_options() if s.name != "reach"]

@@ -6,6 +6,7 @@ all of it in one call.
 """
 
 from dynoplan.control.controller import flat_state
+from dynoplan.pipeline.admissibility import admissibility, start_states
 from dynoplan.pipeline.collect import (
     CallableDemonstrator,
     Decision,
@@ -47,6 +48,7 @@ from dynoplan.pipeline.fit import (
     option_runs,
     option_transitions,
 )
+from dynoplan.pipeline.generic_stages import PipelineResult, demos_from_dataset
 from dynoplan.pipeline.gym_task import (
     EndOnSuccess,
     GymTask,
@@ -59,14 +61,8 @@ from dynoplan.pipeline.gym_task import (
     task_env,
 )
 from dynoplan.pipeline.jobs import evaluate_many
-from dynoplan.pipeline.run import (
-    PipelineResult,
-    PipelineSettings,
-    admissibility,
-    demos_from_dataset,
-    run_pipeline,
-    start_states,
-)
+from dynoplan.pipeline.run import run_pipeline
+from dynoplan.pipeline.run_settings import PipelineSettings
 from dynoplan.pipeline.task import Task
 
 __all__ = [

@@ -43,7 +43,7 @@ from dynoplan.errors import DynoplanError
 from dynoplan.limits import SETTING_BOUNDS
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.fit import FitSettings
-from dynoplan.pipeline.run import PipelineSettings
+from dynoplan.pipeline.run_settings import PipelineSettings
 
 TASK_KEYS = ("env", "options", "demonstrator", "demo_dataset", "success", "state_fn")
 """Top-level keys that name the task: the Gymnasium id, ``MODULE:FUNCTION`` references

@@ -6,481 +6,38 @@
                           demonstrator=make_demonstrator(), settings=PipelineSettings())
     print(result.table)
 
-The run also reports, per option, where it may start (:func:`admissibility`): the
-share of the evaluation episodes' start states and of the demonstration states inside
-its initiation set (the user's own, intersected with its learned region), with a
-warning when that is almost nowhere or everywhere.
+The run also reports, per option, where it may start
+(:func:`~dynoplan.pipeline.admissibility.admissibility`): the share of the evaluation
+episodes' start states and of the demonstration states inside its initiation set (the
+user's own, intersected with its learned region), with a warning when that is almost
+nowhere or everywhere.
 
-Seeds: one ``seed`` is split (``numpy.random.SeedSequence.spawn``) into independent
-streams for the demonstrations, the exploration episodes, model fitting and the
-evaluation episodes, so changing the number of one never changes the others.
+The generic stages are :class:`~dynoplan.pipeline.generic_stages.GenericStages`; its
+settings, :class:`~dynoplan.pipeline.run_settings.PipelineSettings` (with the run's seed
+streams, :func:`~dynoplan.pipeline.run_settings.run_seeds`).
 """
 
-import time
-import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, overload
 
 import gymnasium as gym
-import numpy as np
 
-from dynoplan import __version__
-from dynoplan.adapters.spec import OptionSpec, as_spec
-from dynoplan.control.controller import flat_state
-from dynoplan.data.dataset import Dataset, write_dataset
-from dynoplan.data.episodes import OPTION_KEY, Episode
-from dynoplan.data.metadata import DatasetMetadata
-from dynoplan.errors import DynoplanError, DynoplanWarning
-from dynoplan.io import ensure_writable_dir, write_json, write_text
+from dynoplan.adapters.spec import OptionSpec
+from dynoplan.data.dataset import Dataset
+from dynoplan.data.episodes import Episode
+from dynoplan.errors import DynoplanError
+from dynoplan.io import ensure_writable_dir
 from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers
-from dynoplan.pipeline.collect import (
-    ObservationFn,
-    collect_transitions,
-    make_env,
-    probe_options,
-    record_demonstrations,
-)
-from dynoplan.pipeline.control_settings import ControllerSettings
-from dynoplan.pipeline.diagnostics import (
-    episode_history_warning,
-    seeded_reset_warning,
-    sole_admissible_warnings,
-    weak_dynamics_warnings,
-)
-from dynoplan.pipeline.evaluate import (
-    DYNOPLAN,
-    composition_ratio,
-    controller_names,
-    evaluate_controllers,
-    learned_regions,
-    make_controller,
-    option_share_table,
-    planning_settings,
-    results_table,
-)
 from dynoplan.pipeline.fit import (
     DynamicsFitter,
-    FitSettings,
-    FittedModels,
-    episode_states,
-    fit_models,
 )
-from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
-from dynoplan.pipeline.improve import own_episodes
+from dynoplan.pipeline.generic_stages import GenericStages, PipelineResult
+from dynoplan.pipeline.gym_task import StateFn, SuccessFn
+from dynoplan.pipeline.run_settings import PipelineSettings
 from dynoplan.pipeline.task import PipelineRun, Result, Task, TaskStages
-from dynoplan.reports.tables import markdown_table
-from dynoplan.seeding import episode_seeds
 from dynoplan.timing import StageClock
-from dynoplan.types import FloatArray
-
-NOWHERE = 0.02
-"""An option admissible at fewer than this share of both the evaluation start states and
-the demonstration states is reported as admissible almost nowhere."""
-EVERYWHERE = 0.99
-"""... and at least this share of both as admissible everywhere."""
-
-
-@dataclass(frozen=True)
-class PipelineSettings:
-    """Everything that defines a pipeline run (recorded in ``summary.json``).
-
-    Attributes:
-        demos: successful demonstrations to record (when none are given).
-        exploration_episodes: episodes of randomly chosen options for the dynamics.
-        exploration_option_steps: most steps an option runs while exploring.
-        exploration_branches: further exploration episodes that branch off a
-            demonstration (start where it was after a random step) instead of starting
-            at ``env.reset`` (:func:`~dynoplan.pipeline.collect.collect_transitions`;
-            0, the default: none; a named variant of the composition suite).
-        episodes: evaluation episodes per controller.
-        seed: the one seed every random choice derives from.
-        fit: how the models are learned.
-        control: how DynoPlan plans and every controller runs.
-        controllers: which controllers to evaluate (default: DynoPlan, each option
-            alone, random choice).
-        improve: rounds of learning from DynoPlan's own episodes before the evaluation
-            (:mod:`~dynoplan.pipeline.improve`; 0: none, the paper's pipeline).
-        improve_episodes: DynoPlan's episodes per improvement round.
-    """
-
-    demos: int = 5
-    exploration_episodes: int = 20
-    exploration_option_steps: int = 100
-    exploration_branches: int = 0
-    episodes: int = 100
-    seed: int = 0
-    fit: FitSettings = field(default_factory=FitSettings)
-    control: ControllerSettings = field(default_factory=ControllerSettings)
-    controllers: tuple[str, ...] | None = None
-    improve: int = 0
-    improve_episodes: int = 30
-
-    def validate(self) -> None:
-        for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes",
-                     "improve_episodes"):
-            if getattr(self, name) < 1:
-                raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.exploration_branches < 0:
-            raise DynoplanError("exploration_branches must be >= 0, got "
-                                f"{self.exploration_branches}")
-        if self.improve < 0:
-            raise DynoplanError(f"improve must be >= 0, got {self.improve}")
-        self.fit.validate()
-        self.control.validate()
-
-
-@dataclass
-class PipelineResult:
-    """What :func:`run_pipeline` produced.
-
-    Attributes:
-        options: the options as the controller runs them (learned dynamics, regions).
-        planner_options: the same options as the planner sees them.
-        models: the learned models.
-        demos: the demonstrations (option and progress labels).
-        transitions: the exploration episodes (option labels).
-        evaluation: one summary per controller (``success_rate``, ...).
-        summary: the content of ``summary.json``.
-    """
-
-    options: list[Option]
-    planner_options: list[Option]
-    models: FittedModels
-    demos: list[Episode]
-    transitions: list[Episode]
-    evaluation: dict[str, dict[str, Any]]
-    summary: dict[str, Any]
-
-    @property
-    def table(self) -> str:
-        """The evaluation as a markdown table."""
-        return results_table(self.evaluation)
-
-    @property
-    def admissibility_table(self) -> str:
-        """Where each option may start, as a markdown table (:func:`admissibility`)."""
-        return admissibility_table(self.summary["admissibility"])
-
-
-def _seeds(seed: int, improve: bool = False) -> dict[str, int]:
-    """The run's seed streams; ``improve`` adds the improvement rounds' (the others are
-    the same with or without it)."""
-    names = ("demos", "exploration", "fit", "evaluation", *(("improve",) if improve else ()))
-    children = np.random.SeedSequence(seed).spawn(len(names))
-    return {n: int(c.generate_state(1)[0] % 2**31) for n, c in zip(names, children, strict=True)}
-
-
-def _env_id(env: gym.Env[Any, Any]) -> str | None:
-    return env.spec.id if env.spec is not None else None
-
-
-def demos_from_dataset(dataset: Dataset | Sequence[Episode], option_names: Sequence[str],
-                       what: str = "demonstration") -> list[Episode]:
-    """Demonstrations (or, ``what="run"``, option runs) to fit from; labels are mapped
-    from the dataset's option names onto ``option_names``.
-
-    Raises:
-        DynoplanError: no episodes, an episode without option labels, a dataset option
-            name that is not one of ``option_names`` (each message says ``what``).
-    """
-    episodes = list(dataset)
-    if not episodes:
-        raise DynoplanError(f"no {what}s given")
-    names = list(option_names)
-    mapping: np.ndarray | None = None
-    if isinstance(dataset, Dataset) and dataset.metadata.option_names:
-        unknown = [n for n in dataset.metadata.option_names if n not in names]
-        if unknown:
-            raise DynoplanError(
-                f"the {what}s' option names {unknown} are not among the options "
-                f"({', '.join(names)})")
-        mapping = np.array([names.index(n) for n in dataset.metadata.option_names])
-    out = []
-    for index, episode in enumerate(episodes):
-        labels = episode.infos.get(OPTION_KEY)
-        if labels is None:
-            raise DynoplanError(
-                f"{what} {index} has no option labels (infos['{OPTION_KEY}']): the "
-                "regions and dynamics need the option that chose every action")
-        if mapping is not None:
-            if labels.size and labels.max() >= len(mapping):
-                raise DynoplanError(f"{what} {index}: option label {int(labels.max())} "
-                                    f"has no name")
-            infos = dict(episode.infos)
-            infos[OPTION_KEY] = mapping[labels]
-            episode = Episode(episode.observations, episode.actions, episode.rewards,
-                              episode.terminations, episode.truncations, infos, episode.seed)
-        elif labels.size and labels.max() >= len(names):
-            raise DynoplanError(
-                f"{what} {index}: option label {int(labels.max())} but only "
-                f"{len(names)} options")
-        out.append(episode)
-    return out
-
-
-def start_states(env: gym.Env[Any, Any], seed: int, episodes: int,
-                 state_fn: ObservationFn = flat_state) -> FloatArray:
-    """The planner states the evaluation episodes start from: ``(episodes, d)``.
-
-    The same resets as :func:`~dynoplan.pipeline.evaluate_controllers` with the same
-    ``seed`` and ``episodes`` (each episode's ``env_seed``).
-    """
-    return np.stack([np.asarray(state_fn(env.reset(seed=s.env_seed)[0]),
-                                dtype=np.float64).reshape(-1)
-                     for s in episode_seeds(seed, episodes)])
-
-
-def admissibility(options: Sequence[Option], starts: FloatArray,
-                  demos: Sequence[Episode], state_fn: ObservationFn = flat_state,
-                  ) -> tuple[dict[str, dict[str, float | None]], list[str]]:
-    """Where each option may start: the admissibility diagnostic.
-
-    Args:
-        options: the options as the controller runs them (learned initiation sets).
-        starts: ``(episodes, d)`` start states of the evaluation (:func:`start_states`).
-        demos: the demonstrations (option labels).
-
-    Returns:
-        Per option ``{"start_states", "demo_states", "own_demo_states"}``: the share of
-        the start states, of all demonstration states and of the demonstration states
-        where that option acted (``None`` if none) inside its initiation set; and one
-        warning per option admissible almost nowhere (< :data:`NOWHERE` of both start
-        and demonstration states) or everywhere (>= :data:`EVERYWHERE` of both).
-    """
-    demo_states = [episode_states(e, state_fn)[:-1] for e in demos]
-    states = np.concatenate(demo_states) if demo_states else np.zeros((0, starts.shape[1]))
-    labels = (np.concatenate([np.asarray(e.infos[OPTION_KEY]) for e in demos]) if demos
-              else np.zeros(0, np.int64))
-    rows: dict[str, dict[str, float | None]] = {}
-    notes: list[str] = []
-    for k, option in enumerate(options):
-        at_start = float(np.mean(option.initiation.contains(starts))) if len(starts) else 0.0
-        inside = np.asarray(option.initiation.contains(states), dtype=bool)
-        at_demo = float(np.mean(inside)) if len(states) else 0.0
-        own = labels == k
-        rows[option.name] = {"start_states": at_start, "demo_states": at_demo,
-                             "own_demo_states": float(np.mean(inside[own])) if own.any()
-                             else None}
-        shares = (f"{at_start:.0%} of the evaluation start states and {at_demo:.0%} of the "
-                  "demonstration states")
-        if at_start < NOWHERE and at_demo < NOWHERE:
-            notes.append(f"option '{option.name}' is admissible almost nowhere ({shares}): "
-                         "the planner will hardly ever start it")
-        elif at_start >= EVERYWHERE and at_demo >= EVERYWHERE:
-            notes.append(f"option '{option.name}' is admissible everywhere ({shares}): its "
-                         "initiation set does not restrict where the planner starts it")
-    return rows, notes
-
-
-def admissibility_table(rows: dict[str, dict[str, float | None]]) -> str:
-    """The admissibility diagnostic as a markdown table, one row per option."""
-    return markdown_table(
-        [{"option": name, **row} for name, row in rows.items()],
-        ["option", "start_states", "demo_states", "own_demo_states"],
-        ["option", "admissible at evaluation start states", "at demonstration states",
-         "at its own demonstration states"])
-
-
-def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
-                    run_options: Sequence[Option], planner_options: Sequence[Option],
-                    demo_episodes: Sequence[Episode], settings: PipelineSettings,
-                    evaluation_seed: int, folder: Path | None, notes: Sequence[str],
-                    say: Callable[[str], None], progress: bool, workers: Workers,
-                    task: Task | None, demonstrator: Any, later_notes: Sequence[str] = (),
-                    stacklevel: int = 3,
-                    ) -> tuple[dict[str, Any], list[str], dict[str, dict[str, Any]]]:
-    """The stages after a fit, the same for every run: where the options may start (its
-    notes, with ``notes``, as warnings, which point ``stacklevel`` frames up: at the
-    caller of the run), the models saved to ``folder/models`` (when given) and every
-    controller on the evaluation episodes.
-
-    Returns:
-        ``(admissibility, notes, evaluation)``: :func:`admissibility`'s shares, ``notes``
-        and its notes (every warning given), and
-        :func:`~dynoplan.pipeline.evaluate.evaluate_controllers`' summaries.
-    """
-    say("admissibility")
-    starts = start_states(environment, evaluation_seed, settings.episodes)
-    admissible, where = admissibility(run_options, starts, demo_episodes)
-    notes = [*notes, *where, *later_notes]
-    for note in notes:
-        warnings.warn(note, DynoplanWarning, stacklevel=stacklevel)
-    models_dir = models.save(folder / "models") if folder is not None else None
-    say("evaluation")
-    evaluation = evaluate_controllers(environment, run_options, models.goal,
-                                      planning_settings(settings.control, models),
-                                      settings.episodes, evaluation_seed, planner_options,
-                                      settings.controllers, progress, workers, task,
-                                      models_dir, learned_regions(models), demonstrator,
-                                      models.state_scale,
-                                      fresh_env=None if task is None else task.make_env)
-    say("")
-    return admissible, notes, evaluation
-
-
-class GenericStages:
-    """The stages (:class:`~dynoplan.pipeline.task.TaskStages`) of a run on a user's
-    environment and options: the demonstrator's episodes (or the given ones), exploration
-    episodes of random options, :func:`~dynoplan.pipeline.fit.fit_models`, the
-    improvement rounds, the default controllers; the result is a
-    :class:`PipelineResult`. The arguments are :func:`run_pipeline`'s.
-
-    Raises:
-        DynoplanError: invalid ``settings``, or several workers without a task, an output
-            folder and the default fitter, success function and ``state_fn`` (checked
-            here, before any work).
-    """
-
-    def __init__(self, env: str | gym.Env[Any, Any], options: Sequence[OptionSpec | Option],
-                 demonstrator: Any = None, demos: Dataset | Sequence[Episode] | None = None,
-                 settings: PipelineSettings | None = None, state_fn: StateFn | None = None,
-                 success: SuccessFn | None = None, fitter: DynamicsFitter | None = None,
-                 command: str | None = None, task: Task | None = None,
-                 out: str | Path | None = None, workers: Workers = SERIAL) -> None:
-        self.settings = settings or PipelineSettings()
-        self.settings.validate()
-        if workers.parallel and (task is None or out is None or fitter is not None
-                                 or state_fn is not None or success is not None):
-            raise DynoplanError("the pipeline on several workers needs a task and an output "
-                                "folder, and the default dynamics fitter; the success "
-                                "function and state_fn come from the task (workers rebuild "
-                                "the controllers from files)")
-        self.env, self.options, self.demonstrator, self.given = env, options, demonstrator, demos
-        self.state_fn, self.success, self.fitter = state_fn, success, fitter
-        self.command, self.task = command, task
-
-    def prepare(self, run: PipelineRun) -> None:
-        """The environment made and the options probed in it; the controllers checked."""
-        self.started = time.perf_counter()
-        env = self.env
-        self.environment = task_env(make_env(env) if isinstance(env, str) else env,
-                                    self.success, self.state_fn)
-        self.specs = [as_spec(o) for o in self.options]
-        self.seeds = _seeds(self.settings.seed, self.settings.improve > 0)
-        self.state_dim = probe_options(self.environment, self.options, flat_state,
-                                       self.seeds["demos"])
-        first, second = (s.env_seed for s in episode_seeds(self.seeds["evaluation"], 2))
-        reset_note = seeded_reset_warning(self.environment, first)
-        history_note = (episode_history_warning(self.environment, first, second)
-                        if reset_note is None else None)
-        self.notes = [n for n in (reset_note, history_note) if n is not None]
-        self.names = [s.name for s in self.specs]
-        known = controller_names(self.specs, self.demonstrator is not None)
-        unknown = [c for c in self.settings.controllers or () if c not in known]
-        if unknown:  # before any work
-            raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
-                                f"{', '.join(known)})")
-
-    def demonstrations(self, run: PipelineRun) -> list[Episode]:
-        """The given demonstrations, else ``settings.demos`` of the demonstrator's."""
-        if self.given is not None:
-            self.demos = demos_from_dataset(self.given, self.names)
-        elif self.demonstrator is not None:
-            run.clock.switch("demonstrations")
-            self.demos = record_demonstrations(self.environment, self.specs, self.demonstrator,
-                                               self.settings.demos, self.seeds["demos"],
-                                               progress=run.progress)
-        else:
-            raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
-        return self.demos
-
-    def option_runs(self, run: PipelineRun, demos: list[Episode]) -> list[Episode]:
-        """Exploration episodes of randomly chosen options
-        (:func:`~dynoplan.pipeline.collect.collect_transitions`)."""
-        run.clock.switch("option transitions")
-        settings = self.settings
-        self.transitions = collect_transitions(
-            self.environment, self.specs, settings.exploration_episodes,
-            self.seeds["exploration"], flat_state, settings.exploration_option_steps,
-            progress=run.progress, demos=demos, branches=settings.exploration_branches)
-        return self.transitions
-
-    def fit(self, run: PipelineRun, demos: list[Episode], runs: list[Episode]
-            ) -> FittedModels:
-        """:func:`~dynoplan.pipeline.fit.fit_models`."""
-        self.name = (self.task.name if self.task is not None
-                     else _env_id(self.environment) or "")
-        return fit_models(self.specs, runs, demos, self.settings.fit, self.seeds["fit"],
-                          flat_state, self.fitter, run.clock.switch, self.name)
-
-    def after_fit(self, run: PipelineRun, models: FittedModels) -> FittedModels:
-        """``settings.improve`` rounds of DynoPlan's own episodes, refitted on after each
-        (:mod:`~dynoplan.pipeline.improve`); the last models."""
-        settings, say = self.settings, run.clock.switch
-        run_options, planner_options = models.build(self.specs)
-        fit_demos, fit_transitions = list(self.demos), list(self.transitions)
-        own_seeds = (episode_seeds(self.seeds["improve"],
-                                   settings.improve * settings.improve_episodes)
-                     if settings.improve else [])
-        self.curve: list[dict[str, Any]] = []
-        for r in range(settings.improve):
-            say(f"improvement round {r + 1}")
-            controller = make_controller(DYNOPLAN, run_options, models.goal,
-                                         planning_settings(settings.control, models),
-                                         planner_options, self.environment.action_space,
-                                         models.state_scale)
-            n = settings.improve_episodes
-            own = own_episodes(self.environment, controller, own_seeds[r * n:(r + 1) * n])
-            added = [e.demonstration for e in own if e.demonstration is not None]
-            fit_demos += added
-            fit_transitions += [piece for e in own for piece in e.pieces]
-            self.curve.append({"round": r + 1, "episodes": n,
-                               "success_rate": float(np.mean([e.success for e in own])),
-                               "demonstrations_added": len(added)})
-            models = fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
-                                self.seeds["fit"], flat_state, self.fitter, say, self.name)
-            run_options, planner_options = models.build(self.specs)
-        self.run_options, self.planner_options = run_options, planner_options
-        return models
-
-    def evaluate(self, run: PipelineRun, models: FittedModels) -> dict[str, dict[str, Any]]:
-        """:func:`evaluate_fitted`: where the options may start, the models saved, every
-        controller's summary."""
-        self.models = models
-        demo_states = np.concatenate([episode_states(e, flat_state)[:-1] for e in self.demos])
-        self.admissible, self.notes, evaluation = evaluate_fitted(
-            self.environment, models, self.run_options, self.planner_options, self.demos,
-            self.settings, self.seeds["evaluation"], run.out, self.notes, run.clock.switch,
-            run.progress, run.workers, self.task, self.demonstrator,
-            [*weak_dynamics_warnings(models.report["dynamics"]),
-             *sole_admissible_warnings(self.run_options, demo_states)],
-            stacklevel=5)  # the caller of run_pipeline (through run_stages and this)
-        return evaluation
-
-    def report(self, run: PipelineRun, evaluation: dict[str, dict[str, Any]]
-               ) -> PipelineResult:
-        """``summary.json``, ``results.md`` and the datasets written to ``run.out``."""
-        models, settings = self.models, self.settings
-        region_warnings = (models.report.get("regions") or {}).get("warnings", [])
-        summary = {
-            "dynoplan_version": __version__,
-            "env_id": _env_id(self.environment),
-            "state_dim": self.state_dim,
-            "options": self.names,
-            "settings": _jsonable(asdict(settings)),
-            "seeds": self.seeds,
-            "demonstrations": {"episodes": len(self.demos),
-                               "steps": sum(len(e) for e in self.demos)},
-            "transitions": {"episodes": len(self.transitions),
-                            "steps": sum(len(e) for e in self.transitions)},
-            "models": models.report,
-            "admissibility": self.admissible,
-            "warnings": [*region_warnings, *self.notes],
-            "controllers": evaluation,
-            "composition_ratio": composition_ratio(evaluation),
-            **({"improvement": self.curve} if settings.improve else {}),
-            "stage_seconds": run.clock.rounded(3),
-            "seconds": time.perf_counter() - self.started,
-            "command": self.command,
-        }
-        if run.out is not None:
-            _write_outputs(run.out, self.environment, self.names, self.demos,
-                           self.transitions, summary, settings)
-        return PipelineResult(self.run_options, self.planner_options, models, self.demos,
-                              self.transitions, evaluation, summary)
 
 
 def run_stages(stages: TaskStages[Any, Any, Any, Any, Result], run: PipelineRun) -> Result:
@@ -548,7 +105,7 @@ def run_pipeline(
             ``fn(observation) -> option name``) that records ``settings.demos``
             demonstrations; not needed when ``demos`` are given.
         demos: recorded demonstrations (a dataset or episodes) with option labels.
-        settings: see :class:`PipelineSettings`.
+        settings: see :class:`~dynoplan.pipeline.run_settings.PipelineSettings`.
         out: a folder for ``summary.json``, ``results.md``, the datasets (``demos/``,
             ``transitions/``) and the models (``models/``); ``None`` writes nothing.
         state_fn: observation -> planner state ``(d,)``, the observation every part of
@@ -568,11 +125,12 @@ def run_pipeline(
         task: the same environment and options as references workers can rebuild.
         stages: a task's own stages (:class:`~dynoplan.pipeline.task.TaskStages`), run
             into ``out`` on ``workers`` instead of the generic ones
-            (:class:`GenericStages` of the arguments above, then not given); what their
-            ``report`` returns.
+            (:class:`~dynoplan.pipeline.generic_stages.GenericStages` of the arguments
+            above, then not given); what their ``report`` returns.
 
     Returns:
-        A :class:`PipelineResult` (with ``stages``: what their ``report`` returns).
+        A :class:`~dynoplan.pipeline.generic_stages.PipelineResult` (with ``stages``:
+        what their ``report`` returns).
 
     Raises:
         DynoplanError: an observation space that does not flatten to a ``Box`` and no
@@ -596,62 +154,3 @@ def run_pipeline(
     folder = ensure_writable_dir(out) if out is not None else None
     # the clock times every stage from its status message to the next
     return run_stages(stages, PipelineRun(folder, StageClock(status), workers, progress))
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
-                   demos: list[Episode], transitions: list[Episode],
-                   summary: dict[str, Any], settings: PipelineSettings) -> None:
-    env_id = _env_id(env)
-    try:
-        spec_json = env.spec.to_json() if env.spec is not None else None
-    except (TypeError, ValueError):  # kwargs that JSON cannot hold
-        spec_json = None
-    slug = "".join(c if c.isalnum() or c in "-_" else "-" for c in (env_id or "env"))
-    for sub, episodes in (("demos", demos), ("transitions", transitions)):
-        meta = DatasetMetadata(f"dynoplan/{slug}/{sub}-v0", env_id=env_id, env_spec=spec_json,
-                               option_names=names, seed=settings.seed,
-                               observation_space=_box_or_none(env.observation_space),
-                               action_space=_space_or_none(env.action_space))
-        write_dataset(folder / sub, episodes, meta)
-    write_json(folder / "summary.json", summary)
-    command = summary.get("command")
-    head = f"Produced by `{command}`" if command else "Produced by run_pipeline"
-    n = settings.episodes
-    ratio = summary.get("composition_ratio")
-    bar = ("" if ratio is None else
-           f"DynoPlan reaches {ratio:.2f} of the demonstrator's success on the same episodes "
-           "(the composition ratio).\n\n")
-    curve = summary.get("improvement") or []
-    if curve:
-        bar += ("DynoPlan's success on its own episodes in each improvement round (refit "
-                "on them after each): " + ", ".join(
-                    f"round {c['round']}: {c['success_rate']:.2f} (+{c['demonstrations_added']}"
-                    " demonstrations)" for c in curve) + ".\n\n")
-    write_text(folder / "results.md",
-               f"{head} ({n} seeded episodes per controller, seed {settings.seed}).\n\n"
-               f"{results_table(summary['controllers'])}\n\n{bar}"
-               "Which options each controller ran (share of its environment steps):\n\n"
-               f"{option_share_table(summary['controllers'])}\n\n"
-               "Where each option may start (share of states inside its initiation set):"
-               f"\n\n{admissibility_table(summary['admissibility'])}\n"
-               + "".join(f"\n- warning: {w}" for w in summary["warnings"]))
-
-
-def _box_or_none(space: gym.Space[Any]) -> gym.spaces.Box | None:
-    return space if isinstance(space, gym.spaces.Box) else None
-
-
-def _space_or_none(space: gym.Space[Any]) -> gym.spaces.Box | gym.spaces.Discrete | None:
-    return space if isinstance(space, gym.spaces.Box | gym.spaces.Discrete) else None

@@ -14,7 +14,7 @@ environment with user-written options;
 A run of :func:`~dynoplan.pipeline.run.run_pipeline` goes through the same stages in the
 same order for every task (:class:`TaskStages`): what is done at each stage is the
 task's. A user's environment and options get the generic stages
-(:class:`~dynoplan.pipeline.run.GenericStages`: a demonstrator's episodes, exploration
+(:class:`~dynoplan.pipeline.generic_stages.GenericStages`: a demonstrator's episodes, exploration
 episodes of random options, :func:`~dynoplan.pipeline.fit.fit_models`, the default
 controllers); the gear assembly brings its own
 (:class:`~dynoplan.envs.gear.pipeline_stages.GearStages`: its option networks, its operator's

@@ -45,6 +45,7 @@ from dynoplan.io import ensure_writable_dir, write_json, write_text
 from dynoplan.models.folder import MANIFEST_FILE, file_sha256, read_manifest
 from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers
+from dynoplan.pipeline.admissibility import admissibility_table
 from dynoplan.pipeline.collect import flat_state, probe_options, record_demonstrations
 from dynoplan.pipeline.evaluate import (
     composition_ratio,
@@ -56,15 +57,9 @@ from dynoplan.pipeline.fit import FittedModels
 from dynoplan.pipeline.fit_dynamics import goal_end_gaps
 from dynoplan.pipeline.fit_goal import fit_goal
 from dynoplan.pipeline.fit_regions import fit_option_regions
+from dynoplan.pipeline.generic_stages import demos_from_dataset, evaluate_fitted
 from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
-from dynoplan.pipeline.run import (
-    PipelineSettings,
-    _jsonable,
-    _seeds,
-    admissibility_table,
-    demos_from_dataset,
-    evaluate_fitted,
-)
+from dynoplan.pipeline.run_settings import PipelineSettings, jsonable, run_seeds
 from dynoplan.pipeline.task import Task
 from dynoplan.timing import StageClock
 
@@ -264,7 +259,8 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
 
 @dataclass
 class TaskResult:
-    """What :func:`run_task` produced (as :class:`~dynoplan.pipeline.run.PipelineResult`)."""
+    """What :func:`run_task` produced (as
+    :class:`~dynoplan.pipeline.generic_stages.PipelineResult`)."""
 
     options: list[Option]
     planner_options: list[Option]
@@ -325,7 +321,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     specs = [as_spec(o) for o in options]
     names = [s.name for s in specs]
     option_models.check_task(names)
-    seeds = _seeds(settings.seed)
+    seeds = run_seeds(settings.seed)
     state_dim = probe_options(environment, options, flat_state, seeds["demos"])
     option_models.check_task(names, state_dim)
     if runs is not None:
@@ -370,7 +366,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
         "env_id": environment.spec.id if environment.spec is not None else None,
         "state_dim": state_dim,
         "options": names,
-        "settings": _jsonable(asdict(settings)),
+        "settings": jsonable(asdict(settings)),
         "seeds": seeds,
         "task_fit": task_fit,
         "demonstrations": {"episodes": len(demo_episodes),

@@ -1,0 +1,92 @@
+"""What defines a pipeline run (:class:`PipelineSettings`), the run's seed streams
+(:func:`run_seeds`) and the conversion of its records to JSON (:func:`jsonable`).
+
+Seeds: one ``seed`` is split (``numpy.random.SeedSequence.spawn``) into independent
+streams for the demonstrations, the exploration episodes, model fitting and the
+evaluation episodes, so changing the number of one never changes the others.
+"""
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from dynoplan.errors import DynoplanError
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.fit import (
+    FitSettings,
+)
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Everything that defines a pipeline run (recorded in ``summary.json``).
+
+    Attributes:
+        demos: successful demonstrations to record (when none are given).
+        exploration_episodes: episodes of randomly chosen options for the dynamics.
+        exploration_option_steps: most steps an option runs while exploring.
+        exploration_branches: further exploration episodes that branch off a
+            demonstration (start where it was after a random step) instead of starting
+            at ``env.reset`` (:func:`~dynoplan.pipeline.collect.collect_transitions`;
+            0, the default: none; a named variant of the composition suite).
+        episodes: evaluation episodes per controller.
+        seed: the one seed every random choice derives from.
+        fit: how the models are learned.
+        control: how DynoPlan plans and every controller runs.
+        controllers: which controllers to evaluate (default: DynoPlan, each option
+            alone, random choice).
+        improve: rounds of learning from DynoPlan's own episodes before the evaluation
+            (:mod:`~dynoplan.pipeline.improve`; 0: none, the paper's pipeline).
+        improve_episodes: DynoPlan's episodes per improvement round.
+    """
+
+    demos: int = 5
+    exploration_episodes: int = 20
+    exploration_option_steps: int = 100
+    exploration_branches: int = 0
+    episodes: int = 100
+    seed: int = 0
+    fit: FitSettings = field(default_factory=FitSettings)
+    control: ControllerSettings = field(default_factory=ControllerSettings)
+    controllers: tuple[str, ...] | None = None
+    improve: int = 0
+    improve_episodes: int = 30
+
+    def validate(self) -> None:
+        for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes",
+                     "improve_episodes"):
+            if getattr(self, name) < 1:
+                raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.exploration_branches < 0:
+            raise DynoplanError("exploration_branches must be >= 0, got "
+                                f"{self.exploration_branches}")
+        if self.improve < 0:
+            raise DynoplanError(f"improve must be >= 0, got {self.improve}")
+        self.fit.validate()
+        self.control.validate()
+
+
+def run_seeds(seed: int, improve: bool = False) -> dict[str, int]:
+    """The run's seed streams; ``improve`` adds the improvement rounds' (the others are
+    the same with or without it)."""
+    names = ("demos", "exploration", "fit", "evaluation", *(("improve",) if improve else ()))
+    children = np.random.SeedSequence(seed).spawn(len(names))
+    return {n: int(c.generate_state(1)[0] % 2**31) for n, c in zip(names, children, strict=True)}
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with every numpy array and scalar, in dicts, lists and tuples, made a plain
+    Python value (tuples become lists), as ``summary.json`` records it."""
+    if isinstance(value, dict):
+        return {k: jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+__all__ = ["PipelineSettings", "jsonable", "run_seeds"]
