@@ -1,0 +1,235 @@
+"""The gear's downstream task on the first task's option dynamics (issue 32).
+
+The first task (``dynoplan gear run``) learns the four options' dynamics with the peg
+always at one pose. The downstream task (:mod:`dynoplan.envs.gear.peg_pose`,
+``dynoplan/GearPegPose-v0``) holds the peg module at another pose every episode (its tip
+within +-5 cm in ``x`` and ``y``, +-3 cm in ``z``); same scene, same options, same
+operator. Here it is solved through the library's task-fit path
+(:func:`dynoplan.pipeline.task_fit.run_task`, the gear's
+:class:`~dynoplan.envs.gear.pipeline_task.GearTask` with ``peg``):
+
+1. ``demos/``: the task's own demonstrations, the first task's operator chaining the
+   options in the new environment (:func:`~dynoplan.envs.gear.learning.demos.record_demos`);
+2. ``shared/``: the first task's options folder (``--options-models``, a ``gear run``
+   folder), its dynamics unchanged, only the task's goal heuristic (on the features
+   ``peg_objects``) and regions fitted from those demonstrations; DynoPlan on
+   ``--episodes`` seeded episodes, learned parts only;
+3. with ``--retrain`` (default): ``retrain/``: the options' dynamics fitted again on the
+   new task's own data (its option runs, collected as ``gear run`` collects them, and its
+   demonstrations; the first task's fit settings), then ``retrained/``: the same task fit
+   (the same demonstrations, the same option runs for the goal and regions, the same
+   seeds, hence the same goal heuristic and evaluation episodes) on those dynamics;
+4. ``results.md``, ``results.json``: both rows, the demonstrations and seconds the task
+   needed.
+
+A stage whose output is already in ``--out`` is kept (a rerun resumes); ``--quick`` runs
+every stage on small settings (a smoke test, not a measurement)::
+
+    python -m benchmarks.transfer.gear_peg_task --options-models results/gear-run \\
+        --seed 0 --episodes 100 --out results/gear-peg-task
+"""
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.features import FEATURE_MAPS, PEG_OBJECTS
+from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
+from dynoplan.envs.gear.learning.settings import (
+    DEFAULT_METRICS,
+    DEFAULT_SETTINGS,
+    QUICK_METRICS,
+    QUICK_SETTINGS,
+)
+from dynoplan.envs.gear.peg_pose import PEG_WORKSPACE
+from dynoplan.envs.gear.pipeline_task import GearTask
+from dynoplan.envs.gear.state import PlannerState
+from dynoplan.errors import DynoplanError
+from dynoplan.parallel import SERIAL, Workers, parse_workers
+from dynoplan.pipeline.collect import OptionRunSettings
+from dynoplan.pipeline.run import PipelineSettings, _seeds
+from dynoplan.pipeline.task_fit import RUNS_FOLDER, TaskResult, load_option_models, run_task
+
+DEMOS = 10
+"""The task's demonstrations (the first task's number)."""
+RUNS = OptionRunSettings(runs=40, max_decisions=30, lead_decisions=0)
+"""The retrained dynamics' option runs: ``gear run``'s collect stage
+(:data:`~dynoplan.envs.gear.pipeline_stages.TRANSITION_RUNS`)."""
+QUICK_RUNS = OptionRunSettings(runs=4, max_decisions=15, lead_decisions=0)
+CONTROLLERS = ("dynoplan",)
+"""The rows measured: DynoPlan with learned parts only (the gear's ``dynoplan``)."""
+
+
+def task_settings(seed: int, episodes: int, demos: int, quick: bool,
+                  controllers: tuple[str, ...] = CONTROLLERS) -> PipelineSettings:
+    """How the task is fitted and evaluated: the first task's fit settings (``gear run``'s,
+    or ``--quick``'s) with the goal on :data:`~dynoplan.envs.gear.features.PEG_OBJECTS`,
+    and the gear's controller settings (``gear run``'s :data:`GEAR_CONTROL`, ``--quick``:
+    a shorter horizon and fewer samples, as ``gear run --quick``)."""
+    fit = replace(QUICK_SETTINGS if quick else DEFAULT_SETTINGS, goal_features=PEG_OBJECTS.name)
+    control = (replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3) if quick
+               else GEAR_CONTROL)
+    return PipelineSettings(demos=demos, episodes=episodes, seed=seed, fit=fit,
+                            control=control, controllers=controllers)
+
+
+def fit_and_evaluate(options_models: Path, networks: Path, demos: Path, out: Path,
+                     settings: PipelineSettings, workers: Workers, command: str,
+                     runs: Path | None = None, progress: bool = True) -> TaskResult:
+    """The task fit (:func:`~dynoplan.pipeline.task_fit.run_task`) of the downstream task on
+    the options folder ``options_models``, its demonstrations read from ``demos``, the
+    option networks from ``networks``; the result written into ``out``."""
+    from dynoplan.data import read_dataset
+    from dynoplan.envs.gear.operator import OptionOperator
+    from dynoplan.envs.gear.options.catalog import policy_factories
+    from dynoplan.io import staged_folder
+
+    task = GearTask(peg=PEG_WORKSPACE, networks=networks.resolve())
+    env = task.make_env()
+    specs = OptionOperator(env.unwrapped, policy_factories(networks)).specs  # type: ignore[arg-type]
+    with staged_folder(out) as staged:
+        return run_task(env, options_models, specs, demos=read_dataset(demos),
+                        settings=settings, out=staged, progress=progress,
+                        status=lambda m: print(f"-- {m}", file=sys.stderr, flush=True),
+                        command=command, workers=workers, task=task, runs=runs,
+                        planner_state=PlannerState(), feature_maps=FEATURE_MAPS,
+                        own_controllers=True)
+
+
+def check_options_folder(options_models: Path) -> Path:
+    """The options folder's models folder, checked (one error line): its dynamics load and
+    cover the task's options, its option networks are there."""
+    from dynoplan.envs.gear.options.catalog import gear_option_names, network_files
+
+    folder = load_option_models(options_models, FEATURE_MAPS, PlannerState())
+    folder.check_task(list(gear_option_names()))
+    missing = [f for f in network_files().values() if not (folder.folder / f).is_file()]
+    if missing:
+        raise DynoplanError(f"{folder.folder}: no option network {', '.join(missing)} (the "
+                            "options folder of a gear run has them)")
+    return folder.folder
+
+
+def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = DEMOS,
+        retrain: bool = True, quick: bool = False, workers: Workers = SERIAL,
+        command: str = "", progress: bool = True) -> dict[str, Any]:
+    """Every stage (module docstring) into ``out``; the content of ``results.json``."""
+    from dynoplan.envs.gear.learning.demos import record_demos
+    from dynoplan.envs.gear.learning.training import train_gear_models
+    from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
+
+    networks = check_options_folder(options_models)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = task_settings(seed, episodes, demos, quick)
+    seeds = _seeds(seed)
+    peg_task = GearTask(peg=PEG_WORKSPACE)
+    seconds: dict[str, float] = {}
+
+    def stage(name: str, done: Path, fn: Any) -> None:
+        if done.exists():
+            print(f"-- {name}: kept {done}", file=sys.stderr)
+            return
+        print(f"-- {name}", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        fn()
+        seconds[name] = time.perf_counter() - t0
+
+    stage("demonstrations", out / "demos" / "data", lambda: record_demos(
+        demos, seeds["demos"], out / "demos", progress, demonstrator="options",
+        models=networks, workers=workers, peg=PEG_WORKSPACE))
+    stage("shared", out / "shared" / "summary.json", lambda: fit_and_evaluate(
+        options_models, networks, out / "demos", out / "shared", settings, workers, command,
+        progress=progress))
+    rows = {"shared": json.loads((out / "shared" / "summary.json").read_text())}
+    if retrain:
+        own = out / "retrain"
+        collect = QUICK_RUNS if quick else RUNS
+        stage("retrain: option runs", own / RUNS_FOLDER / "data",
+              lambda: collect_gear_transitions(networks, collect.runs, seed, own / RUNS_FOLDER,
+                                               collect.max_decisions, progress, workers,
+                                               task=peg_task))
+        stage("retrain: held-out trials", own / "heldout" / "data", lambda: record_demos(
+            QUICK_METRICS.heldout_episodes if quick else demos,
+            seeds["demos"] + HELDOUT_SEED_OFFSET, own / "heldout", progress,
+            demonstrator="options", models=networks, workers=workers, peg=PEG_WORKSPACE))
+        stage("retrain: dynamics", own / "models" / "models.json", lambda: train_gear_models(
+            out / "demos", own / RUNS_FOLDER, own / "models", seed, own / "heldout", quick,
+            progress, settings=QUICK_SETTINGS if quick else DEFAULT_SETTINGS,
+            measures=QUICK_METRICS if quick else DEFAULT_METRICS))
+        first_runs = options_models / RUNS_FOLDER
+        stage("retrained", out / "retrained" / "summary.json", lambda: fit_and_evaluate(
+            own, networks, out / "demos", out / "retrained", settings, workers, command,
+            runs=first_runs if first_runs.is_dir() else None, progress=progress))
+        rows["retrained"] = json.loads((out / "retrained" / "summary.json").read_text())
+    results = {"command": command, "seed": seed, "episodes": episodes, "demos": demos,
+               "quick": quick, "options_models": str(options_models.resolve()),
+               "stage_seconds": seconds,
+               "rows": {name: _row(summary, out / name) for name, summary in rows.items()}}
+    (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    (out / "results.md").write_text(_table(results))
+    return results
+
+
+def _row(summary: dict[str, Any], folder: Path) -> dict[str, Any]:
+    fit = summary["task_fit"]
+    manifest = json.loads((folder / "models" / "models.json").read_text())
+    dynoplan = summary["controllers"]["dynoplan"]
+    return {"success_rate": dynoplan["success_rate"], "episodes": dynoplan["episodes"],
+            "dynamics": fit["options_models"], "demonstrations": fit["demonstrations"],
+            "demonstration_steps": fit["demonstration_steps"],
+            "goal_fit_seconds": fit["goal_fit_seconds"], "fit_seconds": fit["fit_seconds"],
+            "option_runs": fit["option_runs"], "goal_sha256": manifest["goal"]["sha256"],
+            "regions_sha256": (manifest.get("regions") or {}).get("sha256"),
+            "dynamics_sha256": {n: d["sha256"] for n, d in manifest["dynamics"].items()}}
+
+
+def _table(results: dict[str, Any]) -> str:
+    lines = [f"Produced by `{results['command']}`.", "",
+             "| dynamics | DynoPlan success | episodes | the task's demonstrations (steps) "
+             "| its goal fit (s) | its fit in all (s) |", "|---|---|---|---|---|---|"]
+    names = {"shared": "the first task's, unchanged", "retrained": "retrained on the task"}
+    for name, row in results["rows"].items():
+        lines.append(f"| {names[name]} | {row['success_rate']:.2f} | {row['episodes']} | "
+                     f"{row['demonstrations']} ({row['demonstration_steps']}) | "
+                     f"{row['goal_fit_seconds']:.1f} | {row['fit_seconds']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.transfer.gear_peg_task",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--options-models", type=Path, required=True,
+                        help="the first task's options folder (a dynoplan gear run --out)")
+    parser.add_argument("--out", type=Path, default=Path("results/gear-peg-task"))
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--demos", type=int, default=DEMOS)
+    parser.add_argument("--no-retrain", action="store_true",
+                        help="only the first task's dynamics (no retrained row)")
+    parser.add_argument("--quick", action="store_true", help="small settings (a smoke test)")
+    parser.add_argument("--workers", default="1", help="1, N (Ray) [1]")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args(argv)
+    command = "python -m benchmarks.transfer.gear_peg_task " + " ".join(
+        shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    try:
+        if args.episodes < 1 or args.demos < 1:
+            raise DynoplanError("--episodes and --demos must be >= 1")
+        results = run(args.options_models, args.out, args.seed, args.episodes, args.demos,
+                      not args.no_retrain, args.quick, parse_workers(args.workers, None),
+                      command, progress=not args.quiet)
+    except DynoplanError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(_table(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
