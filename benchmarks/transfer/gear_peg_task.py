@@ -14,13 +14,18 @@ operator. Here it is solved through the library's task-fit path
    folder), its dynamics unchanged, only the task's goal heuristic (on the features
    ``peg_objects``) and regions fitted from those demonstrations; DynoPlan on
    ``--episodes`` seeded episodes, learned parts only;
-3. with ``--retrain`` (default): ``retrain/``: the options' dynamics fitted again on the
-   new task's own data (its option runs, collected as ``gear run`` collects them, and its
-   demonstrations; the first task's fit settings), then ``retrained/``: the same task fit
-   (the same demonstrations, the same option runs for the goal and regions, the same
-   seeds, hence the same goal heuristic and evaluation episodes) on those dynamics;
-4. ``results.md``, ``results.json``: both rows, the demonstrations and seconds the task
+3. ``shared-frame/``: the same, the planner rolling each option's (unchanged) dynamics
+   in the first task's frame (:class:`~dynoplan.envs.gear.peg_pose.PegFrame`: the
+   options' own state space, the scene moved by the peg's offset);
+4. ``retrain/``: the options' dynamics fitted again on the new task's own data (its option
+   runs, collected as ``gear run`` collects them, and its demonstrations; the first
+   task's fit settings), then ``retrained/``: the same task fit (the same demonstrations,
+   the same option runs for the goal and regions, the same seeds, hence the same goal
+   heuristic and evaluation episodes) on those dynamics;
+5. ``results.md``, ``results.json``: every row, the demonstrations and seconds the task
    needed.
+
+``--rows`` chooses among ``shared``, ``shared-frame`` and ``retrained`` (default: all).
 
 A stage whose output is already in ``--out`` is kept (a rerun resumes); ``--quick`` runs
 every stage on small settings (a smoke test, not a measurement)::
@@ -62,6 +67,8 @@ RUNS = OptionRunSettings(runs=40, max_decisions=30, lead_decisions=0)
 """The retrained dynamics' option runs: ``gear run``'s collect stage
 (:data:`~dynoplan.envs.gear.pipeline_stages.TRANSITION_RUNS`)."""
 QUICK_RUNS = OptionRunSettings(runs=4, max_decisions=15, lead_decisions=0)
+ROWS = ("shared", "shared-frame", "retrained")
+"""The rows, in the table's order."""
 CONTROLLERS = ("dynoplan",)
 """The rows measured: DynoPlan with learned parts only (the gear's ``dynoplan``)."""
 
@@ -81,16 +88,18 @@ def task_settings(seed: int, episodes: int, demos: int, quick: bool,
 
 def fit_and_evaluate(options_models: Path, networks: Path, demos: Path, out: Path,
                      settings: PipelineSettings, workers: Workers, command: str,
-                     runs: Path | None = None, progress: bool = True) -> TaskResult:
+                     runs: Path | None = None, progress: bool = True,
+                     peg_frame: bool = False) -> TaskResult:
     """The task fit (:func:`~dynoplan.pipeline.task_fit.run_task`) of the downstream task on
     the options folder ``options_models``, its demonstrations read from ``demos``, the
-    option networks from ``networks``; the result written into ``out``."""
+    option networks from ``networks`` (``peg_frame``: the dynamics rolled in the first
+    task's frame); the result written into ``out``."""
     from dynoplan.data import read_dataset
     from dynoplan.envs.gear.operator import OptionOperator
     from dynoplan.envs.gear.options.catalog import policy_factories
     from dynoplan.io import staged_folder
 
-    task = GearTask(peg=PEG_WORKSPACE, networks=networks.resolve())
+    task = GearTask(peg=PEG_WORKSPACE, networks=networks.resolve(), peg_frame=peg_frame)
     env = task.make_env()
     specs = OptionOperator(env.unwrapped, policy_factories(networks)).specs  # type: ignore[arg-type]
     with staged_folder(out) as staged:
@@ -117,13 +126,17 @@ def check_options_folder(options_models: Path) -> Path:
 
 
 def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = DEMOS,
-        retrain: bool = True, quick: bool = False, workers: Workers = SERIAL,
+        rows: tuple[str, ...] = ROWS, quick: bool = False, workers: Workers = SERIAL,
         command: str = "", progress: bool = True) -> dict[str, Any]:
     """Every stage (module docstring) into ``out``; the content of ``results.json``."""
     from dynoplan.envs.gear.learning.demos import record_demos
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
 
+    unknown = [r for r in rows if r not in ROWS]
+    if unknown or not rows:
+        raise DynoplanError(f"unknown rows {', '.join(unknown) or '(none)'}; expected some of "
+                            f"{', '.join(ROWS)}")
     networks = check_options_folder(options_models)
     out.mkdir(parents=True, exist_ok=True)
     settings = task_settings(seed, episodes, demos, quick)
@@ -143,11 +156,12 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     stage("demonstrations", out / "demos" / "data", lambda: record_demos(
         demos, seeds["demos"], out / "demos", progress, demonstrator="options",
         models=networks, workers=workers, peg=PEG_WORKSPACE))
-    stage("shared", out / "shared" / "summary.json", lambda: fit_and_evaluate(
-        options_models, networks, out / "demos", out / "shared", settings, workers, command,
-        progress=progress))
-    rows = {"shared": json.loads((out / "shared" / "summary.json").read_text())}
-    if retrain:
+    for row, frame in (("shared", False), ("shared-frame", True)):
+        if row in rows:
+            stage(row, out / row / "summary.json", lambda f=frame, r=row: fit_and_evaluate(
+                options_models, networks, out / "demos", out / r, settings, workers, command,
+                progress=progress, peg_frame=f))
+    if "retrained" in rows:
         own = out / "retrain"
         collect = QUICK_RUNS if quick else RUNS
         stage("retrain: option runs", own / RUNS_FOLDER / "data",
@@ -166,11 +180,12 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
         stage("retrained", out / "retrained" / "summary.json", lambda: fit_and_evaluate(
             own, networks, out / "demos", out / "retrained", settings, workers, command,
             runs=first_runs if first_runs.is_dir() else None, progress=progress))
-        rows["retrained"] = json.loads((out / "retrained" / "summary.json").read_text())
+    summaries = {row: json.loads((out / row / "summary.json").read_text()) for row in ROWS
+                 if (out / row / "summary.json").is_file()}
     results = {"command": command, "seed": seed, "episodes": episodes, "demos": demos,
                "quick": quick, "options_models": str(options_models.resolve()),
                "stage_seconds": seconds,
-               "rows": {name: _row(summary, out / name) for name, summary in rows.items()}}
+               "rows": {name: _row(summary, out / name) for name, summary in summaries.items()}}
     (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
     (out / "results.md").write_text(_table(results))
     return results
@@ -193,7 +208,9 @@ def _table(results: dict[str, Any]) -> str:
     lines = [f"Produced by `{results['command']}`.", "",
              "| dynamics | DynoPlan success | episodes | the task's demonstrations (steps) "
              "| its goal fit (s) | its fit in all (s) |", "|---|---|---|---|---|---|"]
-    names = {"shared": "the first task's, unchanged", "retrained": "retrained on the task"}
+    names = {"shared": "the first task's, unchanged",
+             "shared-frame": "the first task's, unchanged, in the first task's frame",
+             "retrained": "retrained on the task"}
     for name, row in results["rows"].items():
         lines.append(f"| {names[name]} | {row['success_rate']:.2f} | {row['episodes']} | "
                      f"{row['demonstrations']} ({row['demonstration_steps']}) | "
@@ -210,8 +227,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--demos", type=int, default=DEMOS)
-    parser.add_argument("--no-retrain", action="store_true",
-                        help="only the first task's dynamics (no retrained row)")
+    parser.add_argument("--rows", default=",".join(ROWS),
+                        help=f"comma-separated rows among {', '.join(ROWS)} [all]")
     parser.add_argument("--quick", action="store_true", help="small settings (a smoke test)")
     parser.add_argument("--workers", default="1", help="1, N (Ray) [1]")
     parser.add_argument("--quiet", action="store_true")
@@ -221,8 +238,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.episodes < 1 or args.demos < 1:
             raise DynoplanError("--episodes and --demos must be >= 1")
+        rows = tuple(r for r in args.rows.split(",") if r)
         results = run(args.options_models, args.out, args.seed, args.episodes, args.demos,
-                      not args.no_retrain, args.quick, parse_workers(args.workers, None),
+                      rows, args.quick, parse_workers(args.workers, None),
                       command, progress=not args.quiet)
     except DynoplanError as error:
         print(f"error: {error}", file=sys.stderr)

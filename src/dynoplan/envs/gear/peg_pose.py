@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.envs.gear.env import HOME_Q, GearAssemblyEnv
+from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
 from dynoplan.types import FloatArray
 
@@ -135,5 +136,67 @@ class GearPegPoseEnv(GearAssemblyEnv):
         self.peg_offset = offset
 
 
-__all__ = ["IK_TOLERANCE", "PEG_TASK_NAME", "PEG_WORKSPACE", "GearPegPoseEnv", "PegWorkspace",
-           "RightHold"]
+FIRST_TASK_RIGHT_ARM = np.array([-0.6790968, 0.23777644, -1.87470343, -1.6522002,
+                                 1.30020109, -0.26837573])
+"""(6,) rad: the first task's right arm as measured once it has settled under gravity at
+:data:`~dynoplan.envs.gear.env.RIGHT_HOLD` (a few mrad below its targets; what the first
+task's states hold, ``tests/test_gear_peg_task.py`` checks it)."""
+
+
+class PegFrame:
+    """The gear options' state in the first task's frame: a
+    :class:`~dynoplan.options.state_map.StateMap` from this task's planner state (22,)
+    to the state the first task's option dynamics were learned on (22,).
+
+    The first task always held the peg at one pose; here it is elsewhere, by the offset
+    ``d`` of its tip (forward kinematics of the state's right-arm joints,
+    :class:`~dynoplan.envs.gear.features.PegTip`). ``to_option`` moves the scene by
+    ``-d`` (the tool, the gear and the human hand: positions 13:22) and puts the right arm
+    at :data:`FIRST_TASK_RIGHT_ARM`, so an option's dynamics see the peg where they
+    always saw it; ``to_planner`` moves the option's predicted positions back by the
+    planner state's ``d`` and keeps its right arm (which holds still). The left arm's
+    joints are passed as they are (no map of them: the same tool pose relative to the
+    peg needs other joints here; the dynamics see joints that reach a place offset by
+    ``d``). Round trip: ``to_planner(s, to_option(s)) == s``.
+    """
+
+    planner_dim = STATE_DIM
+    option_dim = STATE_DIM
+
+    def __init__(self) -> None:
+        from dynoplan.envs.gear.features import PegTip
+
+        self._tip = PegTip()
+        self._tip0 = self._tip(FIRST_TASK_RIGHT_ARM[None])[0]
+
+    def offset(self, states: FloatArray) -> FloatArray:
+        """``(..., 22)`` -> ``(..., 3)``: the peg tip's offset from the first task's."""
+        s = np.asarray(states, dtype=np.float64)
+        flat = s.reshape(-1, STATE_DIM)
+        out: FloatArray = (self._tip(flat[:, 6:12]) - self._tip0).reshape(*s.shape[:-1], 3)
+        return out
+
+    def to_option(self, states: FloatArray) -> FloatArray:
+        z = np.array(states, dtype=np.float64)
+        d = self.offset(z)
+        for part in _MOVED:
+            z[..., part] -= d
+        z[..., 6:12] = FIRST_TASK_RIGHT_ARM
+        return z
+
+    def to_planner(self, planner_states: FloatArray, option_states: FloatArray
+                   ) -> FloatArray:
+        s = np.asarray(planner_states, dtype=np.float64)
+        out = np.array(option_states, dtype=np.float64)
+        d = self.offset(s)
+        for part in _MOVED:
+            out[..., part] += d
+        out[..., 6:12] = s[..., 6:12]
+        return out
+
+
+_MOVED = (STATE_SLICES["tool_pos"], STATE_SLICES["gear_pos"], STATE_SLICES["human_pos"])
+
+
+__all__ = ["FIRST_TASK_RIGHT_ARM", "IK_TOLERANCE", "PEG_TASK_NAME", "PEG_WORKSPACE",
+           "GearPegPoseEnv", "PegFrame", "PegWorkspace", "RightHold"]

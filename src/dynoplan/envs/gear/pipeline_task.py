@@ -16,7 +16,7 @@ on one worker or many (only the measured decision latencies differ).
 """
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,7 @@ from dynoplan.envs.gear.flat_policy import FLAT_POLICY, FlatPolicy, FlatPolicyRu
 from dynoplan.envs.gear.human import BEHAVIOURS
 from dynoplan.envs.gear.learning.files import TASK_NAME
 from dynoplan.envs.gear.metrics import episode_metrics
-from dynoplan.envs.gear.peg_pose import PEG_TASK_NAME, GearPegPoseEnv, PegWorkspace
+from dynoplan.envs.gear.peg_pose import PEG_TASK_NAME, GearPegPoseEnv, PegFrame, PegWorkspace
 from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
@@ -68,6 +68,9 @@ class GearTask:
             policy) are read from; ``None``: the models folder itself (a task fitted on an
             options folder, :func:`~dynoplan.pipeline.task_fit.run_task`, has only the
             task's models: give the options folder's).
+        peg_frame: the planner rolls every option's dynamics in the first task's frame
+            (:class:`~dynoplan.envs.gear.peg_pose.PegFrame`, the options' own state space):
+            for the first task's dynamics on the downstream task.
     """
 
     fault: str | None = None
@@ -78,6 +81,7 @@ class GearTask:
     shield: bool = False
     peg: PegWorkspace | None = None
     networks: Path | None = None
+    peg_frame: bool = False
 
     def __post_init__(self) -> None:
         if self.fault is not None and self.fault not in FAULTS:
@@ -144,8 +148,12 @@ class GearTask:
         fitted = load_gear_models(models, self.name)
         factories = policy_factories(self.networks or models)
         variant = VARIANTS[controller]
+        options = gear_options(gear_env, fitted, factories, variant.sets)
+        if self.peg_frame:
+            frame = PegFrame()
+            options = [replace(o, state_map=frame) for o in options]
         return ControllerRunner(
-            env, make_controller(variant, gear_options(gear_env, fitted, factories, variant.sets),
+            env, make_controller(variant, options,
                                  fitted.goal, planning_settings(settings, fitted),
                                  action_space=env.action_space,
                                  state_scale=fitted.state_scale,
