@@ -26,6 +26,10 @@ operator. Here it is solved through the library's task-fit path
    needed.
 
 ``--rows`` chooses among ``shared``, ``shared-frame`` and ``retrained`` (default: all).
+``--one-step-errors`` prints, from a finished ``--out``, how well each option's dynamics
+predict one decision ahead on the task's demonstrations (:func:`one_step_errors`): the
+first task's plain and in its frame, the retrained ones (in-sample: they were fitted on
+those demonstrations too), and the first task's on its own held-out trials.
 
 A stage whose output is already in ``--out`` is kept (a rerun resumes); ``--quick`` runs
 every stage on small settings (a smoke test, not a measurement)::
@@ -191,6 +195,72 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     return results
 
 
+def one_step_errors(models: Path, demos: Path, frame: bool = False
+                    ) -> dict[str, dict[str, float]]:
+    """Per option, over the decisions of ``demos`` (a gear dataset) that it ran whole: the
+    median error (cm) of the dynamics of ``models`` (the ensemble's mean, one decision
+    ahead) in the gear's bottom and the tool point, how far the gear really moved (cm),
+    and the median of each input's largest distance from the dynamics' training mean in
+    training standard deviations (``frame``: through
+    :class:`~dynoplan.envs.gear.peg_pose.PegFrame`)."""
+    import numpy as np
+
+    from dynoplan.data import read_dataset
+    from dynoplan.envs.gear.options.catalog import gear_option_names
+    from dynoplan.envs.gear.peg_pose import PegFrame
+    from dynoplan.envs.gear.state import DECISION_STEPS
+    from dynoplan.pipeline.fit import FittedModels
+
+    folder = models / "models" if (models / "models").is_dir() else models
+    dynamics = FittedModels.load(folder, FEATURE_MAPS).dynamics
+    planner, names = PlannerState(), list(gear_option_names())
+    pairs: dict[str, list[tuple[Any, Any]]] = {n: [] for n in names}
+    for episode in read_dataset(demos):
+        states, labels = planner(episode.observations), np.asarray(episode.infos["option"])
+        for t in range(0, len(labels) - DECISION_STEPS + 1, DECISION_STEPS):
+            if (labels[t:t + DECISION_STEPS] == labels[t]).all():
+                pairs[names[labels[t]]].append((states[t], states[t + DECISION_STEPS]))
+    out: dict[str, dict[str, float]] = {}
+    peg = PegFrame() if frame else None
+    for name, found in pairs.items():
+        if not found or name not in dynamics:
+            continue
+        x, y = (np.array(a) for a in zip(*found, strict=True))
+        model = dynamics[name]
+        seen = x if peg is None else peg.to_option(x)
+        mean = model.predict(seen)[0].mean(axis=0)  # type: ignore[attr-defined]
+        predicted = mean if peg is None else peg.to_planner(x, mean)
+        z = np.abs((seen - model.input_mean) / model.input_std).max(axis=1)  # type: ignore[attr-defined]
+        out[name] = {
+            "decisions": len(x),
+            "gear_cm": float(np.median(np.linalg.norm(predicted[:, 16:19] - y[:, 16:19],
+                                                      axis=1)) * 100),
+            "tool_cm": float(np.median(np.linalg.norm(predicted[:, 13:16] - y[:, 13:16],
+                                                      axis=1)) * 100),
+            "gear_moved_cm": float(np.median(np.linalg.norm(y[:, 16:19] - x[:, 16:19],
+                                                            axis=1)) * 100),
+            "input_max_z": float(np.median(z))}
+    return out
+
+
+def print_one_step_errors(options_models: Path, out: Path) -> None:
+    """The table of :func:`one_step_errors` for a finished ``out``."""
+    cases = [("the first task's, on its own held-out trials", options_models,
+              options_models / "heldout", False),
+             ("the first task's, plain", options_models, out / "demos", False),
+             ("the first task's, in its frame", options_models, out / "demos", True),
+             ("retrained (in-sample)", out / "retrain", out / "demos", False)]
+    print("| dynamics | option | decisions | gear error (cm) | tool error (cm) | gear moved "
+          "(cm) | inputs' largest z (median) |")
+    print("|---|---|---|---|---|---|---|")
+    for label, models, demos, frame in cases:
+        if not (demos / "data").is_dir() or not models.is_dir():
+            continue
+        for name, e in one_step_errors(models, demos, frame).items():
+            print(f"| {label} | {name} | {e['decisions']:.0f} | {e['gear_cm']:.2f} | "
+                  f"{e['tool_cm']:.2f} | {e['gear_moved_cm']:.2f} | {e['input_max_z']:.3g} |")
+
+
 def _row(summary: dict[str, Any], folder: Path) -> dict[str, Any]:
     fit = summary["task_fit"]
     manifest = json.loads((folder / "models" / "models.json").read_text())
@@ -232,10 +302,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="small settings (a smoke test)")
     parser.add_argument("--workers", default="1", help="1, N (Ray) [1]")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--one-step-errors", action="store_true",
+                        help="print the options' one-step errors of a finished --out")
     args = parser.parse_args(argv)
     command = "python -m benchmarks.transfer.gear_peg_task " + " ".join(
         shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     try:
+        if args.one_step_errors:
+            print_one_step_errors(args.options_models, args.out)
+            return 0
         if args.episodes < 1 or args.demos < 1:
             raise DynoplanError("--episodes and --demos must be >= 1")
         rows = tuple(r for r in args.rows.split(",") if r)
