@@ -25,7 +25,10 @@ operator. Here it is solved through the library's task-fit path
 5. ``results.md``, ``results.json``: every row, the demonstrations and seconds the task
    needed.
 
-``--rows`` chooses among ``shared``, ``shared-frame`` and ``retrained`` (default: all).
+``--rows`` chooses among ``shared``, ``shared-frame`` and ``retrained`` (default: all),
+and ``first-task``: the reference, the first task itself through the same task fit (its
+environment, its own demonstrations from the options folder's ``demos/``, its own
+dynamics; the same settings and seeds).
 ``--one-step-errors`` prints, from a finished ``--out``, how well each option's dynamics
 predict one decision ahead on the task's demonstrations (:func:`one_step_errors`): the
 first task's plain and in its frame, the retrained ones (in-sample: they were fitted on
@@ -72,7 +75,9 @@ RUNS = OptionRunSettings(runs=40, max_decisions=30, lead_decisions=0)
 (:data:`~dynoplan.envs.gear.pipeline_stages.TRANSITION_RUNS`)."""
 QUICK_RUNS = OptionRunSettings(runs=4, max_decisions=15, lead_decisions=0)
 ROWS = ("shared", "shared-frame", "retrained")
-"""The rows, in the table's order."""
+"""The downstream task's rows, in the table's order (the default)."""
+REFERENCE = "first-task"
+"""The first task through the same task fit (a reference row, on request)."""
 CONTROLLERS = ("dynoplan",)
 """The rows measured: DynoPlan with learned parts only (the gear's ``dynoplan``)."""
 
@@ -93,17 +98,19 @@ def task_settings(seed: int, episodes: int, demos: int, quick: bool,
 def fit_and_evaluate(options_models: Path, networks: Path, demos: Path, out: Path,
                      settings: PipelineSettings, workers: Workers, command: str,
                      runs: Path | None = None, progress: bool = True,
-                     peg_frame: bool = False) -> TaskResult:
+                     peg_frame: bool = False, first_task: bool = False) -> TaskResult:
     """The task fit (:func:`~dynoplan.pipeline.task_fit.run_task`) of the downstream task on
     the options folder ``options_models``, its demonstrations read from ``demos``, the
     option networks from ``networks`` (``peg_frame``: the dynamics rolled in the first
-    task's frame); the result written into ``out``."""
+    task's frame; ``first_task``: the first task instead); the result written into
+    ``out``."""
     from dynoplan.data import read_dataset
     from dynoplan.envs.gear.operator import OptionOperator
     from dynoplan.envs.gear.options.catalog import policy_factories
     from dynoplan.io import staged_folder
 
-    task = GearTask(peg=PEG_WORKSPACE, networks=networks.resolve(), peg_frame=peg_frame)
+    task = GearTask(peg=None if first_task else PEG_WORKSPACE, networks=networks.resolve(),
+                    peg_frame=peg_frame)
     env = task.make_env()
     specs = OptionOperator(env.unwrapped, policy_factories(networks)).specs  # type: ignore[arg-type]
     with staged_folder(out) as staged:
@@ -137,10 +144,10 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
 
-    unknown = [r for r in rows if r not in ROWS]
+    unknown = [r for r in rows if r not in (*ROWS, REFERENCE)]
     if unknown or not rows:
         raise DynoplanError(f"unknown rows {', '.join(unknown) or '(none)'}; expected some of "
-                            f"{', '.join(ROWS)}")
+                            f"{', '.join((*ROWS, REFERENCE))}")
     networks = check_options_folder(options_models)
     out.mkdir(parents=True, exist_ok=True)
     settings = task_settings(seed, episodes, demos, quick)
@@ -184,8 +191,12 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
         stage("retrained", out / "retrained" / "summary.json", lambda: fit_and_evaluate(
             own, networks, out / "demos", out / "retrained", settings, workers, command,
             runs=first_runs if first_runs.is_dir() else None, progress=progress))
-    summaries = {row: json.loads((out / row / "summary.json").read_text()) for row in ROWS
-                 if (out / row / "summary.json").is_file()}
+    if REFERENCE in rows:
+        stage(REFERENCE, out / REFERENCE / "summary.json", lambda: fit_and_evaluate(
+            options_models, networks, options_models / "demos", out / REFERENCE, settings,
+            workers, command, progress=progress, first_task=True))
+    summaries = {row: json.loads((out / row / "summary.json").read_text())
+                 for row in (*ROWS, REFERENCE) if (out / row / "summary.json").is_file()}
     results = {"command": command, "seed": seed, "episodes": episodes, "demos": demos,
                "quick": quick, "options_models": str(options_models.resolve()),
                "stage_seconds": seconds,
@@ -280,7 +291,8 @@ def _table(results: dict[str, Any]) -> str:
              "| its goal fit (s) | its fit in all (s) |", "|---|---|---|---|---|---|"]
     names = {"shared": "the first task's, unchanged",
              "shared-frame": "the first task's, unchanged, in the first task's frame",
-             "retrained": "retrained on the task"}
+             "retrained": "retrained on the task",
+             REFERENCE: "the first task itself, its own dynamics (reference)"}
     for name, row in results["rows"].items():
         lines.append(f"| {names[name]} | {row['success_rate']:.2f} | {row['episodes']} | "
                      f"{row['demonstrations']} ({row['demonstration_steps']}) | "
@@ -298,7 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--demos", type=int, default=DEMOS)
     parser.add_argument("--rows", default=",".join(ROWS),
-                        help=f"comma-separated rows among {', '.join(ROWS)} [all]")
+                        help=f"comma-separated rows among {', '.join(ROWS)} [all], and "
+                             f"{REFERENCE}")
     parser.add_argument("--quick", action="store_true", help="small settings (a smoke test)")
     parser.add_argument("--workers", default="1", help="1, N (Ray) [1]")
     parser.add_argument("--quiet", action="store_true")
