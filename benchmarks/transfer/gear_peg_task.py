@@ -33,6 +33,10 @@ dynamics; the same settings and seeds).
 predict one decision ahead on the task's demonstrations (:func:`one_step_errors`): the
 first task's plain and in its frame, the retrained ones (in-sample: they were fitted on
 those demonstrations too), and the first task's on its own held-out trials.
+``--script`` measures the options themselves in both tasks, from a finished ``--out``
+with the ``shared`` and ``first-task`` rows (:func:`script_success`): the fixed script
+(pick, fast move, insert, each until its policy is finished, no learned part) on the
+rows' evaluation episodes.
 
 A stage whose output is already in ``--out`` is kept (a rerun resumes); ``--quick`` runs
 every stage on small settings (a smoke test, not a measurement)::
@@ -272,6 +276,32 @@ def print_one_step_errors(options_models: Path, out: Path) -> None:
                   f"{e['tool_cm']:.2f} | {e['gear_moved_cm']:.2f} | {e['input_max_z']:.3g} |")
 
 
+def script_success(options_models: Path, out: Path, seed: int, episodes: int,
+                   workers: Workers = SERIAL) -> dict[str, dict[str, Any]]:
+    """The fixed script's summary in the first task and in the downstream task, on the
+    evaluation episodes of the rows (seed ``seed``, ``episodes`` of them): how well the
+    options themselves do the two tasks (the models folders are the rows', for the
+    out-of-region count; the script ignores them)."""
+    from dynoplan.pipeline.evaluate import ControllerJob, summarize
+    from dynoplan.pipeline.jobs import evaluate_many
+    from dynoplan.seeding import episode_seeds
+
+    networks = check_options_folder(options_models).resolve()
+    seeds = episode_seeds(_seeds(seed)["evaluation"], episodes)
+    control = task_settings(seed, episodes, DEMOS, False).control
+    jobs = {"first task": ControllerJob(GearTask(networks=networks),
+                                        out / REFERENCE / "models", "fixed_script", control),
+            "downstream task": ControllerJob(GearTask(peg=PEG_WORKSPACE, networks=networks),
+                                             out / "shared" / "models", "fixed_script",
+                                             control)}
+    for job in jobs.values():
+        if not (job.models / "models.json").is_file():
+            raise DynoplanError(f"{job.models}: run the shared and {REFERENCE} rows first")
+    done = evaluate_many([(job, seeds) for job in jobs.values()], workers, "fixed script",
+                         True)
+    return {name: summarize(records) for name, records in zip(jobs, done, strict=True)}
+
+
 def _row(summary: dict[str, Any], folder: Path) -> dict[str, Any]:
     fit = summary["task_fit"]
     manifest = json.loads((folder / "models" / "models.json").read_text())
@@ -317,12 +347,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument("--one-step-errors", action="store_true",
                         help="print the options' one-step errors of a finished --out")
+    parser.add_argument("--script", action="store_true",
+                        help="the fixed script in both tasks on the rows' episodes")
     args = parser.parse_args(argv)
     command = "python -m benchmarks.transfer.gear_peg_task " + " ".join(
         shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     try:
         if args.one_step_errors:
             print_one_step_errors(args.options_models, args.out)
+            return 0
+        if args.script:
+            found = script_success(args.options_models, args.out, args.seed, args.episodes,
+                                   parse_workers(args.workers, None))
+            (args.out / "script.json").write_text(json.dumps(found, indent=2) + "\n")
+            for name, summary in found.items():
+                print(f"{name}: fixed script success {summary['success_rate']:.2f} of "
+                      f"{summary['episodes']} episodes")
             return 0
         if args.episodes < 1 or args.demos < 1:
             raise DynoplanError("--episodes and --demos must be >= 1")
