@@ -232,3 +232,19 @@ def test_options_on_their_own_state_are_fitted_saved_and_solve_the_task(tmp_path
     assert loaded.option_state_dims == {spec.name: 1 for spec in mapped}
     assert all(o.planner_dynamics.state_dim == 2 for o in loaded.build(mapped)[1])
     assert result.evaluation["dynoplan"]["success_rate"] >= 0.9
+
+
+def test_a_tasks_own_controllers_on_one_worker_give_the_same_table(options_folder,
+                                                                    two_tasks, tmp_path):
+    """``own_controllers``: the task rebuilds its controllers from the saved models
+    (``Task.make_runner``, as workers do) on one worker too; for a user's task those are
+    the pipeline's, so the episodes are the same."""
+    from dynoplan.pipeline import GymTask
+
+    task = GymTask(WALK, f"{TASKS}:make_options", f"{TASKS}:reach_10", f"{TASKS}:walk_state")
+    own = run_task(task.make_env(), options_folder, make_options(),
+                   demonstrator=make_demonstrator(), settings=SMALL, out=tmp_path / "own",
+                   task=task, own_controllers=True)
+    generic = two_tasks[10][0].evaluation["dynoplan"]
+    assert own.evaluation["dynoplan"]["success_rate"] == generic["success_rate"]
+    assert own.evaluation["dynoplan"]["env_steps_mean"] == generic["env_steps_mean"]

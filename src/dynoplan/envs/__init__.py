@@ -4,6 +4,8 @@
 - ``dynoplan/TrapWalk-v0``: a walk with a dead end that only a detour gets around, where
   one-step hill climbing over options stalls (the look-ahead's known answer).
 - ``dynoplan/GearAssembly-v0``: the two-arm gear assembly in MuJoCo (paper, PR2 task).
+- ``dynoplan/GearPegPose-v0``: the same scene and options, the peg module held at a
+  different pose each episode (a downstream task, :mod:`dynoplan.envs.gear.peg_pose`).
 """
 
 import gymnasium as gym
@@ -11,6 +13,7 @@ import gymnasium as gym
 RANDOM_WALK_ID = "dynoplan/RandomWalk19-v0"
 GEAR_ASSEMBLY_ID = "dynoplan/GearAssembly-v0"
 TRAP_WALK_ID = "dynoplan/TrapWalk-v0"
+GEAR_PEG_POSE_ID = "dynoplan/GearPegPose-v0"
 
 
 def register_envs() -> None:
@@ -31,6 +34,11 @@ def register_envs() -> None:
         gym.register(
             id=GEAR_ASSEMBLY_ID,
             entry_point="dynoplan.envs.gear.env:GearAssemblyEnv",
+        )
+    if GEAR_PEG_POSE_ID not in gym.registry:
+        gym.register(
+            id=GEAR_PEG_POSE_ID,
+            entry_point="dynoplan.envs.gear.peg_pose:GearPegPoseEnv",
         )
 
 

@@ -601,6 +601,7 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
                          demonstrator: Any = None,
                          state_scale: FloatArray | None = None,
                          fresh_env: Callable[[], gym.Env[Any, Any]] | None = None,
+                         own_controllers: bool = False,
                          ) -> dict[str, dict[str, Any]]:
     """Run each controller on the same ``episodes`` seeded episodes; one summary each.
 
@@ -611,7 +612,9 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
     On one worker the controllers run here on
     ``env`` and ``options``; on several, every worker rebuilds them from ``task`` and the
     models folder ``models`` (:class:`ControllerJob`), which must hold the same models, and
-    the table is the same.
+    the table is the same. With ``own_controllers`` every worker, and one worker too,
+    builds them so (a task whose controllers are its own, such as the gear's:
+    ``controllers`` then names them).
     Out-of-region starts are counted against ``regions`` (:class:`ControllerRunner`; a
     task's workers count as :meth:`~dynoplan.pipeline.task.Task.make_runner` says).
     With ``fresh_env`` (an environment like ``env``, made anew at each call), each row
@@ -624,13 +627,14 @@ def evaluate_controllers(env: gym.Env[Any, Any], options: Sequence[Option],
         raise DynoplanError(f"episodes must be >= 1, got {episodes}")
     seeds = episode_seeds(seed, episodes)
     kinds = list(controllers or controller_names(options, demonstrator is not None))
-    if DEMONSTRATOR in kinds and demonstrator is None:
+    if DEMONSTRATOR in kinds and demonstrator is None and not own_controllers:
         raise DynoplanError("the demonstrator row needs a demonstrator")
     row_envs: list[gym.Env[Any, Any]] = []  # made here, closed here
-    if workers.parallel:
+    if workers.parallel or own_controllers:
         if task is None or models is None:
-            raise DynoplanError("evaluating on several workers needs the task and the "
-                                "models folder (workers rebuild the controllers from them)")
+            raise DynoplanError("evaluating on several workers or with the task's own "
+                                "controllers needs the task and the models folder (the "
+                                "controllers are rebuilt from them)")
         jobs: list[EpisodeJob] = [ControllerJob(task, models, kind, settings)
                                   for kind in kinds]
     else:

@@ -25,6 +25,7 @@ from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.admissibility import admissibility, admissibility_table, start_states
 from dynoplan.pipeline.collect import (
+    ObservationFn,
     collect_transitions,
     make_env,
     probe_options,
@@ -148,12 +149,15 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
                     evaluation_seed: int, folder: Path | None, notes: Sequence[str],
                     say: Callable[[str], None], progress: bool, workers: Workers,
                     task: Task | None, demonstrator: Any, later_notes: Sequence[str] = (),
-                    stacklevel: int = 3,
+                    stacklevel: int = 3, state_fn: ObservationFn = flat_state,
+                    own_controllers: bool = False,
                     ) -> tuple[dict[str, Any], list[str], dict[str, dict[str, Any]]]:
     """The stages after a fit, the same for every run: where the options may start (its
     notes, with ``notes``, as warnings, which point ``stacklevel`` frames up: at the
     caller of the run), the models saved to ``folder/models`` (when given) and every
-    controller on the evaluation episodes.
+    controller on the evaluation episodes. ``state_fn``: the planner state of an
+    observation of ``environment`` (the start states); ``own_controllers``: the task's
+    controllers (:func:`~dynoplan.pipeline.evaluate.evaluate_controllers`).
 
     Returns:
         ``(admissibility, notes, evaluation)``:
@@ -162,8 +166,8 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
         :func:`~dynoplan.pipeline.evaluate.evaluate_controllers`' summaries.
     """
     say("admissibility")
-    starts = start_states(environment, evaluation_seed, settings.episodes)
-    admissible, where = admissibility(run_options, starts, demo_episodes)
+    starts = start_states(environment, evaluation_seed, settings.episodes, state_fn)
+    admissible, where = admissibility(run_options, starts, demo_episodes, state_fn)
     notes = [*notes, *where, *later_notes]
     for note in notes:
         warnings.warn(note, DynoplanWarning, stacklevel=stacklevel)
@@ -175,7 +179,8 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
                                       settings.controllers, progress, workers, task,
                                       models_dir, learned_regions(models), demonstrator,
                                       models.state_scale,
-                                      fresh_env=None if task is None else task.make_env)
+                                      fresh_env=None if task is None else task.make_env,
+                                      own_controllers=own_controllers)
     say("")
     return admissible, notes, evaluation
 

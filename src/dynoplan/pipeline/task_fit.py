@@ -23,11 +23,20 @@ came from), so it loads like any other, never reading outside itself.
 
 What the options folder's first task learned beside the dynamics (its goal, its regions,
 its initiation learned from outcomes, which judged runs by that task's goal) is not used.
+
+A task whose options act on the environment's observations while its models read a
+planner state made from them (the gear: observations of 50 values, planner states of 22)
+gives that map (``planner_state``, applied to every stored observation: demonstrations,
+option runs, evaluation starts), the named feature maps its models read
+(``feature_maps``, for ``settings.fit.goal_features`` and ``region_features``), and, when
+its controllers are its own (``own_controllers``), is evaluated by
+:meth:`~dynoplan.pipeline.task.Task.make_runner` on the saved models folder, on one worker
+as on several.
 """
 
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -42,18 +51,24 @@ from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.data.metadata import DatasetMetadata
 from dynoplan.errors import DynoplanError, DynoplanWarning
 from dynoplan.io import ensure_writable_dir, write_json, write_text
+from dynoplan.models.features import FeatureMap
 from dynoplan.models.folder import MANIFEST_FILE, file_sha256, read_manifest
 from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.admissibility import admissibility_table
-from dynoplan.pipeline.collect import flat_state, probe_options, record_demonstrations
+from dynoplan.pipeline.collect import (
+    ObservationFn,
+    flat_state,
+    probe_options,
+    record_demonstrations,
+)
 from dynoplan.pipeline.evaluate import (
     composition_ratio,
     controller_names,
     option_share_table,
     results_table,
 )
-from dynoplan.pipeline.fit import FittedModels
+from dynoplan.pipeline.fit import FittedModels, named_feature_map
 from dynoplan.pipeline.fit_dynamics import goal_end_gaps
 from dynoplan.pipeline.fit_goal import fit_goal
 from dynoplan.pipeline.fit_regions import fit_option_regions
@@ -93,14 +108,16 @@ class OptionModels:
     def option_names(self) -> list[str]:
         return list(self.models.option_names)
 
-    def with_runs(self, runs: "OptionRuns") -> "OptionModels":
+    def with_runs(self, runs: "OptionRuns",
+                  state_fn: ObservationFn = flat_state) -> "OptionModels":
         """The same dynamics with ``runs`` (:func:`read_option_runs`) in place of the
         folder's option runs: a task's own exploration of the options.
 
         Raises:
             DynoplanError: what :func:`read_option_runs` refuses.
         """
-        episodes, source = read_option_runs(runs, self.option_names, self.models.state_dim)
+        episodes, source = read_option_runs(runs, self.option_names, self.models.state_dim,
+                                            state_fn)
         return replace(self, runs=episodes, runs_source=source)
 
     def runs_record(self) -> dict[str, Any]:
@@ -136,6 +153,7 @@ or episodes."""
 
 
 def read_option_runs(runs: OptionRuns, option_names: Sequence[str], state_dim: int,
+                     state_fn: ObservationFn = flat_state,
                      ) -> tuple[list[Episode], str | None]:
     """Option runs (exploration episodes: every step labelled with the option that acted,
     as ``dynoplan pipeline`` writes them under ``transitions/``), checked against the
@@ -146,6 +164,7 @@ def read_option_runs(runs: OptionRuns, option_names: Sequence[str], state_dim: i
             ``option_names``), or episodes whose labels index ``option_names``.
         option_names: the options of the dynamics (an options folder's).
         state_dim: the planner state's size ``d`` the dynamics read.
+        state_fn: the planner state of a stored observation (default: flattened).
 
     Returns:
         The episodes, labels indexing ``option_names``, observations ``(T+1, d)``; and
@@ -165,16 +184,20 @@ def read_option_runs(runs: OptionRuns, option_names: Sequence[str], state_dim: i
     except DynoplanError as error:
         raise DynoplanError(f"{where}{error}") from None
     for index, episode in enumerate(episodes):
-        width = flat_state(episode.observations[0]).size
+        width = np.asarray(state_fn(episode.observations[0])).size
         if width != state_dim:
             raise DynoplanError(f"{where}option run {index} has states of {width} values, the "
                                 f"option dynamics read {state_dim}")
     return episodes, None if path is None else str(Path(path).resolve())
 
 
-def load_option_models(path: str | Path) -> OptionModels:
+def load_option_models(path: str | Path,
+                       feature_maps: Mapping[str, FeatureMap] | None = None,
+                       state_fn: ObservationFn = flat_state) -> OptionModels:
     """An options folder: a pipeline run's folder (``models/`` and ``transitions/``) or a
-    models folder (no runs).
+    models folder (no runs). ``feature_maps``: the named feature maps its models read
+    (:meth:`~dynoplan.pipeline.fit.FittedModels.load`); ``state_fn``: the planner state
+    of a stored observation of its runs (default: flattened).
 
     Raises:
         DynoplanError: one line: not a models folder, a damaged model file or manifest
@@ -186,12 +209,12 @@ def load_option_models(path: str | Path) -> OptionModels:
     models_dir = root / "models" if (root / "models" / MANIFEST_FILE).is_file() else root
     retrain = "make one with dynoplan pipeline --out DIR, then pass DIR"
     manifest = read_manifest(models_dir, retrain)
-    models = FittedModels.load(models_dir, retrain=retrain)
+    models = FittedModels.load(models_dir, feature_maps, retrain=retrain)
     sha = {name: file_sha256(file) for name, file in manifest.dynamics.items()
            if file is not None}
     folder = OptionModels(models_dir, models, [], sha)
     runs_dir = root / RUNS_FOLDER
-    return (folder.with_runs(runs_dir) if models_dir != root and runs_dir.is_dir()
+    return (folder.with_runs(runs_dir, state_fn) if models_dir != root and runs_dir.is_dir()
             else folder)
 
 
@@ -213,16 +236,24 @@ def relabel(episodes: Sequence[Episode], names: Sequence[str],
 
 def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence[Episode],
              settings: PipelineSettings, seed: int, task: str = "",
-             say: Callable[[str], None] | None = None) -> FittedModels:
+             say: Callable[[str], None] | None = None,
+             state_fn: ObservationFn = flat_state,
+             feature_maps: Mapping[str, FeatureMap] | None = None) -> FittedModels:
     """The task's models: the options' dynamics unchanged, its own goal heuristic (and
     regions, with ``settings.fit.regions``) from ``demos`` (labels index ``specs``) and
     ``options.runs`` (as :func:`~dynoplan.pipeline.fit.fit_models` uses exploration
     episodes; give a task's own with :meth:`OptionModels.with_runs`).
 
-    The goal and regions are fitted as ``settings.fit`` says; its stride and option
-    model are the options folder's (properties of the dynamics). ``models.json``
-    records the folder, its dynamics' SHA-256 and the runs' source
+    The goal and regions are fitted as ``settings.fit`` says (on the task's feature maps
+    ``settings.fit.goal_features`` and ``region_features`` of ``feature_maps``, when
+    named), on the planner states ``state_fn`` makes of the stored observations; its
+    stride and option model are the options folder's (properties of the dynamics).
+    ``models.json`` records the folder, its dynamics' SHA-256 and the runs' source
     (``options_models``).
+
+    Raises:
+        DynoplanError: a task option the folder has no dynamics for, a feature map the
+            task does not define.
     """
     names = [s.name for s in specs]
     options.check_task(names)
@@ -231,18 +262,22 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
     own = options.models
     fit = replace(settings.fit, stride=own.stride, option_model=own.option_model)
     fit.validate()
+    goal_map = named_feature_map(fit.goal_features, feature_maps)
+    region_map = named_feature_map(fit.region_features, feature_maps)
     demos_f = relabel(demos, names, folder_names)
     say("goal heuristic")
-    goal, goal_report = fit_goal(demos_f, fit, seed, flat_state, None, options.runs)
+    started = time.perf_counter()
+    goal, goal_report = fit_goal(demos_f, fit, seed, state_fn, goal_map, options.runs)
+    goal_report["seconds"] = time.perf_counter() - started
     goal_report["end_gap"] = goal_end_gaps(
-        {n: own.dynamics[n] for n in names}, goal, [*options.runs, *demos_f], flat_state,
+        {n: own.dynamics[n] for n in names}, goal, [*options.runs, *demos_f], state_fn,
         own.stride, seed, to_end=own.option_model == "end")
     regions = None
     region_report: dict[str, Any] | None = None
     if fit.regions:
         say("safety regions")
         regions, region_report = fit_option_regions(demos_f, options.runs, folder_names, fit,
-                                                    seed, flat_state)
+                                                    seed, state_fn, region_map)
         region_report["options"] = regions.option_names
         for message in region_report["warnings"]:
             warnings.warn(message, DynoplanWarning, stacklevel=2)
@@ -281,7 +316,10 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
              state_fn: StateFn | None = None, success: SuccessFn | None = None,
              progress: bool = False, status: Callable[[str], None] | None = None,
              command: str | None = None, workers: Workers = SERIAL,
-             task: Task | None = None, runs: OptionRuns | None = None) -> TaskResult:
+             task: Task | None = None, runs: OptionRuns | None = None,
+             planner_state: ObservationFn | None = None,
+             feature_maps: Mapping[str, FeatureMap] | None = None,
+             own_controllers: bool = False) -> TaskResult:
     """A new task on the option dynamics of ``options_models`` (:func:`load_option_models`):
     record ``settings.demos`` demonstrations (or use ``demos``), fit the goal heuristic
     and regions (:func:`fit_task`), evaluate the controllers; arguments as
@@ -294,10 +332,22 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
             episodes; labels name or index the options folder's options), used in place of
             the folder's runs for the goal heuristic and the regions; ``None``: the
             folder's.
+        planner_state: the planner state of an observation when the options act on the
+            environment's observations but the models read states made from them (the
+            environment is not wrapped; every stored observation goes through it);
+            ``None``: the observation flattened (or ``state_fn``'s wrapped environment).
+        feature_maps: the task's named feature maps, for ``settings.fit.goal_features``
+            and ``region_features`` and to read the options folder's models.
+        own_controllers: evaluate the task's own controllers
+            (:meth:`~dynoplan.pipeline.task.Task.make_runner`, rebuilt from the saved
+            models folder) on one worker as on several (needs ``task`` and ``out``);
+            ``settings.controllers`` then names them.
 
     ``summary["task_fit"]`` says what the new task needed: its demonstrations (episodes,
-    steps), the seconds to record them and to fit its models, which options' dynamics it
-    reused, and which option runs it was fitted with (``option_runs``).
+    steps), the seconds to record them and to fit its models (``fit_seconds``: the goal
+    heuristic, its end gaps on the dynamics and the regions; ``goal_fit_seconds``: the
+    goal heuristic's fit alone), which options' dynamics it reused, and which option runs
+    it was fitted with (``option_runs``).
 
     Raises:
         DynoplanError: a task option the folder has no dynamics for, a planner state of
@@ -312,24 +362,31 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
                              or success is not None):
         raise DynoplanError("a task on several workers needs a task and an output folder; "
                             "the success function and state_fn come from the task")
+    if own_controllers and (task is None or out is None):
+        raise DynoplanError("the task's own controllers need the task and an output folder "
+                            "(they are rebuilt from the saved models)")
+    observed: ObservationFn = planner_state or flat_state
     clock = StageClock(status)
     say = clock.switch
     started = time.perf_counter()
     say("options")
-    option_models = load_option_models(options_models)
+    option_models = load_option_models(options_models, feature_maps, observed)
     environment = task_env(make_env(env) if isinstance(env, str) else env, success, state_fn)
     specs = [as_spec(o) for o in options]
     names = [s.name for s in specs]
     option_models.check_task(names)
     seeds = run_seeds(settings.seed)
-    state_dim = probe_options(environment, options, flat_state, seeds["demos"])
+    state_dim = probe_options(environment, options, observed, seeds["demos"])
     option_models.check_task(names, state_dim)
     if runs is not None:
-        option_models = option_models.with_runs(runs)
+        option_models = option_models.with_runs(runs, observed)
     folder = ensure_writable_dir(out) if out is not None else None
     known = controller_names(specs, demonstrator is not None)
     unknown = [c for c in settings.controllers or () if c not in known]
-    if unknown:
+    if own_controllers and not settings.controllers:
+        raise DynoplanError("name the task's own controllers to evaluate "
+                            "(settings.controllers)")
+    if unknown and not own_controllers:
         raise DynoplanError(f"unknown controller(s) {', '.join(unknown)} (known: "
                             f"{', '.join(known)})")
     t0 = time.perf_counter()
@@ -345,12 +402,14 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     t0 = time.perf_counter()
     name = task.name if task is not None else (
         environment.spec.id if environment.spec is not None else "")
-    models = fit_task(option_models, specs, demo_episodes, settings, seeds["fit"], name, say)
+    models = fit_task(option_models, specs, demo_episodes, settings, seeds["fit"], name, say,
+                      observed, feature_maps)
     fit_seconds = time.perf_counter() - t0
     run_options, planner_options = models.build(specs)
     admissible, notes, evaluation = evaluate_fitted(
         environment, models, run_options, planner_options, demo_episodes, settings,
-        seeds["evaluation"], folder, (), say, progress, workers, task, demonstrator)
+        seeds["evaluation"], folder, (), say, progress, workers, task, demonstrator,
+        state_fn=observed, own_controllers=own_controllers)
     task_fit = {
         "options_models": str(option_models.folder),
         "reused_dynamics": names,
@@ -359,6 +418,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
         "demonstration_steps": sum(len(e) for e in demo_episodes),
         "demonstration_seconds": demo_seconds,
         "fit_seconds": fit_seconds,
+        "goal_fit_seconds": models.report["goal"]["seconds"],
     }
     region_warnings = (models.report.get("regions") or {}).get("warnings", [])
     summary = {

@@ -28,6 +28,7 @@ from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.expert import GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
+from dynoplan.envs.gear.peg_pose import GearPegPoseEnv, PegWorkspace
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_with
 from dynoplan.parallel import SERIAL, Workers, parallel_map
@@ -206,10 +207,12 @@ def _frame(env: GearAssemblyEnv) -> npt.NDArray[np.uint8]:
 class DemoJob:
     """Demonstrated episodes as a worker rebuilds them (:mod:`dynoplan.parallel`): the
     demonstrator ``kind`` (:data:`DEMONSTRATORS`), the options' networks read from
-    ``models``."""
+    ``models``, in the first task's environment or, with ``peg``, the downstream task's
+    (:class:`~dynoplan.envs.gear.peg_pose.GearPegPoseEnv` on that workspace)."""
 
     kind: str
     models: Path | None = None
+    peg: PegWorkspace | None = None
 
 
 @dataclass
@@ -228,7 +231,7 @@ def build_demonstrator(job: DemoJob) -> DemoWorker:
     import torch
 
     torch.set_num_threads(1)  # as in the command line: identical predictions everywhere
-    env = GearAssemblyEnv()
+    env = GearAssemblyEnv() if job.peg is None else GearPegPoseEnv(job.peg)
     return DemoWorker(job, env, *make_demonstrator(job.kind, env, job.models))
 
 
@@ -250,13 +253,15 @@ def demonstrated_episode(worker: DemoWorker, item: tuple[int, str | None]) -> Ep
 def record_expert_episodes(n: int, seed: int, progress: bool = False,
                            human_mode: str | None = None, demonstrator: str = "expert",
                            models: Path | None = None,
-                           workers: Workers = SERIAL) -> list[Episode]:
+                           workers: Workers = SERIAL,
+                           peg: PegWorkspace | None = None) -> list[Episode]:
     """``n`` demonstrated episodes with seeds derived from ``seed`` (see :data:`Episode`);
-    ``demonstrator`` is one of :data:`DEMONSTRATORS`. The episodes run on ``workers``;
+    ``demonstrator`` is one of :data:`DEMONSTRATORS`; ``peg``: in the downstream task's
+    environment (:class:`DemoJob`). The episodes run on ``workers``;
     each depends on its own seed and mode alone (:func:`demonstrated_episode`), so the
     list is the same on one worker or many."""
     check_request(n, human_mode, demonstrator)
-    job = DemoJob(demonstrator, models)
+    job = DemoJob(demonstrator, models, peg)
     if demonstrator == "expert":
         return parallel_map(build_demonstrator, demonstrated_episode, job,
                             [(s, human_mode) for s in episode_seeds(seed, n)], workers,

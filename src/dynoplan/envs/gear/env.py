@@ -179,7 +179,8 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
               options: dict[str, Any] | None = None) -> tuple[FloatArray, dict[str, Any]]:
         super().reset(seed=seed)
         options = dict(options or {})
-        unknown = set(options) - {"gear_pose", "human_mode", "human_schedule"}
+        unknown = set(options) - {"gear_pose", "human_mode", "human_schedule",
+                                  *self.reset_options}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}")
         rng = self.np_random
@@ -199,6 +200,7 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
         a = self._gear_qadr
         d.qpos[a:a + 3] = (x, y, TABLE_TOP_Z)
         d.qpos[a + 3:a + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
+        self._place_peg(rng, options)
         mujoco.mj_kinematics(m, d)
 
         if "human_schedule" in options:
@@ -319,6 +321,15 @@ class GearAssemblyEnv(gym.Env[FloatArray, FloatArray]):
         return self._observation(), self._info(human_contacts=0)
 
     # --------------------------------------------------------------------- internals
+    reset_options: tuple[str, ...] = ()
+    """Further ``reset(options=...)`` keys a task variant reads (:meth:`_place_peg`)."""
+
+    def _place_peg(self, rng: np.random.Generator, options: dict[str, Any]) -> None:
+        """Where the right hand holds the peg module this episode, drawn from ``rng``
+        after the gear's pose and before the human's schedule (which aims at the peg):
+        here always :data:`RIGHT_HOLD`, drawing nothing; a task variant
+        (:class:`~dynoplan.envs.gear.peg_pose.GearPegPoseEnv`) overrides it."""
+
     def _set_human(self, t: float) -> None:
         pos = self.schedule.position(t)
         self.data.mocap_pos[0] = pos

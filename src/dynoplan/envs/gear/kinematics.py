@@ -86,21 +86,29 @@ class ArmKinematics:
     def solve(self, q_seed: FloatArray, position: FloatArray, rotation: FloatArray,
               side: str = "l", free_roll: bool = False, iterations: int = 300,
               position_tolerance: float = 5e-4, rotation_tolerance: float = 5e-3,
-              posture_cost: float = 1e-3) -> IKResult:
-        """Arm joints that put ``{side}_tcp`` at ``position`` (3,) with ``rotation`` (3, 3).
+              posture_cost: float = 1e-3, free_axis: int | None = None,
+              site: str | None = None) -> IKResult:
+        """Arm joints that put ``{side}_tcp`` (or ``site``, a site the ``side`` arm moves)
+        at ``position`` (3,) with ``rotation`` (3, 3).
 
         Args:
             q_seed: (12,) start of the iteration; the other arm keeps its values.
             free_roll: leave the rotation about the approach (tool ``x``) axis free, as for
                 grasping the gear, which is symmetric about its axis.
             posture_cost: pull towards ``q_seed`` (keeps the solution near the seed).
+            free_axis: leave the rotation about this tool axis (0 ``x``, 1 ``y``, 2 ``z``)
+                free (``free_roll`` is ``free_axis=0``).
+            site: the site to place (default ``{side}_tcp``; ``peg_tip`` for the peg the
+                right hand holds).
         """
         q_seed = np.asarray(q_seed, dtype=np.float64)
         qpos = self.model.qpos0.copy()
         qpos[self._qadr] = q_seed
         self.configuration.update(qpos)
         orientation_cost = np.array([0.0 if free_roll else 1.0, 1.0, 1.0])
-        task = mink.FrameTask(f"{side}_tcp", "site", position_cost=1.0,
+        if free_axis is not None:
+            orientation_cost[free_axis] = 0.0
+        task = mink.FrameTask(site or f"{side}_tcp", "site", position_cost=1.0,
                               orientation_cost=orientation_cost, lm_damping=1e-3)
         task.set_target(mink.SE3.from_rotation_and_translation(
             mink.SO3.from_matrix(np.asarray(rotation)), np.asarray(position)))

@@ -16,7 +16,7 @@ on one worker or many (only the measured decision latencies differ).
 """
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,7 @@ from dynoplan.envs.gear.flat_policy import FLAT_POLICY, FlatPolicy, FlatPolicyRu
 from dynoplan.envs.gear.human import BEHAVIOURS
 from dynoplan.envs.gear.learning.files import TASK_NAME
 from dynoplan.envs.gear.metrics import episode_metrics
+from dynoplan.envs.gear.peg_pose import PEG_TASK_NAME, GearPegPoseEnv, PegFrame, PegWorkspace
 from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
@@ -60,6 +61,16 @@ class GearTask:
             (:class:`~dynoplan.safety.shield.SeparationShield`, outermost): a protective
             stop (the arm held where it is) on every step that starts with the arm moving
             closer to the hand than ``S_p``.
+        peg: the downstream task (:mod:`~dynoplan.envs.gear.peg_pose`): the peg module
+            held at a pose drawn from this workspace each episode; ``None``: the first
+            task, the peg always at ``RIGHT_HOLD``.
+        networks: the folder the option networks (the pick's recognizer, the insertion
+            policy) are read from; ``None``: the models folder itself (a task fitted on an
+            options folder, :func:`~dynoplan.pipeline.task_fit.run_task`, has only the
+            task's models: give the options folder's).
+        peg_frame: the planner rolls every option's dynamics in the first task's frame
+            (:class:`~dynoplan.envs.gear.peg_pose.PegFrame`, the options' own state space):
+            for the first task's dynamics on the downstream task.
     """
 
     fault: str | None = None
@@ -68,6 +79,9 @@ class GearTask:
     render: bool = False
     human: tuple[str, ...] | None = None
     shield: bool = False
+    peg: PegWorkspace | None = None
+    networks: Path | None = None
+    peg_frame: bool = False
 
     def __post_init__(self) -> None:
         if self.fault is not None and self.fault not in FAULTS:
@@ -80,15 +94,19 @@ class GearTask:
 
     @property
     def name(self) -> str:
-        return TASK_NAME
+        return TASK_NAME if self.peg is None else PEG_TASK_NAME
 
     def make_env(self) -> gym.Env[Any, Any]:
         """The gear environment, wrapped by the fault if any (``env.unwrapped`` is the
-        :class:`~dynoplan.envs.gear.env.GearAssemblyEnv`)."""
+        :class:`~dynoplan.envs.gear.env.GearAssemblyEnv`, with ``peg`` a
+        :class:`~dynoplan.envs.gear.peg_pose.GearPegPoseEnv`)."""
         from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
 
-        gear_env = GearAssemblyEnv(render_mode="rgb_array" if self.render else None,
-                                   human_behaviours=self.human)
+        render_mode = "rgb_array" if self.render else None
+        gear_env = (GearAssemblyEnv(render_mode=render_mode, human_behaviours=self.human)
+                    if self.peg is None else
+                    GearPegPoseEnv(self.peg, render_mode=render_mode,
+                                   human_behaviours=self.human))
         env: gym.Env[Any, Any] = gear_env
         if self.fault == "observation_noise":
             env = ObservationNoise(gear_env, self.observation_noise)
@@ -127,11 +145,15 @@ class GearTask:
             if self.flat_folder is None:
                 raise DynoplanError(f"{FLAT_POLICY} needs the flat policy's folder")
             return FlatPolicyRunner(gear_env, FlatPolicy(self.flat_folder, gear_env).act)
-        fitted = load_gear_models(models)
-        factories = policy_factories(models)
+        fitted = load_gear_models(models, self.name)
+        factories = policy_factories(self.networks or models)
         variant = VARIANTS[controller]
+        options = gear_options(gear_env, fitted, factories, variant.sets)
+        if self.peg_frame:
+            frame = PegFrame()
+            options = [replace(o, state_map=frame) for o in options]
         return ControllerRunner(
-            env, make_controller(variant, gear_options(gear_env, fitted, factories, variant.sets),
+            env, make_controller(variant, options,
                                  fitted.goal, planning_settings(settings, fitted),
                                  action_space=env.action_space,
                                  state_scale=fitted.state_scale,

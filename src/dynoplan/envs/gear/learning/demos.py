@@ -16,9 +16,10 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, write_dataset
-from dynoplan.envs import GEAR_ASSEMBLY_ID
+from dynoplan.envs import GEAR_ASSEMBLY_ID, GEAR_PEG_POSE_ID
 from dynoplan.envs.gear.demonstrations import record_expert_episodes
 from dynoplan.envs.gear.options.catalog import gear_option_names
+from dynoplan.envs.gear.peg_pose import PegWorkspace
 from dynoplan.io import ensure_writable_dir
 from dynoplan.parallel import SERIAL, Workers
 
@@ -41,25 +42,30 @@ def to_dataset_episode(raw: dict[str, Any]) -> Episode:
 
 def record_demos(n: int, seed: int, out: Path, progress: bool = True,
                  human_mode: str | None = None, demonstrator: str = "expert",
-                 models: Path | None = None, workers: Workers = SERIAL) -> dict[str, Any]:
+                 models: Path | None = None, workers: Workers = SERIAL,
+                 peg: PegWorkspace | None = None) -> dict[str, Any]:
     """Record ``n`` demonstrations into the dataset folder ``out``; return a summary.
 
     ``demonstrator``: ``expert`` (the scripted expert) or ``options`` (an operator
-    chaining the option policies, whose networks are read from ``models``). The episodes
-    run on ``workers``; the dataset is the same on one worker or many."""
+    chaining the option policies, whose networks are read from ``models``). ``peg``: in
+    the downstream task's environment (``dynoplan/GearPegPose-v0`` on that workspace,
+    :mod:`~dynoplan.envs.gear.peg_pose`). The episodes run on ``workers``; the dataset is
+    the same on one worker or many."""
     ensure_writable_dir(out.parent if out.parent != Path("") else Path("."))
     raw = record_expert_episodes(n, seed, progress=progress, human_mode=human_mode,
-                                 demonstrator=demonstrator, models=models, workers=workers)
+                                 demonstrator=demonstrator, models=models, workers=workers,
+                                 peg=peg)
     episodes = [to_dataset_episode(r) for r in raw]
     modes = [str(r["human_mode"]) for r in raw]
-    env = gym.make(GEAR_ASSEMBLY_ID)
+    env_id = GEAR_ASSEMBLY_ID if peg is None else GEAR_PEG_POSE_ID
+    env = gym.make(env_id)
     try:
         spec = env.spec.to_json() if env.spec is not None else None
         obs_space, act_space = env.observation_space, env.action_space
         assert isinstance(obs_space, gym.spaces.Box) and isinstance(act_space, gym.spaces.Box)
         metadata = DatasetMetadata(
             dataset_id=DATASET_ID,
-            env_id=GEAR_ASSEMBLY_ID,
+            env_id=env_id,
             env_spec=spec,
             option_names=list(gear_option_names()),
             seed=seed,

@@ -63,21 +63,24 @@ def gear_models(dynamics: Mapping[str, DynamicsModel], goal: GoalModel,
                          "settings": asdict(settings)})
 
 
-def load_gear_models(folder: str | os.PathLike[str]) -> FittedModels:
+def load_gear_models(folder: str | os.PathLike[str], task: str = TASK_NAME) -> FittedModels:
     """Read the models written by
-    :func:`~dynoplan.envs.gear.learning.training.train_gear_models` from ``folder``.
+    :func:`~dynoplan.envs.gear.learning.training.train_gear_models` from ``folder`` (or a
+    gear task's models fitted on an options folder,
+    :func:`~dynoplan.pipeline.task_fit.run_task`: then ``task`` names it, for example
+    :data:`~dynoplan.envs.gear.peg_pose.PEG_TASK_NAME`).
 
     Raises:
-        DynoplanError: (one line) see :meth:`FittedModels.load`, and a task, state
-            dimension, option names or decision rate other than this version's gear
-            assembly's with the registered options, or no regions.
+        DynoplanError: (one line) see :meth:`FittedModels.load`, and a task other than
+            ``task``, a state dimension, option names or decision rate other than this
+            version's gear assembly's with the registered options, or no regions.
     """
     names = list(gear_option_names())
     models = FittedModels.load(folder, FEATURE_MAPS, RETRAIN, known_options=names)
     path = Path(folder) / MANIFEST_FILE
     found = {"task": models.task, "state_dim": models.state_dim,
              "option_names": models.option_names, "stride": models.stride}
-    expected = {"task": TASK_NAME, "state_dim": STATE_DIM, "option_names": names,
+    expected = {"task": task, "state_dim": STATE_DIM, "option_names": names,
                 "stride": DECISION_STEPS}
     for key, value in expected.items():
         if found[key] != value:

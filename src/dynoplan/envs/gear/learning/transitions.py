@@ -53,7 +53,8 @@ def check_collection(runs_per_option: int, max_decisions: int) -> None:
 def collect_gear_transitions(factories: Mapping[str, GearPolicyFactory] | Path,
                              runs_per_option: int, seed: int, out: Path,
                              max_decisions: int = 30, progress: bool = True,
-                             workers: Workers = SERIAL) -> dict[str, Any]:
+                             workers: Workers = SERIAL,
+                             task: GearTask | None = None) -> dict[str, Any]:
     """Collect ``runs_per_option`` runs of every option in ``factories``; write the
     dataset folder ``out``; return a summary (runs, transitions per option).
 
@@ -61,6 +62,8 @@ def collect_gear_transitions(factories: Mapping[str, GearPolicyFactory] | Path,
     registered option, built by :func:`~dynoplan.envs.gear.options.catalog.policy_factories`); runs
     on several ``workers`` need the folder (workers rebuild the policies from files). The
     runs are written in the same order, so the dataset is the same for one worker or many.
+    ``task``: the gear task whose environment the runs are in (default: the first task,
+    :class:`~dynoplan.envs.gear.pipeline_task.GearTask`).
     """
     registered = GEAR_OPTIONS.names()
     if isinstance(factories, Path):
@@ -78,7 +81,7 @@ def collect_gear_transitions(factories: Mapping[str, GearPolicyFactory] | Path,
     check_collection(runs_per_option, max_decisions)
     if models is not None:
         policy_factories(models)  # a missing or broken network: one error here, not per run
-    job = OptionRunsJob(GearTask(), models, names, seed, max_decisions * DECISION_STEPS,
+    job = OptionRunsJob(task or GearTask(), models, names, seed, max_decisions * DECISION_STEPS,
                         factories=given)
     episodes: list[Episode] = []
     modes: list[str] = []
@@ -88,6 +91,7 @@ def collect_gear_transitions(factories: Mapping[str, GearPolicyFactory] | Path,
         modes += [tags["human_mode"]] * len(run_episodes)
     write_runs(out, episodes, DATASET_ID, seed,
                {"decision_steps": DECISION_STEPS, "human_modes": modes,
+                "task": (task or GearTask()).name,
                 "actions": "the option's index (one run of one option per episode)",
                 "perturbed_fraction": PERTURBED_FRACTION})
     counts: Counter[str] = Counter()
