@@ -133,7 +133,9 @@ def test_the_task_keeps_the_first_tasks_dynamics_byte_for_byte_and_fits_its_goal
         load_gear_models(tmp_path / "task")  # not the first task's models
 
 
-def test_an_options_folder_without_an_option_the_task_needs_is_one_line(tmp_path, capsys):
+def test_an_options_folder_without_an_option_the_task_needs_is_one_line(tmp_path, capsys,
+                                                                       monkeypatch):
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))  # benchmarks/
     from benchmarks.transfer.gear_peg_task import main
 
     names = list(gear_option_names())

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from dynoplan.envs.gear.linearise import linearised
 from dynoplan.envs.gear.state import STATE_DIM, STATE_NAMES, STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
 from dynoplan.models.features import FeatureMap
@@ -94,18 +95,7 @@ class PegTip:
         return out
 
     def _linearised(self, q0: FloatArray) -> tuple[FloatArray, FloatArray]:
-        key = q0.tobytes()
-        hit = self._cache.get(key)
-        if hit is None:
-            if len(self._cache) > 4096:
-                self._cache.clear()
-            jacobian = np.empty((3, 6))
-            for j in range(6):
-                dq = np.zeros(6)
-                dq[j] = 1e-3
-                jacobian[:, j] = (self._exact(q0 + dq) - self._exact(q0 - dq)) / 2e-3
-            hit = self._cache[key] = (self._exact(q0), jacobian)
-        return hit
+        return linearised(self._exact, q0, self._cache, 4096)
 
     def __call__(self, q_right: FloatArray) -> FloatArray:
         """Right-arm joints (N, 6) -> peg tips (N, 3)."""

@@ -32,6 +32,7 @@ import numpy as np
 from dynoplan.envs.gear.env import CONTROL_DT, GRIPPER_CLOSED, HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.grasp import ik_gear_at, quat_to_mat
 from dynoplan.envs.gear.kinematics import ArmKinematics
+from dynoplan.envs.gear.linearise import linearised
 from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
 from dynoplan.envs.gear.options.motion import LeftArmPlanner
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
@@ -146,18 +147,7 @@ class PreInsertionBeta:
         return d
 
     def _linearised(self, q0: FloatArray) -> tuple[FloatArray, FloatArray]:
-        key = q0.tobytes()
-        hit = self._linear.get(key)
-        if hit is None:
-            if len(self._linear) > 256:
-                self._linear.clear()
-            jacobian = np.empty((3, 6))
-            for j in range(6):
-                dq = np.zeros(6)
-                dq[j] = 1e-3
-                jacobian[:, j] = (self.target(q0 + dq) - self.target(q0 - dq)) / 2e-3
-            hit = self._linear[key] = (self.target(q0), jacobian)
-        return hit
+        return linearised(self.target, q0, self._linear, 256)
 
     def __call__(self, states: FloatArray) -> FloatArray:
         d = self.distance(states)
