@@ -18,6 +18,13 @@ samples too; the gear's decision period and episode limits kept). The last two r
 need the state scale that the fit records (``models.json``'s ``report.state_scale``);
 models trained before it was recorded get one error line.
 
+With ``--fit KEY=VALUE`` (repeatable, a field of
+:class:`~dynoplan.pipeline.fit_settings.FitSettings`), the rows run on models fitted
+again from the run's own data (its demonstrations, option runs, held-out trials and
+outcome runs) with the gear's fit settings changed so, written into ``--work`` (a copy
+of the run's ``models/``, whose option networks are the run's); ``--fit generic`` sets
+the generic pipeline's fit remedies that the gear's fit can take (:data:`GENERIC_FIT`).
+
 Prints and writes (``--out``, JSON) one row per setting: success, median time to success,
 contacts with the person (all, and while the arm moved) and the failures by kind.
 """
@@ -35,6 +42,11 @@ GENERIC_RULES: dict[str, Any] = {"start_where_done": False, "fallback_must_gain"
                                  "no_effect_tolerance": None, "no_effect_share": 0.01,
                                  "loop_share": 0.05}
 """The generic defaults' rules where the gear's settings differ (its sizes aside)."""
+
+GENERIC_FIT: dict[str, Any] = {"goal_off_demos": True, "constant_dimensions_still": True,
+                               "dynamics_min_updates": 1000}
+"""The generic defaults' fit remedies where the gear's fit settings differ and the gear's
+fit can take them (its one-step dynamics aside: ``option_model``)."""
 
 GENERIC_SIZES = ("horizon", "samples")
 """The generic defaults' sizes that ``--sizes`` adds (the decision period and the episode
@@ -54,6 +66,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--each", action="store_true", help="also each rule alone")
     parser.add_argument("--sizes", action="store_true",
                         help="also the generic defaults' horizon and samples")
+    parser.add_argument("--fit", action="append", default=[], metavar="KEY=VALUE",
+                        help="refit the models with this fit setting changed ('generic': "
+                             "the generic fit remedies); repeatable")
+    parser.add_argument("--work", type=Path, help="the refitted models' folder (with --fit)")
     parser.add_argument("--out", type=Path, help="write the rows as JSON")
     args = parser.parse_args(argv)
 
@@ -73,9 +89,15 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     models = args.run / "models"
+    fit_changes: dict[str, Any] = {}
     try:
         if args.episodes < 1:
             raise DynoplanError(f"--episodes must be >= 1, got {args.episodes}")
+        if args.fit:
+            fit_changes = fit_overrides(args.fit)
+            if args.work is None:
+                raise DynoplanError("--fit needs --work DIR for the refitted models")
+            models = refit(args.run, args.seed, fit_changes, args.work)
         if load_gear_models(models).state_scale is None:
             raise DynoplanError(f"{models}: the models record no state scale (trained before "
                                 "it was recorded); train them again with 'dynoplan gear run'")
@@ -92,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
                                         **{k: getattr(defaults, k) for k in GENERIC_SIZES}}
     seeds = evaluation_seeds(args.seed, args.episodes)
     results: dict[str, Any] = {"run": str(args.run), "seed": args.seed,
-                               "episodes": args.episodes, "rows": {}}
+                               "episodes": args.episodes, "fit": fit_changes,
+                               "models": str(models), "rows": {}}
     for label, changes in rows.items():
         started = time.perf_counter()
         job = ControllerJob(GearTask(), models, "dynoplan", replace(GEAR_CONTROL, **changes))
@@ -104,6 +127,64 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is not None:
             write_json(args.out, results)
     return 0
+
+
+def fit_overrides(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` fit settings (a TOML value, a bare word as a string; ``generic``:
+    :data:`GENERIC_FIT`) as changes of the gear's
+    :class:`~dynoplan.pipeline.fit_settings.FitSettings`.
+
+    Raises:
+        DynoplanError: not ``KEY=VALUE``, or no such setting.
+    """
+    import tomllib
+    from dataclasses import fields
+
+    from dynoplan.errors import DynoplanError
+    from dynoplan.pipeline.fit_settings import FitSettings
+
+    known = {f.name for f in fields(FitSettings)}
+    out: dict[str, Any] = {}
+    for item in items:
+        if item == "generic":
+            out.update(GENERIC_FIT)
+            continue
+        key, sep, text = item.partition("=")
+        if not sep or key not in known:
+            raise DynoplanError(f"--fit {item!r}: expected KEY=VALUE with KEY one of "
+                                f"{', '.join(sorted(known))}")
+        try:
+            out[key] = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key] = text
+    return out
+
+
+def refit(run: Path, seed: int, changes: dict[str, Any], work: Path) -> Path:
+    """The run's models fitted again from its own data with the run's fit settings
+    (``summary.json``'s) changed by ``changes``, and the initiation learned again from its
+    outcome runs, into ``work`` (a copy of ``run/models``: the option networks are the
+    run's); returns ``work``."""
+    import shutil
+
+    from dynoplan.envs.gear.learning.outcomes import fit_gear_initiation
+    from dynoplan.envs.gear.learning.settings import GearMetricsSettings
+    from dynoplan.envs.gear.learning.training import train_gear_models
+    from dynoplan.io import read_json_object, write_json
+    from dynoplan.pipeline.fit_settings import FitSettings
+
+    recorded = read_json_object(run / "summary.json", "gear run summary")["settings"]
+    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
+                              for k, v in recorded["fit"].items()}
+    fit = replace(FitSettings(**values), **changes)
+    measures = GearMetricsSettings(**recorded["metrics"])
+    if work.exists():
+        shutil.rmtree(work)
+    shutil.copytree(run / "models", work)
+    train_gear_models(run / "demos", run / "transitions", work, seed, run / "heldout", False,
+                      progress=False, settings=fit, measures=measures)
+    write_json(work / "initiation.json", fit_gear_initiation(work, run / "outcomes", seed))
+    return work
 
 
 if __name__ == "__main__":

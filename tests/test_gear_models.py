@@ -313,6 +313,28 @@ def test_fit_settings_the_gear_does_not_train_are_rejected(tmp_path, change):
     assert not (tmp_path / "m").exists()  # rejected before anything is written
 
 
+def test_an_option_model_to_the_end_is_rejected_before_anything_is_written(tmp_path):
+    with pytest.raises(DynoplanError, match="one decision ahead"):
+        train_gear_models(tmp_path / "demos", None, tmp_path / "m", seed=0,
+                          heldout_demos=tmp_path / "held", quick=True, progress=False,
+                          settings=replace(QUICK_SETTINGS, option_model="end"))
+    assert not (tmp_path / "m").exists()
+
+
+def test_the_goal_off_the_demonstrations_fits_the_option_runs_states_too(data, trained,
+                                                                          tmp_path):
+    """``goal_off_demos`` is not silently ignored by the gear's fit: the goal network also
+    fits the states of the runs the dynamics learn from, and scores differently."""
+    metrics = train_gear_models(data / "demos", None, tmp_path / "m", seed=0,
+                                heldout_demos=data / "heldout", quick=True, progress=False,
+                                settings=replace(QUICK_SETTINGS, goal_off_demos=True))
+    plain = trained[1]["goal"]
+    assert plain["off_demo_states"] == 0
+    assert metrics["goal"]["off_demo_states"] > 0
+    assert metrics["goal"]["train_states"] == plain["train_states"]
+    assert (tmp_path / "m" / GOAL_FILE).read_bytes() != (trained[0] / GOAL_FILE).read_bytes()
+
+
 def test_figures_are_drawn_from_the_trained_models(trained, data, tmp_path):
     out, _ = trained
     summary = make_gear_figures(out, data / "demos", data / "heldout", tmp_path / "figs",

@@ -153,6 +153,10 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         raise DynoplanError("the gear's models leave undemonstrated options without a region "
                             "(region_undemonstrated='everywhere') and learn initiation from "
                             "outcome runs ('gear outcomes'), not in training")
+    if cfg.option_model != "step":
+        raise DynoplanError("the gear's dynamics predict one decision ahead "
+                            "(option_model='step'): its option runs do not record where a "
+                            "run was cut short, which an option model to the end needs")
     measure = measures or (QUICK_METRICS if quick else DEFAULT_METRICS)
     started = time.perf_counter()
     out = ensure_writable_dir(out)
@@ -185,7 +189,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
 
     def fit_goal() -> None:
         results["goal"], fitted["goal"] = _train_goal(list(train_set), held, cfg, seed,
-                                                      planner)
+                                                      planner, dyn_train)
 
     def fit_regions() -> None:
         results["regions"], fitted["regions"] = _train_regions(
@@ -254,16 +258,17 @@ def gear_features(name: str | None) -> FeatureMap:
 
 def _train_goal(train_set: Sequence[Episode],
                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]],
-                cfg: FitSettings, seed: int, planner: PlannerState
-                ) -> tuple[dict[str, Any], GoalOnFeatures]:
+                cfg: FitSettings, seed: int, planner: PlannerState,
+                runs: Sequence[Episode]) -> tuple[dict[str, Any], GoalOnFeatures]:
     """The goal heuristic on the gear's goal features, fitted by the pipeline
     (:func:`~dynoplan.pipeline.fit_goal.fit_goal`: on the demonstrations' states and their
-    progress ``t / T``, which ``infos["progress"]`` records too); the report of
-    ``metrics.json``'s ``goal``, measured on the held-out trials ``held``, and the goal
-    heuristic on planner states."""
+    progress ``t / T``, which ``infos["progress"]`` records too, and with
+    ``cfg.goal_off_demos`` on the states of the option runs ``runs``, the dynamics'
+    training data, too); the report of ``metrics.json``'s ``goal``, measured on the
+    held-out trials ``held``, and the goal heuristic on planner states."""
     f = gear_features(cfg.goal_features)
     training: list[GoalTrainingReport] = []
-    goal, fit_report = fit_goal(train_set, cfg, seed, planner, f, training=training)
+    goal, fit_report = fit_goal(train_set, cfg, seed, planner, f, off=runs, training=training)
     assert isinstance(goal, GoalOnFeatures)  # fitted on a feature map
     network, report = goal.network, training[0]
     xh = np.concatenate([f(s) for s, _, _ in held])
@@ -292,6 +297,7 @@ def _train_goal(train_set: Sequence[Episode],
         "uninterrupted": calm_metrics,
         "train_loss_first_last": [report.train_loss[0], report.train_loss[-1]],
         "train_states": fit_report["states"],
+        "off_demo_states": fit_report["off_demo_states"],
         "note": "truth = the trial's normalised time (infos['progress']); spearman and "
                 "mae are means over held-out trials of each trial's rank correlation and "
                 "error along that trial (Fig. 3a's view: the planner ranks futures of one "
