@@ -38,8 +38,8 @@ lint: $(VENV)/.installed-dev
 # fixture (a quick gear run, a Ray runtime) run on one worker (tests/conftest.py).
 TEST_WORKERS ?= 2
 test: lint
-	$(BIN)/pytest -m "not slow" -n $(TEST_WORKERS) --dist loadgroup
-	$(BIN)/pytest -m slow -n $(TEST_WORKERS) --dist loadgroup
+	$(BIN)/pytest -m "not slow" -n $(TEST_WORKERS) --dist loadgroup --durations=10
+	$(BIN)/pytest -m slow -n $(TEST_WORKERS) --dist loadgroup --durations=15
 
 test-fast: $(VENV)/.installed-dev
 	$(BIN)/pytest -m "not slow" -x

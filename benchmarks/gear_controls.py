@@ -1,4 +1,4 @@
-"""The gear's controller settings against the generic defaults' rules, on the same episodes.
+"""The gear's controller settings: the library's defaults against the gear's former own.
 
 Usage::
 
@@ -6,17 +6,17 @@ Usage::
     .venv/bin/python benchmarks/gear_controls.py --run DIR --each --out results/gear-controls.json
 
 DynoPlan on the models of one ``dynoplan gear run`` (``--run``: its output folder; the
-evaluation seeds of ``--seed``, the run's own), under the gear's controller settings
-(:data:`~dynoplan.envs.gear.controllers.GEAR_CONTROL`) and under the rules where those
-differ from :class:`~dynoplan.pipeline.control_settings.ControllerSettings`' defaults,
-which every other Task runs on (:data:`GENERIC_RULES`: an option may not start where its
-termination holds, a fallback must gain, the stall rule, no margin, the no-effect rule's
-tolerance as a share of the state scale, the loop rule). With ``--each``, also each of
-those rules alone; with ``--sizes``, also the generic defaults whole
-(:class:`~dynoplan.pipeline.control_settings.ControllerSettings()`, its horizon and
-samples too; the gear's decision period and episode limits kept). The last two rules
-need the state scale that the fit records (``models.json``'s ``report.state_scale``);
-models trained before it was recorded get one error line.
+evaluation seeds of ``--seed``, the run's own), under ``gear run``'s controller settings
+(:data:`~dynoplan.envs.gear.controllers.GEAR_CONTROL`: the library's defaults, as on
+every Task, in the gear's units) and under the gear's former own settings
+(:data:`~dynoplan.envs.gear.controllers.GEAR_TUNED`: a longer horizon's worth of samples
+over a shorter horizon, a margin, the no-effect rule in millimetres, the generic rules
+off). With ``--each``, also each of the tuned settings alone. The defaults' no-effect
+and loop rules need the state scale that the fit records (``models.json``'s
+``report.state_scale``); models trained before it was recorded get one error line.
+(Before ``GEAR_CONTROL`` became the library's defaults, this benchmark's rows were the
+gear's settings, the generic rules and, with ``--sizes``, the generic defaults: the
+command of ``docs/gear.md`` at ``aadcbbc``.)
 
 With ``--fit KEY=VALUE`` (repeatable, a field of
 :class:`~dynoplan.pipeline.fit_settings.FitSettings`), the rows run on models fitted
@@ -37,20 +37,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-GENERIC_RULES: dict[str, Any] = {"start_where_done": False, "fallback_must_gain": True,
-                                 "stall_progress": 0.5, "margin": 0.0,
-                                 "no_effect_tolerance": None, "no_effect_share": 0.01,
-                                 "loop_share": 0.05}
-"""The generic defaults' rules where the gear's settings differ (its sizes aside)."""
-
 GENERIC_FIT: dict[str, Any] = {"goal_off_demos": True, "constant_dimensions_still": True,
                                "dynamics_min_updates": 1000}
 """The generic defaults' fit remedies where the gear's fit settings differ and the gear's
 fit can take them (its one-step dynamics aside: ``option_model``)."""
-
-GENERIC_SIZES = ("horizon", "samples")
-"""The generic defaults' sizes that ``--sizes`` adds (the decision period and the episode
-limits are the gear's own: they are in its units)."""
 
 SHOWN = ("success_rate", "time_to_success_s", "contacts", "contacts_moving",
          "episodes_with_contact", "failures")
@@ -63,9 +53,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="a gear run's output folder (its models/)")
     parser.add_argument("--seed", type=int, default=0, help="the run's seed [0]")
     parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--each", action="store_true", help="also each rule alone")
-    parser.add_argument("--sizes", action="store_true",
-                        help="also the generic defaults' horizon and samples")
+    parser.add_argument("--each", action="store_true",
+                        help="also each of the tuned settings alone")
     parser.add_argument("--fit", action="append", default=[], metavar="KEY=VALUE",
                         help="refit the models with this fit setting changed ('generic': "
                              "the generic fit remedies); repeatable")
@@ -75,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from dynoplan.envs.gear.controllers import GEAR_CONTROL
+    from dynoplan.envs.gear.controllers import GEAR_CONTROL, TUNED_CHANGES
     from dynoplan.envs.gear.evaluation import evaluation_seeds
     from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.pipeline_task import GearTask
@@ -83,7 +72,6 @@ def main(argv: list[str] | None = None) -> int:
     from dynoplan.errors import DynoplanError
     from dynoplan.io import write_json
     from dynoplan.parallel import SERIAL
-    from dynoplan.pipeline.control_settings import ControllerSettings
     from dynoplan.pipeline.evaluate import ControllerJob
     from dynoplan.pipeline.jobs import evaluate_rows
 
@@ -104,14 +92,10 @@ def main(argv: list[str] | None = None) -> int:
     except DynoplanError as exc:
         print(f"gear_controls: error: {exc}", file=sys.stderr)
         return 2
-    rows: dict[str, dict[str, Any]] = {"the gear's settings": {}}
+    rows: dict[str, dict[str, Any]] = {"gear run's (the library's defaults)": {}}
     if args.each:
-        rows.update({f"{k}={v}": {k: v} for k, v in GENERIC_RULES.items()})
-    rows["the generic rules"] = GENERIC_RULES
-    if args.sizes:
-        defaults = ControllerSettings()
-        rows["the generic defaults"] = {**GENERIC_RULES,
-                                        **{k: getattr(defaults, k) for k in GENERIC_SIZES}}
+        rows.update({f"{k}={v}": {k: v} for k, v in TUNED_CHANGES.items()})
+    rows["the gear-tuned settings"] = TUNED_CHANGES
     seeds = evaluation_seeds(args.seed, args.episodes)
     results: dict[str, Any] = {"run": str(args.run), "seed": args.seed,
                                "episodes": args.episodes, "fit": fit_changes,

@@ -308,10 +308,10 @@ def test_the_gear_commands_set_the_planners_depth():
 def test_the_gear_controllers_do_not_repeat_an_option_without_effect_unless_told_to():
     from dynoplan.cli.gear import _planner_settings
 
-    assert GEAR_CONTROL.no_effect_tolerance == pytest.approx(1e-3)  # 1 mm, 1 mrad
-    assert _planner_settings(None, None, None, False).no_effect_tolerance == pytest.approx(1e-3)
+    assert GEAR_CONTROL.no_effect_share == pytest.approx(0.01)  # 1 % of each spread
+    assert _planner_settings(None, None, None, False) == GEAR_CONTROL
     ablation = _planner_settings(None, None, None, False, repeat_no_effect=True)
-    assert ablation.no_effect_tolerance is None
+    assert ablation.no_effect_tolerance is None and ablation.no_effect_share is None
     for command in ("evaluate", "episode"):
         shown = CliRunner().invoke(app, ["gear", command, "--help"], terminal_width=200)
         assert "--repeat-no-effect" in shown.output

@@ -52,8 +52,8 @@ def _end_inside_option() -> Any:
 
 def _repeat_option() -> Any:
     return typer.Option(False, "--repeat-no-effect", help="Let an option that ended where "
-                        "it started (within 1 mm and 1 mrad) start there again (the "
-                        "controller without the no-effect rule, an ablation).")
+                        "it started (within 1 % of each coordinate's spread) start there "
+                        "again (the controller without the no-effect rule, an ablation).")
 
 
 def _human_option() -> Any:
@@ -564,7 +564,7 @@ def _planner_settings(horizon: int | None, samples: int | None, epistemic: float
     if end_inside:
         planner = replace(planner, end_inside=True)
     if repeat_no_effect:
-        planner = replace(planner, no_effect_tolerance=None)
+        planner = replace(planner, no_effect_tolerance=None, no_effect_share=None)
     return planner
 
 

@@ -38,6 +38,8 @@ puts them together.
 """
 
 from collections.abc import Mapping, Sequence
+from dataclasses import fields
+from typing import Any
 
 import numpy as np
 
@@ -132,37 +134,50 @@ MAX_EPISODE_SECONDS = 40.0
 MAX_EPISODE_STEPS = round(MAX_EPISODE_SECONDS / CONTROL_DT)
 
 GEAR_CONTROL = ControllerSettings(
+    replan_every=DECISION_STEPS, max_decisions=MAX_EPISODE_STEPS,
+    max_option_steps=MAX_EPISODE_STEPS, oracle_horizon=10, oracle_samples=1)
+"""How the gear's controllers plan and run (``gear run``'s defaults): the library's
+defaults (:class:`~dynoplan.pipeline.control_settings.ControllerSettings`, the same on
+every Task), in the gear's units:
+
+- ``replan_every``: the choosers that replan (all but the fixed script) plan again every
+  decision period (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps);
+- an episode and an option may run as long as the environment's limit;
+- ``oracle_horizon``, ``oracle_samples``: the simulator oracle's (it pays real simulation
+  time).
+
+Measured on the models of ``gear run --seed 0, 1, 2`` (``docs/gear.md``, "One
+controller for every task"): on the same 100 episodes per seed these defaults succeed
+as often as the gear's former settings (:data:`GEAR_TUNED`), within one episode per
+seed."""
+
+GEAR_TUNED = ControllerSettings(
     horizon=10, samples=64, margin=0.1, replan_every=DECISION_STEPS,
     max_decisions=MAX_EPISODE_STEPS, max_option_steps=MAX_EPISODE_STEPS, oracle_horizon=10,
     oracle_samples=1, epistemic=0.0, no_effect_tolerance=1e-3, no_effect_share=None,
     loop_share=None, start_where_done=True, fallback_must_gain=False, stall_progress=None)
-"""How the gear's controllers plan and run (``gear run``'s defaults):
+"""The gear's own controller settings before the library's defaults served it (until
+``aadcbbc``), a named variant (``gear run``'s row ``dynoplan gear-tuned``): where they
+differ from :data:`GEAR_CONTROL`,
 
-- ``horizon``, ``samples``: Eq. 1's ``n`` (decisions of 0.5 s) and ``S``;
+- ``horizon`` 10, ``samples`` 64: Eq. 1's ``n`` (decisions of 0.5 s) and ``S``;
 - ``margin`` 0.1: near the peg the goal heuristic's estimates of the moves and the
   insertion differ by less than their noise, and a smaller margin lets them take turns;
-- ``replan_every``: the choosers that replan (all but the fixed script) plan again every
-  decision period (:data:`~dynoplan.envs.gear.state.DECISION_STEPS` env steps);
-- ``oracle_horizon``, ``oracle_samples``: the simulator oracle's (it pays real simulation
-  time);
-- ``epistemic`` 0, measured (``docs/gear-options.md``, ablation): on the same 30 episodes
-  ``dynoplan`` (learned sets) fell from 83 % to 73 % and 57 % at weights 0.3 and 1 (and from 93 %
-  to 87 % at 0.3 with the fallback and ``end_inside``). The dynamics ensemble disagrees
-  most on the insertion, the option that must win near the goal (0.25-0.4 on its own
-  trajectories, against 0.02-0.1 for the pick), so the penalty hands those decisions to a
-  pick that lifts the gear back off the peg;
-- an episode and an option may run as long as the environment's limit;
-- ``no_effect_tolerance`` 1e-3 (1 mm, 1 mrad): an option that ends where it started is
-  not started there again (:class:`~dynoplan.control.Controller`). Without it, a move
-  already at its goal (done after two steps) was chosen again and again, while the
-  insertion it should give way to was ruled out by its learned initiation (measured in
-  ``docs/safety.md``); without it (``gear evaluate --repeat-no-effect``) there is no such
-  rule (``no_effect_share`` is off);
-- the generic pipeline's other rules are off, as they were never measured on the gear:
-  an option may start where its termination is certain (``start_where_done``), no rule
-  against coming back to an earlier decision's state (``loop_share``), and where only an
-  option's fallback set holds, the planner starts the best-scoring option rather than
-  holding (``fallback_must_gain``, ``stall_progress``)."""
+- ``no_effect_tolerance`` 1e-3 (1 mm, 1 mrad) in place of ``no_effect_share`` (1 % of
+  each coordinate's spread): an option that ends where it started is not started there
+  again (:class:`~dynoplan.control.Controller`). Without either, a move already at its
+  goal (done after two steps) was chosen again and again, while the insertion it should
+  give way to was ruled out by its learned initiation (measured in ``docs/safety.md``);
+- the generic pipeline's other rules off: an option may start where its termination is
+  certain (``start_where_done``), no rule against coming back to an earlier decision's
+  state (``loop_share``), and where only an option's fallback set holds, the planner
+  starts the best-scoring option rather than holding (``fallback_must_gain``,
+  ``stall_progress``)."""
+
+TUNED_CHANGES: dict[str, Any] = {
+    f.name: getattr(GEAR_TUNED, f.name) for f in fields(ControllerSettings)
+    if getattr(GEAR_TUNED, f.name) != getattr(GEAR_CONTROL, f.name)}
+""":data:`GEAR_TUNED` as changes of :data:`GEAR_CONTROL` (``dataclasses.replace``)."""
 
 
 def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
@@ -324,6 +339,7 @@ __all__ = [
     "CONTROLLERS",
     "FIXED_SCRIPT",
     "GEAR_CONTROL",
+    "GEAR_TUNED",
     "HELD_GEAR_HEIGHT",
     "INITIATION_SETS",
     "INSERT_KEEP_CLEARANCE",
@@ -332,6 +348,7 @@ __all__ = [
     "MAX_EPISODE_STEPS",
     "MOVE_START_DISTANCE",
     "PICK_CLEARANCE",
+    "TUNED_CHANGES",
     "VARIANTS",
     "FarFromGoal",
     "HoldStill",

@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from dynoplan.envs.gear.controllers import CONTROLLERS
+from dynoplan.envs.gear.controllers import CONTROLLERS, TUNED_CHANGES
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY
 from dynoplan.envs.gear.options.catalog import CAUTIOUS_MOVE
 from dynoplan.envs.gear.pipeline_task import GearTask
@@ -35,13 +35,16 @@ replace."""
 ABLATION_ROWS: dict[str, tuple[str, dict[str, Any]]] = {
     "dynoplan_regions": ("dynoplan_regions", {}),
     "dynoplan epistemic=0.3": ("dynoplan", {"epistemic": 0.3}),
+    "dynoplan gear-tuned": ("dynoplan", TUNED_CHANGES),
 }
 """The last rows of ``results.csv``, each on the first ``ablation_episodes`` episodes:
 row name -> (controller of :data:`~dynoplan.envs.gear.controllers.VARIANTS`, the
 planner settings it changes). Beside DynoPlan on the same episodes they show what each
 learned part does: ``dynoplan_regions`` plans on the paper's Eq. 5 regions alone (no
 initiation learned from outcomes, rollouts not stopped at the continuation set),
-``epistemic=0.3`` penalises the dynamics ensemble's disagreement."""
+``epistemic=0.3`` penalises the dynamics ensemble's disagreement; ``gear-tuned`` plans
+with the gear's own former settings in place of the library's defaults
+(:data:`~dynoplan.envs.gear.controllers.GEAR_TUNED`)."""
 
 ORACLE_FIRST = ("oracle",)
 """Rows whose episodes are submitted first (the oracle's cost ten times the others'), so

@@ -150,7 +150,8 @@ class GraspRecognizer:
         """``P(grasped)``: an observation (50,) -> float; observations (N, 50) -> (N,)."""
         obs = np.asarray(observations, dtype=np.float64)
         logits = self.logits(grasp_features(obs, self._kin))
-        p: FloatArray = 1.0 / (1.0 + np.exp(-logits))
+        with np.errstate(over="ignore"):  # a logit below -709: exp overflows, P is 0.0
+            p: FloatArray = 1.0 / (1.0 + np.exp(-logits))
         return float(p[0]) if obs.ndim == 1 else p
 
     def accuracy(self, features: FloatArray, labels: BoolArray) -> float:
