@@ -99,3 +99,51 @@ def test_outcome_initiation_learns_where_runs_made_progress():
     assert report["right"]["kind"] == "network" and report["stay"]["kind"] == "never"
     assert learned.contains(np.array([[-3.0], [-1.0]]), "right").all()
     assert not learned.contains(np.array([[3.0], [4.0]]), "right").any()
+
+
+def test_an_undemonstrated_option_may_start_where_its_runs_made_the_goal_rise():
+    """``region_undemonstrated="outcomes"``, known answer: the undemonstrated 'left'
+    lowers ``G(x) = x / 10`` where it ran from x < -2 (it moves left) and raises it from
+    x > 6 (there a wall turns it right): admissible there only; 'idle' never ran whole,
+    so it is admissible nowhere. The demonstrated 'right' keeps its region."""
+    from dynoplan.pipeline import fit_undemonstrated_initiation
+
+    rng = np.random.default_rng(1)
+    runs = []
+    for _ in range(30):
+        x0 = rng.uniform(-8.0, -2.0)
+        runs.append(_episode(np.linspace(x0, x0 - 1.0, 5), 1))
+        x0 = rng.uniform(6.5, 9.0)
+        runs.append(_episode(np.linspace(x0, x0 + 1.0, 5), 1))
+    regions, report = fit_option_regions(DEMOS, runs, NAMES,
+                                         FitSettings(region_undemonstrated="outcomes"),
+                                         seed=0)
+    assert report["undemonstrated"] == {"left": "outcomes", "idle": "none"}
+    assert regions.option_names == ["right", "idle"]  # 'left': no region, its outcomes
+    assert not regions.contains(np.array([[11.0]]), "idle")[0]
+    learned, fit = fit_undemonstrated_initiation(runs, NAMES, ["left", "idle"], _Ramp(),
+                                                 FitSettings(), seed=0)
+    assert fit["left"]["kind"] == "network" and fit["idle"]["kind"] == "never"
+    assert learned.contains(np.array([[7.0], [8.5]]), "left").all()
+    assert not learned.contains(np.array([[-6.0], [-3.0]]), "left").any()
+    assert not learned.contains(np.array([[7.0], [-3.0]]), "idle").any()
+
+
+def test_fit_models_gives_the_undemonstrated_option_its_learned_initiation():
+    from dynoplan.pipeline import fit_models
+
+    specs = [option_spec(n, lambda obs: np.array([0.0], np.float32), termination=0.1)
+             for n in NAMES]
+    settings = FitSettings(dynamics_hidden=(8,), dynamics_members=1, dynamics_epochs=1,
+                           goal_hidden=8, goal_epochs=1, region_undemonstrated="outcomes",
+                           option_model="step")
+    cut = _episode(_RNG.normal(11.0, 0.5, 30), 2)  # 'idle' ran, but the explorer cut it
+    cut.infos["interrupted"] = np.r_[np.zeros(28, bool), True]
+    with pytest.warns(DynoplanWarning, match="made the goal heuristic rise"):
+        models = fit_models(specs, [*RUNS, cut], DEMOS, settings, seed=0)
+    assert models.learned_initiation is not None
+    assert models.learned_initiation.option_names == ["left", "idle"]
+    assert models.report["outcome_initiation"]["left"]["runs"] == 5 * 29
+    assert models.report["outcome_initiation"]["idle"]["kind"] == "never"
+    xs = np.linspace(-20.0, 20.0, 401)[:, None]
+    assert not models.initiation(specs[2]).contains(xs).any()  # idle: no whole run

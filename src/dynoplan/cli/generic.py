@@ -164,7 +164,8 @@ def pipeline(
     region_undemonstrated: str | None = typer.Option(
         None, "--region-undemonstrated",
         help="Region of an option no demonstration shows: runs (from its own exploration "
-             "runs), none (never admissible), everywhere (its own initiation set) [runs]."),
+             "runs), none (never admissible), everywhere (its own initiation set), outcomes "
+             "(where its exploration runs made the goal heuristic rise) [none]."),
     outcome_initiation: bool | None = typer.Option(
         None, "--outcome-initiation/--no-outcome-initiation",
         help="Also learn where each option may start from the outcomes of its exploration "

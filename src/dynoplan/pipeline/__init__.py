@@ -45,6 +45,7 @@ from dynoplan.pipeline.fit import (
     fit_option_regions,
     fit_outcome_initiation,
     fit_regions,
+    fit_undemonstrated_initiation,
     option_runs,
     option_transitions,
 )
@@ -102,6 +103,7 @@ __all__ = [
     "fit_option_regions",
     "fit_outcome_initiation",
     "fit_regions",
+    "fit_undemonstrated_initiation",
     "flat_state",
     "learned_regions",
     "load_function",

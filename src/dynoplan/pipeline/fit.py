@@ -85,6 +85,7 @@ from dynoplan.pipeline.fit_initiation import (
     OutcomeModel,
     fit_initiation_from_outcomes,
     fit_outcome_initiation,
+    fit_undemonstrated_initiation,
     outcome_starts,
 )
 from dynoplan.pipeline.fit_regions import (
@@ -441,10 +442,15 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
             warnings.warn(message, DynoplanWarning, stacklevel=2)
     learned: OutcomeInitiation | None = None
     outcome_report: dict[str, Any] | None = None
-    if settings.outcome_initiation:
+    if settings.outcome_initiation:  # every option's, the undemonstrated ones' too
         say("outcome initiation")
         learned, outcome_report = fit_outcome_initiation(transitions, names, goal, settings,
                                                          seed, state_fn)
+    elif region_report is not None and "outcomes" in region_report["undemonstrated"].values():
+        say("undemonstrated options' initiation")
+        unshown = [n for n, how in region_report["undemonstrated"].items() if how == "outcomes"]
+        learned, outcome_report = fit_undemonstrated_initiation(
+            transitions, names, unshown, goal, settings, seed, state_fn)
     every_state = np.concatenate([episode_states(e, state_fn) for e in [*transitions, *demos]])
     constant = constant_dimensions(every_state)
     note = constant_dimensions_warning(constant, every_state.shape[1],
@@ -502,6 +508,7 @@ __all__ = [
     "fit_outcome_initiation",
     "fit_regions",
     "fit_regions_cross_validated",
+    "fit_undemonstrated_initiation",
     "labelled_states",
     "named_feature_map",
     "option_labels",

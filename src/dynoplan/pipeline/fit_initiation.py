@@ -19,7 +19,7 @@ from dynoplan.models.outcome_initiation import (
     fit_report_dict,
 )
 from dynoplan.pipeline.collect import OUTCOME_KEY, ObservationFn
-from dynoplan.pipeline.fit_data import option_runs
+from dynoplan.pipeline.fit_data import option_end_pairs, option_runs
 from dynoplan.pipeline.fit_goal import GoalModel
 from dynoplan.pipeline.fit_settings import FitSettings
 from dynoplan.types import FloatArray
@@ -48,6 +48,45 @@ def fit_outcome_initiation(transitions: Sequence[Episode], option_names: Sequenc
             starts[name], outcomes[name] = begin, gain > settings.outcome_min_gain
     if not starts:
         raise DynoplanError("no option runs to learn initiation from outcomes")
+    learned, fit_report = OutcomeInitiation.fit(starts, outcomes, seed=seed)
+    return learned, fit_report_dict(fit_report)
+
+
+def fit_undemonstrated_initiation(transitions: Sequence[Episode],
+                                  option_names: Sequence[str], undemonstrated: Sequence[str],
+                                  goal: GoalModel, settings: FitSettings, seed: int,
+                                  state_fn: ObservationFn = flat_state,
+                                  ) -> tuple[OutcomeInitiation | None, dict[str, Any]]:
+    """Where the options no demonstration shows may start, from what their own
+    exploration runs achieved (``FitSettings.region_undemonstrated="outcomes"``).
+
+    Every state of every run of such an option that no one cut short
+    (:func:`~dynoplan.pipeline.fit_data.option_end_pairs`) is a start whose outcome is
+    known: the option, started there, ran to where that run ended. It is good when the
+    goal heuristic's mean rose by more than ``settings.outcome_min_gain`` from the state
+    to the run's end. One classifier per option learns ``P(good | s)``
+    (:class:`~dynoplan.models.outcome_initiation.OutcomeInitiation`); an option whose
+    runs all did (did not) is admissible everywhere (nowhere) by it, and so is one with
+    no whole run (nowhere: nothing it achieved is known). The demonstrated options get
+    none: their regions say where they start.
+
+    Returns:
+        The classifiers (``None`` when ``undemonstrated`` is empty) and the fit's report
+        per option (``runs`` counts start states here).
+    """
+    if not undemonstrated:
+        return None, {}
+    pairs = option_end_pairs(transitions, option_names, state_fn)
+    starts: dict[str, FloatArray] = {}
+    outcomes: dict[str, np.ndarray] = {}
+    for name in undemonstrated:
+        states, ends = pairs[name]
+        if len(states):
+            gain = goal.mean_std(ends)[0] - goal.mean_std(states)[0]
+            starts[name], outcomes[name] = states, gain > settings.outcome_min_gain
+        else:  # no whole run: one "never" start makes the option admissible nowhere
+            starts[name] = np.zeros((1, states.shape[1]))
+            outcomes[name] = np.zeros(1, dtype=bool)
     learned, fit_report = OutcomeInitiation.fit(starts, outcomes, seed=seed)
     return learned, fit_report_dict(fit_report)
 
@@ -115,4 +154,4 @@ def fit_initiation_from_outcomes(models: Path, episodes: Sequence[Episode],
 
 
 __all__ = ["OutcomeModel", "fit_initiation_from_outcomes", "fit_outcome_initiation",
-           "outcome_starts"]
+           "fit_undemonstrated_initiation", "outcome_starts"]

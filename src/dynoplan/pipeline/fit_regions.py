@@ -51,12 +51,16 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
     their regions the same way on the states where they acted in ``transitions``
     (merged into one model: the same ``L(s | k)``); ``"none"``, or ``"runs"``
     with fewer than ``4 (d + 1)`` such states, makes them admissible nowhere;
-    ``"everywhere"`` leaves them out of the regions (their own initiation set alone).
+    ``"everywhere"`` leaves them out of the regions (their own initiation set alone), and
+    so does ``"outcomes"`` for those with a run in ``transitions`` (their initiation is
+    then learned from what the runs achieved, in
+    :func:`~dynoplan.pipeline.fit.fit_models`; those without any get none).
     Each case is said in one :class:`~dynoplan.errors.DynoplanWarning`.
 
     Returns:
         The regions and ``{"method", "components", "heldout_coverage", ...,
-        "undemonstrated": {name: "runs" | "none" | "everywhere"}, "warnings": [...]}``.
+        "undemonstrated": {name: "runs" | "none" | "everywhere" | "outcomes"},
+        "warnings": [...]}``.
 
     Raises:
         DynoplanError: a demonstration or transition episode without option labels.
@@ -97,6 +101,16 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
                 "(region_undemonstrated='none' never starts them)")
     elif how == "none":
         nowhere = unshown
+    elif how == "outcomes":
+        _, run_labels, _ = labelled_states(transitions, len(names), state_fn)
+        ran = [k for k in unshown if np.any(run_labels == k)]
+        nowhere = [k for k in unshown if k not in ran]
+        if ran:
+            report["undemonstrated"].update({names[k]: "outcomes" for k in ran})
+            report["warnings"].append(
+                f"option(s) {', '.join(names[k] for k in ran)} never appear in the "
+                "demonstrations: they may start where their own exploration runs made the "
+                "goal heuristic rise")
     else:
         report["undemonstrated"].update({names[k]: "everywhere" for k in unshown})
         report["warnings"].append(
@@ -108,6 +122,7 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
             regions, SafetyRegions.nowhere([names[k] for k in nowhere], regions.state_dim))
         report["undemonstrated"].update({names[k]: "none" for k in nowhere})
         why = ("region_undemonstrated='none'" if how == "none" else
+               "no exploration run of their own" if how == "outcomes" else
                f"fewer than {4 * (states.shape[1] + 1)} states of their own runs")
         report["warnings"].append(
             f"option(s) {', '.join(names[k] for k in nowhere)} never appear in the "

@@ -75,7 +75,10 @@ class FitSettings:
             ``"runs"``: a region fitted (as above) on the states where it ran while
             collecting transitions, i.e. where its dynamics model has data; ``"none"``:
             no region (never admissible); ``"everywhere"``: its own initiation set
-            alone (before 0.x the only behaviour). The pipeline warns either way.
+            alone (before 0.x the only behaviour); ``"outcomes"``: its own initiation
+            set intersected with where its exploration runs made the goal heuristic
+            rise (:func:`~dynoplan.pipeline.fit_initiation.fit_undemonstrated_initiation`;
+            nowhere without a whole run of it). The pipeline warns either way.
     """
 
     stride: int = 1
@@ -150,7 +153,7 @@ OPTION_MODELS = ("step", "end")
 """Values of :attr:`FitSettings.option_model`."""
 REGION_FITS = ("heldout", "bic", "cv")
 """Values of :attr:`FitSettings.region_fit`."""
-UNDEMONSTRATED = ("runs", "none", "everywhere")
+UNDEMONSTRATED = ("runs", "none", "everywhere", "outcomes")
 """Values of :attr:`FitSettings.region_undemonstrated`."""
 
 
