@@ -25,6 +25,7 @@ RUN_CORE = textwrap.dedent('''
     settings = PipelineSettings(
         demos=2, exploration_episodes=3, episodes=2,
         fit=FitSettings(dynamics_hidden=(8,), dynamics_members=1, dynamics_epochs=2,
+                        dynamics_min_updates=20,
                         goal_hidden=8, goal_epochs=5, region_components=1),
         control=ControllerSettings(horizon=3, samples=4, max_decisions=30))
     run_pipeline("MountainCarContinuous-v0", make_options(), make_demonstrator(),
@@ -87,7 +88,8 @@ def test_a_fresh_environment_with_the_core_alone_runs_the_pipeline(tmp_path):
     done = subprocess.run(
         [str(venv / "bin" / "dynoplan"), "pipeline", "--env", "MountainCarContinuous-v0",
          "--options", "examples.mountain_car.options:make_options", "--demos", "3",
-         "--explore", "4", "--episodes", "3", "--dynamics-epochs", "3", "--goal-epochs",
+         "--explore", "4", "--episodes", "3", "--dynamics-epochs", "3",
+         "--dynamics-min-updates", "50", "--goal-epochs",
          "10", "--region-components", "1", "--horizon", "5", "--samples", "8", "--quiet",
          "--out", "out"], capture_output=True, text=True, timeout=1800, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -444,8 +444,9 @@ def test_cli_runs_the_pipeline_on_a_user_environment(tmp_path):
     (tmp_path / "line_options.py").write_text(OPTIONS_MODULE)
     done = _cli("pipeline", "--env", "TestLine-v0", "--options", "line_options:make_options",
                 "--demos", "2", "--explore", "4", "--episodes", "3", "--horizon", "5",
-                "--samples", "8", "--dynamics-epochs", "5", "--goal-epochs", "30",
-                "--out", "out", "--quiet", "--workers", "1", cwd=tmp_path)
+                "--samples", "8", "--dynamics-epochs", "5", "--dynamics-min-updates", "50",
+                "--goal-epochs", "30", "--out", "out", "--quiet", "--workers", "1",
+                cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert set(summary["controllers"]) == {"demonstrator", "dynoplan", "option:right",
@@ -460,7 +461,8 @@ def test_cli_pipeline_on_ray_workers_gives_the_same_table_as_one_worker(tmp_path
     (tmp_path / "line_options.py").write_text(OPTIONS_MODULE)
     common = ["pipeline", "--env", "TestLine-v0", "--options", "line_options:make_options",
               "--demos", "2", "--explore", "4", "--episodes", "6", "--horizon", "5",
-              "--samples", "8", "--dynamics-epochs", "5", "--goal-epochs", "30", "--quiet"]
+              "--samples", "8", "--dynamics-epochs", "5", "--dynamics-min-updates", "50",
+              "--goal-epochs", "30", "--quiet"]
     tables = {}
     for workers in ("1", "2"):
         done = _cli(*common, "--out", f"out{workers}", "--workers", workers, cwd=tmp_path)

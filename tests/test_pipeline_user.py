@@ -186,7 +186,8 @@ OPTIONS_MODULE = textwrap.dedent('''
         raise ValueError("no goal here")
 ''')
 SMALL_FLAGS = ["--demos", "2", "--explore", "4", "--episodes", "3", "--horizon", "5",
-               "--samples", "8", "--dynamics-epochs", "5", "--dynamics-members", "2",
+               "--samples", "8", "--dynamics-epochs", "5", "--dynamics-min-updates", "50",
+               "--dynamics-members", "2",
                "--goal-epochs", "30", "--region-components", "1", "--workers", "1",
                "--quiet"]
 

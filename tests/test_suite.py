@@ -57,7 +57,8 @@ def test_an_unknown_task_or_setting_is_one_error_line(tmp_path, capsys):
 def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp_path):
     assert suite.main(["--tasks", "minigrid-doorkey", "--seeds", "0", "--episodes", "3",
                        "--set", "demos=3", "--set", "exploration_episodes=4",
-                       "--set", "fit.dynamics_epochs=5", "--set", "fit.goal_epochs=30",
+                       "--set", "fit.dynamics_epochs=5", "--set", "fit.dynamics_min_updates=50",
+                       "--set", "fit.goal_epochs=30",
                        "--set", "control.samples=8", "--out", str(tmp_path)]) == 0
     result = json.loads((tmp_path / "suite.json").read_text())
     row = result["tasks"][0]
