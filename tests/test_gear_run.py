@@ -118,7 +118,8 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
         rows = list(csv.DictReader(f))
     assert [r["controller"] for r in rows] == ["dynoplan", "random", "oracle", "fixed_script",
                                              "flat_ppo", "dynoplan+rules",
-                                             "dynoplan_regions", "dynoplan epistemic=0.3"]
+                                             "dynoplan_regions", "dynoplan epistemic=0.3",
+                                             "dynoplan gear-tuned"]
     assert set(REQUIRED) <= set(rows[0]) and tuple(rows[0]) == RESULT_COLUMNS
     by_name = {r["controller"]: r for r in rows}
     # the learned planner, the oracle on the same learned sets and the planner on the
@@ -137,8 +138,9 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     # the ablation rows run on the first --ablation-episodes (quick: 2) episodes, and
     # results.md compares them with DynoPlan on the same ones
     assert [int(by_name[r]["episodes"]) for r in ("dynoplan_regions",
-                                                   "dynoplan epistemic=0.3")] == [2, 2]
-    assert [r["episodes"] for r in summary["ablation"]] == [2] * 5
+                                                   "dynoplan epistemic=0.3",
+                                                   "dynoplan gear-tuned")] == [2, 2, 2]
+    assert [r["episodes"] for r in summary["ablation"]] == [2] * 6
     assert {f["fault"] for f in summary["faults"]} == {"dynamics_noise", "observation_noise",
                                                       "grasp_slip"}
     assert summary["results"][0]["episodes"] == 3 and summary["results"][2]["episodes"] == 1
