@@ -198,3 +198,16 @@ def test_pick_has_not_succeeded_before_it_runs(env, trained):
     policy = PickPolicy(env, trained[0])
     start = reach_start(env, "pick", np.random.default_rng([2, 0]))
     assert not policy.succeeded(start.info)
+
+
+def test_a_plans_extra_test_does_not_outlive_the_plan(env):
+    """The moves check their goal with ``is_valid`` after planning; a human clearance
+    given to an earlier plan (of this episode or of one before it) must not decide that
+    check: the same goal was judged differently after another episode had run."""
+    planner = LeftArmPlanner(env)
+    env.reset(seed=0)
+    start = env.arm_qpos
+    assert planner.is_valid(start[:6])
+    refused = planner.plan(start, start[:6], carry_gear=False, extra_valid=lambda q: False)
+    assert not refused.solved
+    assert planner.is_valid(start[:6])  # the scene's test alone again

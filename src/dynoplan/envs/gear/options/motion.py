@@ -141,16 +141,25 @@ class LeftArmPlanner:
              sync: bool = True) -> MotionPlan:
         """Plan from ``q_start`` (12,) (its left arm) to ``q_goal`` (6,) left-arm joints.
 
-        ``extra_valid(q12) -> bool`` adds a test (for example a human clearance).
+        ``extra_valid(q12) -> bool`` adds a test (for example a human clearance) to
+        this plan's validity checks, and to no later :meth:`is_valid` call (a caller's
+        check after the plan, or in a later episode, is the scene's alone).
         An invalid goal fails the plan at once; an invalid start makes OMPL fail.
         """
+        self._extra = extra_valid
+        try:
+            return self._plan(q_start, q_goal, carry_gear, sync)
+        finally:
+            self._extra = None
+
+    def _plan(self, q_start: FloatArray, q_goal: FloatArray, carry_gear: bool,
+              sync: bool) -> MotionPlan:
         from ompl import base as ob
         from ompl import geometric as og
 
         seed_ompl(0)
         if sync:
             self.sync(carry_gear)
-        self._extra = extra_valid
         t0 = time.perf_counter()
         start = np.clip(np.asarray(q_start, dtype=np.float64)[:6], self.limits[:, 0],
                         self.limits[:, 1])
