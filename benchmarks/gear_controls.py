@@ -114,17 +114,19 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def fit_overrides(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` fit settings (a TOML value, a bare word as a string; ``generic``:
-    :data:`GENERIC_FIT`) as changes of the gear's
+    """``KEY=VALUE`` fit settings (read as the suite's ``--set``,
+    :func:`benchmarks.suite.__main__.parse_sets`, and checked as the pipeline's
+    ``fit.KEY``; ``generic``: :data:`GENERIC_FIT`) as changes of the gear's
     :class:`~dynoplan.pipeline.fit_settings.FitSettings`.
 
     Raises:
-        DynoplanError: not ``KEY=VALUE``, or no such setting.
+        DynoplanError: not ``KEY=VALUE``, no such setting, or a value it cannot take.
     """
-    import tomllib
     from dataclasses import fields
 
+    from benchmarks.suite.__main__ import parse_sets
     from dynoplan.errors import DynoplanError
+    from dynoplan.pipeline.config import pipeline_settings
     from dynoplan.pipeline.fit_settings import FitSettings
 
     known = {f.name for f in fields(FitSettings)}
@@ -133,41 +135,38 @@ def fit_overrides(items: list[str]) -> dict[str, Any]:
         if item == "generic":
             out.update(GENERIC_FIT)
             continue
-        key, sep, text = item.partition("=")
-        if not sep or key not in known:
+        ((key, value),) = parse_sets([item], "--fit").items()
+        if key not in known:
             raise DynoplanError(f"--fit {item!r}: expected KEY=VALUE with KEY one of "
                                 f"{', '.join(sorted(known))}")
-        try:
-            out[key] = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
-            out[key] = text
-    return out
+        out[key] = value
+    fit = pipeline_settings({f"fit.{k}": v for k, v in out.items()}).fit
+    return {k: getattr(fit, k) for k in out}
 
 
 def refit(run: Path, seed: int, changes: dict[str, Any], work: Path) -> Path:
-    """The run's models fitted again from its own data with the run's fit settings
-    (``summary.json``'s) changed by ``changes``, and the initiation learned again from its
-    outcome runs, into ``work`` (a copy of ``run/models``: the option networks are the
-    run's); returns ``work``."""
+    """The run's models fitted again from its own data by ``gear run``'s own stages
+    (:func:`~dynoplan.envs.gear.stages.learned_models`, then
+    :func:`~dynoplan.envs.gear.stages.outcome_initiation` on the run's outcome runs), with
+    the run's fit settings (``summary.json``'s) changed by ``changes``, into ``work`` (a
+    copy of ``run/models``: the option networks are the run's); returns ``work``."""
     import shutil
 
-    from dynoplan.envs.gear.learning.outcomes import fit_gear_initiation
     from dynoplan.envs.gear.learning.settings import GearMetricsSettings
-    from dynoplan.envs.gear.learning.training import train_gear_models
-    from dynoplan.io import read_json_object, write_json
+    from dynoplan.envs.gear.pipeline_stages import OUTCOME_RUNS
+    from dynoplan.envs.gear.stages import learned_models, outcome_initiation
+    from dynoplan.io import read_json_object
     from dynoplan.pipeline.fit_settings import FitSettings
 
     recorded = read_json_object(run / "summary.json", "gear run summary")["settings"]
-    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
-                              for k, v in recorded["fit"].items()}
-    fit = replace(FitSettings(**values), **changes)
-    measures = GearMetricsSettings(**recorded["metrics"])
+    fit = replace(FitSettings.from_record(recorded["fit"]), **changes)
     if work.exists():
         shutil.rmtree(work)
     shutil.copytree(run / "models", work)
-    train_gear_models(run / "demos", run / "transitions", work, seed, run / "heldout", False,
-                      progress=False, settings=fit, measures=measures)
-    write_json(work / "initiation.json", fit_gear_initiation(work, run / "outcomes", seed))
+    learned_models(run / "demos", run / "transitions", work, seed, run / "heldout", fit,
+                   GearMetricsSettings(**recorded["metrics"]), progress=False)
+    outcome_initiation(work, run / "outcomes", seed, OUTCOME_RUNS, progress=False,
+                       collect=False)  # the run's outcome runs: OUTCOME_RUNS is unused
     return work
 
 

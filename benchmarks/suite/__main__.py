@@ -50,13 +50,14 @@ from dynoplan.pipeline.evaluate import (
 from dynoplan.reports.tables import markdown_table
 
 
-def parse_sets(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` pairs, each value read as a TOML value (a bare word as a string)."""
+def parse_sets(items: list[str], flag: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` pairs, each value read as a TOML value (a bare word as a string);
+    ``flag`` names the option in errors."""
     out: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
         if not sep or not key:
-            raise DynoplanError(f"--set {item!r}: expected KEY=VALUE")
+            raise DynoplanError(f"{flag} {item!r}: expected KEY=VALUE")
         try:
             out[key] = tomllib.loads(f"v = {text}")["v"]
         except tomllib.TOMLDecodeError:

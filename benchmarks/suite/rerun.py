@@ -53,18 +53,16 @@ def refit_goal(fitted: FittedModels, folder: Path, summary: dict[str, Any],
     exploration episodes, with the run's fit settings (``summary``) but the ``fit.goal_*``
     keys ``goal_sets``, from the run's fit seed plus ``goal_seed`` (and the initiation
     learned from outcomes fitted again on it, when the run's settings use it)."""
-    from dataclasses import fields, replace
+    from dataclasses import replace
 
     from dynoplan.data.dataset import read_dataset
     from dynoplan.pipeline.fit_goal import fit_goal
     from dynoplan.pipeline.fit_initiation import fit_outcome_initiation
 
-    known = {f.name for f in fields(FitSettings)}
-    recorded: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
-                for k, v in summary["settings"]["fit"].items() if k in known}
     given = pipeline_settings(goal_sets).fit
     names = [k.removeprefix("fit.") for k in goal_sets]
-    fit = replace(FitSettings(**recorded), **{n: getattr(given, n) for n in names})
+    fit = replace(FitSettings.from_record(summary["settings"]["fit"]),
+                  **{n: getattr(given, n) for n in names})
     fit.validate()
     seed = int(summary["seeds"]["fit"]) + goal_seed
     demos = read_dataset(folder / "demos").episodes

@@ -1,7 +1,9 @@
 """How the pipeline's models are learned: :class:`FitSettings` (recorded in the summary and
 in ``models.json``)."""
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
 
 from dynoplan.errors import DynoplanError
 
@@ -108,6 +110,15 @@ class FitSettings:
     outcome_initiation: bool = False
     outcome_min_gain: float = 0.0
     constant_dimensions_still: bool = True
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, Any]) -> "FitSettings":
+        """The settings as a summary or ``models.json`` records them (``asdict``, written
+        as JSON: tuples become lists); fields this version does not know are left out."""
+        known = {f.name for f in fields(cls)}
+        values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
+                                  for k, v in record.items() if k in known}
+        return cls(**values)
 
     def validate(self) -> None:
         if self.stride < 1:
