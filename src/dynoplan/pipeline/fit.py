@@ -442,15 +442,16 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
             warnings.warn(message, DynoplanWarning, stacklevel=2)
     learned: OutcomeInitiation | None = None
     outcome_report: dict[str, Any] | None = None
+    by_outcomes = [n for n, how in (region_report or {}).get("undemonstrated", {}).items()
+                   if how == "outcomes"]
     if settings.outcome_initiation:  # every option's, the undemonstrated ones' too
         say("outcome initiation")
         learned, outcome_report = fit_outcome_initiation(transitions, names, goal, settings,
                                                          seed, state_fn)
-    elif region_report is not None and "outcomes" in region_report["undemonstrated"].values():
+    elif by_outcomes:
         say("undemonstrated options' initiation")
-        unshown = [n for n, how in region_report["undemonstrated"].items() if how == "outcomes"]
         learned, outcome_report = fit_undemonstrated_initiation(
-            transitions, names, unshown, goal, settings, seed, state_fn)
+            transitions, names, by_outcomes, goal, settings, seed, state_fn)
     every_state = np.concatenate([episode_states(e, state_fn) for e in [*transitions, *demos]])
     constant = constant_dimensions(every_state)
     note = constant_dimensions_warning(constant, every_state.shape[1],
