@@ -16,7 +16,7 @@ and loop rules need the state scale that the fit records (``models.json``'s
 ``report.state_scale``); models trained before it was recorded get one error line.
 (Before ``GEAR_CONTROL`` became the library's defaults, this benchmark's rows were the
 gear's settings, the generic rules and, with ``--sizes``, the generic defaults: the
-command of ``docs/gear.md`` at ``aadcbbc``.)
+command of ``docs/suite.md``'s eighth round, at ``aadcbbc``.)
 
 With ``--fit KEY=VALUE`` (repeatable, a field of
 :class:`~dynoplan.pipeline.fit_settings.FitSettings`), the rows run on models fitted

@@ -146,8 +146,8 @@ every Task), in the gear's units:
 - ``oracle_horizon``, ``oracle_samples``: the simulator oracle's (it pays real simulation
   time).
 
-Measured on the models of ``gear run --seed 0, 1, 2`` (``docs/gear.md``, "One
-controller for every task"): on the same 100 episodes per seed these defaults succeed
+Measured on the models of ``gear run --seed 0, 1, 2`` (``docs/suite.md``, "The eighth
+round: the gear on the same defaults"): on the same 100 episodes per seed these defaults succeed
 as often as the gear's former settings (:data:`GEAR_TUNED`), within one episode per
 seed."""
 
