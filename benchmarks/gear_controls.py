@@ -37,10 +37,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-GENERIC_FIT: dict[str, Any] = {"goal_off_demos": True, "constant_dimensions_still": True,
-                               "dynamics_min_updates": 1000}
+from dynoplan.pipeline.fit_settings import FitSettings
+
+GENERIC_FIT: dict[str, Any] = {
+    name: getattr(FitSettings(), name)
+    for name in ("goal_off_demos", "constant_dimensions_still", "dynamics_min_updates")}
 """The generic defaults' fit remedies where the gear's fit settings differ and the gear's
-fit can take them (its one-step dynamics aside: ``option_model``)."""
+fit can take them (its one-step dynamics aside: ``option_model``), at the library's
+default values."""
 
 SHOWN = ("success_rate", "time_to_success_s", "contacts", "contacts_moving",
          "episodes_with_contact", "failures")
@@ -127,7 +131,6 @@ def fit_overrides(items: list[str]) -> dict[str, Any]:
     from benchmarks.suite.__main__ import parse_sets
     from dynoplan.errors import DynoplanError
     from dynoplan.pipeline.config import pipeline_settings
-    from dynoplan.pipeline.fit_settings import FitSettings
 
     known = {f.name for f in fields(FitSettings)}
     out: dict[str, Any] = {}
@@ -156,7 +159,6 @@ def refit(run: Path, seed: int, changes: dict[str, Any], work: Path) -> Path:
     from dynoplan.envs.gear.pipeline_stages import OUTCOME_RUNS
     from dynoplan.envs.gear.stages import learned_models, outcome_initiation
     from dynoplan.io import read_json_object
-    from dynoplan.pipeline.fit_settings import FitSettings
 
     recorded = read_json_object(run / "summary.json", "gear run summary")["settings"]
     fit = replace(FitSettings.from_record(recorded["fit"]), **changes)
