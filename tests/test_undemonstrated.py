@@ -43,6 +43,17 @@ def test_undemonstrated_option_gets_a_region_from_its_own_runs():
     assert not regions.contains(xs, "idle").any()  # no runs: never admissible
 
 
+def test_an_option_shown_at_one_demonstration_state_is_treated_as_never_demonstrated():
+    # a distractor that ran for one step of an episode taken as a demonstration (the
+    # improvement rounds' successes): one state is too few for a mixture
+    once = _episode([2.0, 2.1], 1)
+    regions, report = fit_option_regions([*DEMOS, once], RUNS, NAMES, FitSettings(), seed=0)
+    assert report["undemonstrated"] == {"left": "none", "idle": "none"}
+    assert any("fewer than 2 demonstration states" in w for w in report["warnings"])
+    assert not regions.contains(np.array([[2.0], [-5.0]]), "left").any()
+    assert regions.contains(np.array([[2.5]]), "right")[0]
+
+
 def test_the_other_policies_are_settings():
     none, _ = fit_option_regions(DEMOS, RUNS, NAMES,
                                  FitSettings(region_undemonstrated="none"), seed=0)

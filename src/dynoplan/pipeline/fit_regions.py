@@ -32,9 +32,10 @@ def fit_regions(demos: Sequence[Episode], option_names: Sequence[str], settings:
         DynoplanError: a demonstration without option labels.
     """
     states, labels, groups = labelled_states(demos, len(option_names), state_fn)
-    shown = [k for k in range(len(option_names)) if np.any(labels == k)]
-    regions, _ = fit_labelled_regions(states, labels, groups, [option_names[k] for k in shown],
-                               shown, settings, seed)
+    shown = _shown(labels, len(option_names))
+    keep = np.isin(labels, shown)
+    regions, _ = fit_labelled_regions(states[keep], labels[keep], groups[keep],
+                                      [option_names[k] for k in shown], shown, settings, seed)
     return regions
 
 
@@ -69,12 +70,19 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
     states, labels, groups = labelled_states(demos, len(names), state_fn)
     if features is not None:
         states = features(states)
-    shown = [k for k in range(len(names)) if np.any(labels == k)]
-    regions, report = fit_labelled_regions(states, labels, groups, [names[k] for k in shown], shown,
-                                    settings, seed)
+    shown = _shown(labels, len(names))
+    keep = np.isin(labels, shown)
+    regions, report = fit_labelled_regions(states[keep], labels[keep], groups[keep],
+                                           [names[k] for k in shown], shown, settings, seed)
     unshown = [k for k in range(len(names)) if k not in shown]
     report["undemonstrated"] = {}
     report["warnings"] = []
+    scarce = [names[k] for k in unshown if np.any(labels == k)]
+    if scarce:
+        report["warnings"].append(
+            f"option(s) {', '.join(scarce)} appear at fewer than {MIN_REGION_STATES} "
+            "demonstration states, too few for a region: they are treated as never "
+            "demonstrated")
     if not unshown:
         return _on_features(regions, features), report
     how = settings.region_undemonstrated
@@ -129,6 +137,18 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
             f"demonstrations and get no region ({why}): they start only where no "
             "option's learned set holds (control.fallback_own_sets)")
     return _on_features(regions, features), report
+
+
+MIN_REGION_STATES = 2
+"""The fewest demonstration states of an option that give it a region of its own (a
+mixture needs two); an option shown at fewer is treated as never demonstrated."""
+
+
+def _shown(labels: IntArray, n_options: int) -> list[int]:
+    """The options (indices ``< n_options``) with at least :data:`MIN_REGION_STATES`
+    states among ``labels`` ``(N,)``."""
+    counts = np.bincount(labels, minlength=n_options)
+    return [k for k in range(n_options) if counts[k] >= MIN_REGION_STATES]
 
 
 def _on_features(regions: SafetyRegions, features: FeatureMap | None) -> RegionsModel:
@@ -213,5 +233,5 @@ def fit_regions_cross_validated(
                      "folds": folds}
 
 
-__all__ = ["RegionsModel", "fit_labelled_regions", "fit_option_regions", "fit_regions",
+__all__ = ["MIN_REGION_STATES", "RegionsModel", "fit_labelled_regions", "fit_option_regions", "fit_regions",
            "fit_regions_cross_validated"]
