@@ -233,5 +233,5 @@ def fit_regions_cross_validated(
                      "folds": folds}
 
 
-__all__ = ["MIN_REGION_STATES", "RegionsModel", "fit_labelled_regions", "fit_option_regions", "fit_regions",
-           "fit_regions_cross_validated"]
+__all__ = ["MIN_REGION_STATES", "RegionsModel", "fit_labelled_regions", "fit_option_regions",
+           "fit_regions", "fit_regions_cross_validated"]
