@@ -402,10 +402,12 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                fitter: DynamicsFitter | None = None,
                progress: Callable[[str], None] | None = None,
                task: str = "",
-               feature_maps: Mapping[str, FeatureMap] | None = None) -> FittedModels:
+               feature_maps: Mapping[str, FeatureMap] | None = None,
+               region_demos: Sequence[Episode] | None = None) -> FittedModels:
     """Fit dynamics (on transitions and demonstrations), goal and regions (on demonstrations).
 
     Args:
+        region_demos: the demonstrations the regions are fitted on, when not ``demos``.
         progress: called with a short message before each stage (for a status line).
         task: the task's name, recorded in the models folder.
         feature_maps: the task's named feature maps (for ``settings.goal_features`` and
@@ -435,8 +437,9 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     region_report: dict[str, Any] | None = None
     if settings.regions:
         say("safety regions")
-        regions, region_report = fit_option_regions(demos, transitions, names, settings,
-                                                    seed, state_fn, region_map)
+        regions, region_report = fit_option_regions(
+            demos if region_demos is None else region_demos, transitions, names, settings,
+            seed, state_fn, region_map)
         region_report["options"] = regions.option_names
         for message in region_report["warnings"]:
             warnings.warn(message, DynoplanWarning, stacklevel=2)

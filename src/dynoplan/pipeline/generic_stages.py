@@ -295,7 +295,9 @@ class GenericStages:
                                "success_rate": float(np.mean([e.success for e in own])),
                                "demonstrations_added": len(added)})
             models = fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
-                                self.seeds["fit"], flat_state, self.fitter, say, self.name)
+                                self.seeds["fit"], flat_state, self.fitter, say, self.name,
+                                region_demos=None if settings.improve_regions
+                                else self.demos)
             run_options, planner_options = models.build(self.specs)
         self.run_options, self.planner_options = run_options, planner_options
         return models

@@ -39,6 +39,9 @@ class PipelineSettings:
         improve: rounds of learning from DynoPlan's own episodes before the evaluation
             (:mod:`~dynoplan.pipeline.improve`; 0: none, the paper's pipeline).
         improve_episodes: DynoPlan's episodes per improvement round.
+        improve_regions: the successes of the improvement rounds taken as demonstrations
+            refit the safety regions too (``False``: the goal heuristic alone; the
+            regions stay those of the demonstrator's demonstrations).
     """
 
     demos: int = 5
@@ -52,6 +55,7 @@ class PipelineSettings:
     controllers: tuple[str, ...] | None = None
     improve: int = 0
     improve_episodes: int = 30
+    improve_regions: bool = True
 
     def validate(self) -> None:
         for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes",
