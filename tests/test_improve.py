@@ -111,3 +111,17 @@ def test_improvement_is_off_by_default_and_the_run_unchanged(improved):
                            settings=SMALL)
     assert "improvement" not in without.summary
     assert "improve" not in without.summary["seeds"]
+
+
+def test_improvement_may_refit_the_goal_alone_and_keep_the_demonstrators_regions(tmp_path):
+    settings = replace(SMALL, improve=2, improve_episodes=3, improve_regions=False)
+    res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                       settings=settings)
+    without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                           settings=SMALL)
+    assert sum(c["demonstrations_added"] for c in res.summary["improvement"]) >= 1
+    assert res.models.report["goal"]["states"] > without.models.report["goal"]["states"]
+    mine, theirs = res.models.regions, without.models.regions
+    assert mine.option_names == theirs.option_names
+    np.testing.assert_array_equal(mine.means, theirs.means)
+    np.testing.assert_array_equal(mine.log_thresholds, theirs.log_thresholds)
