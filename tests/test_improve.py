@@ -8,6 +8,7 @@ import pytest
 
 from dynoplan.control.controller import Decision, EpisodeTrace
 from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, PROGRESS_KEY
+from dynoplan.errors import DynoplanError
 from dynoplan.pipeline import run_pipeline
 from dynoplan.pipeline.fit_data import option_end_pairs
 from dynoplan.pipeline.improve import HOLD, StepRecorder, own_episode, step_labels
@@ -125,3 +126,23 @@ def test_improvement_may_refit_the_goal_alone_and_keep_the_demonstrators_regions
     assert mine.option_names == theirs.option_names
     np.testing.assert_array_equal(mine.means, theirs.means)
     np.testing.assert_array_equal(mine.log_thresholds, theirs.log_thresholds)
+
+
+def test_improvement_keeps_the_models_whose_own_episodes_succeeded_most_often():
+    settings = replace(SMALL, improve=2, improve_episodes=3, improve_keep="best")
+    res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                       settings=settings)
+    curve = res.summary["improvement"]
+    assert len(curve) == 3 and curve[-1]["check"]  # one more batch measures the last refit
+    rates = [c["success_rate"] for c in curve]
+    kept = [c["kept"] for c in curve]
+    assert kept.count(True) == 1 and kept.index(True) == rates.index(max(rates))
+    without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                           settings=SMALL)
+    grew = res.models.report["goal"]["states"] > without.models.report["goal"]["states"]
+    assert grew == (kept.index(True) > 0)  # the demonstrator's models when round 1 won
+
+
+def test_an_unknown_improve_keep_is_one_error():
+    with pytest.raises(DynoplanError, match="improve_keep must be one of last, best"):
+        replace(SMALL, improve_keep="first").validate()

@@ -88,6 +88,15 @@ def pipeline(
     improve_episodes: int | None = typer.Option(
         None, "--improve-episodes", **_bounds("improve_episodes"),
         help="DynoPlan's episodes per improvement round [30]."),
+    improve_regions: bool | None = typer.Option(
+        None, "--improve-regions/--no-improve-regions",
+        help="The improvement rounds' successes refit the safety regions too, not only "
+             "the goal heuristic [on]."),
+    improve_keep: str | None = typer.Option(
+        None, "--improve-keep",
+        help="Models the evaluation uses after the improvement rounds: last (the last "
+             "refit's) or best (those whose own episodes succeeded most often; one more "
+             "batch measures the last refit) [last]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),

@@ -15,7 +15,7 @@ import numpy as np
 
 from dynoplan import __version__
 from dynoplan.adapters.spec import OptionSpec, as_spec
-from dynoplan.control.controller import flat_state
+from dynoplan.control.controller import Controller, flat_state
 from dynoplan.data.dataset import Dataset, write_dataset
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.data.metadata import DatasetMetadata
@@ -272,35 +272,51 @@ class GenericStages:
 
     def after_fit(self, run: PipelineRun, models: FittedModels) -> FittedModels:
         """``settings.improve`` rounds of DynoPlan's own episodes, refitted on after each
-        (:mod:`~dynoplan.pipeline.improve`); the last models."""
+        (:mod:`~dynoplan.pipeline.improve`); the models ``settings.improve_keep`` says
+        (the last, or the best on their own episodes)."""
         settings, say = self.settings, run.clock.switch
-        run_options, planner_options = models.build(self.specs)
+        n = settings.improve_episodes
+        best = int(settings.improve > 0 and settings.improve_keep == "best")
         fit_demos, fit_transitions = list(self.demos), list(self.transitions)
-        own_seeds = (episode_seeds(self.seeds["improve"],
-                                   settings.improve * settings.improve_episodes)
+        own_seeds = (episode_seeds(self.seeds["improve"], (settings.improve + best) * n)
                      if settings.improve else [])
         self.curve: list[dict[str, Any]] = []
-        for r in range(settings.improve):
-            say(f"improvement round {r + 1}")
-            controller = make_controller(DYNOPLAN, run_options, models.goal,
-                                         planning_settings(settings.control, models),
-                                         planner_options, self.environment.action_space,
-                                         models.state_scale)
-            n = settings.improve_episodes
-            own = own_episodes(self.environment, controller, own_seeds[r * n:(r + 1) * n])
+        candidates: list[tuple[float, FittedModels]] = []
+        for r in range(settings.improve + best):
+            last = r == settings.improve  # the extra batch that measures the last refit
+            say("improvement check" if last else f"improvement round {r + 1}")
+            own = own_episodes(self.environment, self._dynoplan(models),
+                               own_seeds[r * n:(r + 1) * n])
+            success = float(np.mean([e.success for e in own]))
+            candidates.append((success, models))
+            if last:
+                self.curve.append({"round": r + 1, "episodes": n, "success_rate": success,
+                                   "demonstrations_added": 0, "check": True})
+                break
             added = [e.demonstration for e in own if e.demonstration is not None]
             fit_demos += added
             fit_transitions += [piece for e in own for piece in e.pieces]
-            self.curve.append({"round": r + 1, "episodes": n,
-                               "success_rate": float(np.mean([e.success for e in own])),
+            self.curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                                "demonstrations_added": len(added)})
             models = fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
                                 self.seeds["fit"], flat_state, self.fitter, say, self.name,
                                 region_demos=None if settings.improve_regions
                                 else self.demos)
-            run_options, planner_options = models.build(self.specs)
-        self.run_options, self.planner_options = run_options, planner_options
+        if best:  # the first of the models whose own episodes succeeded most often
+            kept = max(range(len(candidates)), key=lambda i: (candidates[i][0], -i))
+            models = candidates[kept][1]
+            for i, c in enumerate(self.curve):
+                c["kept"] = i == kept
+        self.run_options, self.planner_options = models.build(self.specs)
         return models
+
+    def _dynoplan(self, models: FittedModels) -> Controller:
+        """DynoPlan on ``models``, as the evaluation builds it."""
+        run_options, planner_options = models.build(self.specs)
+        return make_controller(DYNOPLAN, run_options, models.goal,
+                               planning_settings(self.settings.control, models),
+                               planner_options, self.environment.action_space,
+                               models.state_scale)
 
     def evaluate(self, run: PipelineRun, models: FittedModels) -> dict[str, dict[str, Any]]:
         """:func:`evaluate_fitted`: where the options may start, the models saved, every
@@ -376,8 +392,10 @@ def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
     if curve:
         bar += ("DynoPlan's success on its own episodes in each improvement round (refit "
                 "on them after each): " + ", ".join(
-                    f"round {c['round']}: {c['success_rate']:.2f} (+{c['demonstrations_added']}"
-                    " demonstrations)" for c in curve) + ".\n\n")
+                    (f"check of the last refit: {c['success_rate']:.2f}" if c.get("check")
+                     else f"round {c['round']}: {c['success_rate']:.2f} "
+                          f"(+{c['demonstrations_added']} demonstrations)")
+                    + (" (kept)" if c.get("kept") else "") for c in curve) + ".\n\n")
     write_text(folder / "results.md",
                f"{head} ({n} seeded episodes per controller, seed {settings.seed}).\n\n"
                f"{results_table(summary['controllers'])}\n\n{bar}"

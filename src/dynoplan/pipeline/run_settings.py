@@ -42,6 +42,12 @@ class PipelineSettings:
         improve_regions: the successes of the improvement rounds taken as demonstrations
             refit the safety regions too (``False``: the goal heuristic alone; the
             regions stay those of the demonstrator's demonstrations).
+        improve_keep: which models the evaluation uses after the improvement rounds:
+            ``"last"``, the last refit's; ``"best"``, those whose own episodes succeeded
+            most often (each round's episodes measure the models they ran on; one more
+            batch of ``improve_episodes`` measures the last refit's; the earliest on a
+            tie), as DAgger returns the best of its policies on validation (Ross, Gordon
+            and Bagnell 2011). A refit that made DynoPlan worse is not kept.
     """
 
     demos: int = 5
@@ -56,6 +62,7 @@ class PipelineSettings:
     improve: int = 0
     improve_episodes: int = 30
     improve_regions: bool = True
+    improve_keep: str = "last"
 
     def validate(self) -> None:
         for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes",
@@ -67,8 +74,15 @@ class PipelineSettings:
                                 f"{self.exploration_branches}")
         if self.improve < 0:
             raise DynoplanError(f"improve must be >= 0, got {self.improve}")
+        if self.improve_keep not in IMPROVE_KEEP:
+            raise DynoplanError(f"improve_keep must be one of {', '.join(IMPROVE_KEEP)}, got "
+                                f"'{self.improve_keep}'")
         self.fit.validate()
         self.control.validate()
+
+
+IMPROVE_KEEP = ("last", "best")
+"""Values of :attr:`PipelineSettings.improve_keep`."""
 
 
 def run_seeds(seed: int, improve: bool = False) -> dict[str, int]:
@@ -93,4 +107,4 @@ def jsonable(value: Any) -> Any:
     return value
 
 
-__all__ = ["PipelineSettings", "jsonable", "run_seeds"]
+__all__ = ["IMPROVE_KEEP", "PipelineSettings", "jsonable", "run_seeds"]
