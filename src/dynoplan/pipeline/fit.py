@@ -407,11 +407,12 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     """Fit dynamics (on transitions and demonstrations), goal and regions (on demonstrations).
 
     Args:
-        region_demos: the demonstrations the regions are fitted on, when not ``demos``.
         progress: called with a short message before each stage (for a status line).
         task: the task's name, recorded in the models folder.
         feature_maps: the task's named feature maps (for ``settings.goal_features`` and
             ``settings.region_features``).
+        region_demos: the demonstrations the regions are fitted on, when not ``demos``
+            (the improvement rounds' ``improve_regions=False``).
     """
     settings.validate()
     goal_map = named_feature_map(settings.goal_features, feature_maps)
