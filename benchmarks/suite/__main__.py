@@ -159,11 +159,14 @@ def suite_table(rows: list[dict[str, Any]]) -> str:
 
 
 def _commit() -> str | None:
-    """The repository's commit, with ``+`` when the work tree has changes (``None``
-    outside a git checkout)."""
+    """The commit of the checkout the ``dynoplan`` library was imported from (which
+    ``PYTHONPATH`` may point at a snapshot other than this script's), with ``+`` when its
+    work tree has changes (``None`` outside a git checkout)."""
     import subprocess
 
-    root = Path(__file__).resolve().parents[2]
+    import dynoplan
+
+    root = Path(dynoplan.__file__).resolve().parents[2]
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root,
                               capture_output=True, text=True, check=True).stdout.strip()
