@@ -32,10 +32,8 @@ def fit_regions(demos: Sequence[Episode], option_names: Sequence[str], settings:
         DynoplanError: a demonstration without option labels.
     """
     states, labels, groups = labelled_states(demos, len(option_names), state_fn)
-    shown = _shown(labels, len(option_names))
-    keep = np.isin(labels, shown)
-    regions, _ = fit_labelled_regions(states[keep], labels[keep], groups[keep],
-                                      [option_names[k] for k in shown], shown, settings, seed)
+    regions, _, _ = _demonstrated_regions(states, labels, groups, list(option_names),
+                                          settings, seed)
     return regions
 
 
@@ -70,10 +68,8 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
     states, labels, groups = labelled_states(demos, len(names), state_fn)
     if features is not None:
         states = features(states)
-    shown = _shown(labels, len(names))
-    keep = np.isin(labels, shown)
-    regions, report = fit_labelled_regions(states[keep], labels[keep], groups[keep],
-                                           [names[k] for k in shown], shown, settings, seed)
+    regions, report, shown = _demonstrated_regions(states, labels, groups, names, settings,
+                                                   seed)
     unshown = [k for k in range(len(names)) if k not in shown]
     report["undemonstrated"] = {}
     report["warnings"] = []
@@ -144,11 +140,18 @@ MIN_REGION_STATES = 2
 mixture needs two); an option shown at fewer is treated as never demonstrated."""
 
 
-def _shown(labels: IntArray, n_options: int) -> list[int]:
-    """The options (indices ``< n_options``) with at least :data:`MIN_REGION_STATES`
-    states among ``labels`` ``(N,)``."""
-    counts = np.bincount(labels, minlength=n_options)
-    return [k for k in range(n_options) if counts[k] >= MIN_REGION_STATES]
+def _demonstrated_regions(states: FloatArray, labels: IntArray, groups: IntArray,
+                          names: list[str], settings: FitSettings, seed: int
+                          ) -> tuple[SafetyRegions, dict[str, Any], list[int]]:
+    """Eq. 5 for the options (of ``names``) with at least :data:`MIN_REGION_STATES` of the
+    demonstration states ``(N, d)`` labelled ``(N,)`` in episodes ``groups`` ``(N,)``: the
+    regions, what the fit measured, and those options' indices."""
+    counts = np.bincount(labels, minlength=len(names))
+    shown = [k for k in range(len(names)) if counts[k] >= MIN_REGION_STATES]
+    keep = np.isin(labels, shown)
+    regions, report = fit_labelled_regions(states[keep], labels[keep], groups[keep],
+                                           [names[k] for k in shown], shown, settings, seed)
+    return regions, report, shown
 
 
 def _on_features(regions: SafetyRegions, features: FeatureMap | None) -> RegionsModel:
