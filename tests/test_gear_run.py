@@ -131,8 +131,14 @@ def test_gear_run_quick_writes_every_result_with_every_column(quick_gear_run: Pa
     summary = json.loads((out / "summary.json").read_text())
     assert summary["wall_s"] > 0 and summary["workers"]["count"] >= 1  # --workers auto
     assert set(summary["stages_s"]) == {"networks", "demos", "collect", "train", "figures",
-                                        "flat_ppo", "outcomes", "evaluate",
+                                        "flat_ppo", "outcomes", "improve", "evaluate",
                                         "faults"}  # --no-video
+    # one improvement round on DynoPlan's own episodes (quick: 3), refitted in improve/,
+    # and one batch that checks the refit; the models that did best are the run's
+    curve = summary["improvement"]
+    assert [c["episodes"] for c in curve] == [3, 3] and curve[1]["check"]
+    assert [c["kept"] for c in curve].count(True) == 1
+    assert (out / "improve" / "round-1" / "models" / "goal.safetensors").is_file()
     # the initiation learned from outcomes is fitted by the run, part of the learned sets
     assert (out / "models" / "initiation.safetensors").is_file()
     # the ablation rows run on the first --ablation-episodes (quick: 2) episodes, and

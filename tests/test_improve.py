@@ -11,8 +11,19 @@ from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, PRO
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline import run_pipeline
 from dynoplan.pipeline.fit_data import option_end_pairs
-from dynoplan.pipeline.improve import HOLD, StepRecorder, own_episode, step_labels
+from dynoplan.pipeline.improve import (
+    HOLD,
+    ImprovementSettings,
+    OwnEpisode,
+    StepRecorder,
+    improvement_rounds,
+    own_episode,
+    step_labels,
+)
 from test_pipeline import SMALL, line_env, line_options
+
+PAPER = replace(SMALL, improve=0)
+"""The paper's pipeline: no improvement rounds."""
 
 
 def _trace(steps, success):
@@ -84,7 +95,7 @@ def test_a_run_cut_short_by_a_replan_teaches_the_option_models_no_end():
 @pytest.fixture(scope="module")
 def improved(tmp_path_factory):
     out = tmp_path_factory.mktemp("improve")
-    settings = replace(SMALL, improve=2, improve_episodes=3)
+    settings = replace(SMALL, improve=2, improve_episodes=3, improve_keep="last")
     return out, run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
                              settings=settings, out=out)
 
@@ -98,7 +109,7 @@ def test_improvement_rounds_report_a_learning_curve_and_refit_on_more_data(impro
     assert added >= 1  # DynoPlan reaches the goal on the line
     # the goal was refitted on the demonstrator's 4 and DynoPlan's successes
     without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
-                           settings=SMALL)
+                           settings=PAPER)
     assert res.models.report["goal"]["states"] > without.models.report["goal"]["states"]
     assert res.summary["demonstrations"]["episodes"] == 4  # the demonstrator's, as before
     # the other seed streams do not move: the same demonstrations and exploration
@@ -107,19 +118,28 @@ def test_improvement_rounds_report_a_learning_curve_and_refit_on_more_data(impro
     assert "improvement round" in (out / "results.md").read_text()
 
 
-def test_improvement_is_off_by_default_and_the_run_unchanged(improved):
+def test_without_rounds_the_run_is_the_papers_pipeline():
     without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
-                           settings=SMALL)
+                           settings=PAPER)
     assert "improvement" not in without.summary
     assert "improve" not in without.summary["seeds"]
 
 
+def test_by_default_one_round_runs_and_the_best_models_are_kept():
+    res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                       settings=replace(SMALL, improve_episodes=3))
+    curve = res.summary["improvement"]
+    assert [c["round"] for c in curve] == [1, 2] and curve[1]["check"]
+    assert [c["kept"] for c in curve].count(True) == 1
+
+
 def test_improvement_may_refit_the_goal_alone_and_keep_the_demonstrators_regions(tmp_path):
-    settings = replace(SMALL, improve=2, improve_episodes=3, improve_regions=False)
+    settings = replace(SMALL, improve=2, improve_episodes=3, improve_regions=False,
+                       improve_keep="last")
     res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
                        settings=settings)
     without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
-                           settings=SMALL)
+                           settings=PAPER)
     assert sum(c["demonstrations_added"] for c in res.summary["improvement"]) >= 1
     assert res.models.report["goal"]["states"] > without.models.report["goal"]["states"]
     mine, theirs = res.models.regions, without.models.regions
@@ -138,7 +158,7 @@ def test_improvement_keeps_the_models_whose_own_episodes_succeeded_most_often():
     kept = [c["kept"] for c in curve]
     assert kept.count(True) == 1 and kept.index(True) == rates.index(max(rates))
     without = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
-                           settings=SMALL)
+                           settings=PAPER)
     grew = res.models.report["goal"]["states"] > without.models.report["goal"]["states"]
     assert grew == (kept.index(True) > 0)  # the demonstrator's models when round 1 won
 
@@ -146,3 +166,44 @@ def test_improvement_keeps_the_models_whose_own_episodes_succeeded_most_often():
 def test_an_unknown_improve_keep_is_one_error():
     with pytest.raises(DynoplanError, match="improve_keep must be one of last, best"):
         replace(SMALL, improve_keep="first").validate()
+
+
+def _fake_own(successes):
+    return [OwnEpisode(bool(s), (), None) for s in successes]
+
+
+@pytest.mark.parametrize(("keep", "rates", "kept"), [
+    ("best", [0.5, 1.0, 0.5], 1),   # the refit of round 1 did best
+    ("best", [1.0, 0.5, 1.0], 0),   # a tie: the earliest
+    ("last", [1.0, 0.0], 2),        # the last refit, however it did
+])
+def test_the_rounds_keep_the_models_the_settings_say(keep, rates, kept):
+    """Any task's models (here: their round number) go through the one loop: each batch
+    runs on the models of its round, a refit follows every round, and the models kept
+    are the best batch's (the earliest of equals) or the last refit's."""
+    settings = ImprovementSettings(rounds=2, episodes=2, keep=keep)
+    seeds = list(range(settings.batches * settings.episodes))
+    played: list[tuple[int, list[int]]] = []
+
+    def play(models, batch):
+        played.append((models, list(batch)))
+        rate = rates[models]
+        return _fake_own([1, 1] if rate == 1.0 else [1, 0] if rate == 0.5 else [0, 0])
+
+    models, curve = improvement_rounds(0, settings, seeds, play, lambda r, own: r + 1,
+                                       lambda _: None)
+    assert models == kept
+    assert [m for m, _ in played] == list(range(len(rates)))
+    assert [b for _, b in played] == [seeds[i * 2:i * 2 + 2] for i in range(len(rates))]
+    assert [c["success_rate"] for c in curve] == rates
+    if keep == "best":
+        assert curve[-1]["check"] and [c["kept"] for c in curve].index(True) == kept
+    else:
+        assert all("kept" not in c and "check" not in c for c in curve)
+
+
+def test_without_rounds_the_first_models_are_kept_and_nothing_runs():
+    models, curve = improvement_rounds("first", ImprovementSettings(rounds=0), [],
+                                       lambda m, s: pytest.fail("no episode runs"),
+                                       lambda r, own: pytest.fail("no refit"), lambda _: None)
+    assert models == "first" and curve == []

@@ -15,6 +15,7 @@ from dynoplan.limits import (
     POINTS_MAX,
     SAMPLES_MAX,
     SEED_MAX,
+    SETTING_BOUNDS,
     STEPS_MAX,
 )
 
@@ -440,6 +441,10 @@ def run(
     ablation_episodes: int | None = typer.Option(None, min=0, max=EPISODES_MAX,
                                                  help="Episodes of each ablation row (the "
                                                  "first of the same list; default 30)."),
+    improve: int | None = typer.Option(
+        None, "--improve", min=SETTING_BOUNDS["improve"][0], max=SETTING_BOUNDS["improve"][1],
+        help="Rounds of learning from DynoPlan's own episodes before the evaluation, the "
+             "best models kept (0: the paper's pipeline) [the pipeline's default]."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
@@ -467,7 +472,9 @@ def run(
     settings = replace(settings, evaluation=replace(
         sizes, episodes=n, oracle_episodes=min(oracle, n), ablation_episodes=min(ablation, n)),
         faults=replace(settings.faults, episodes=min(settings.faults.episodes, n)),
-        video=not no_video)
+        video=not no_video,
+        improvement=replace(settings.improvement,
+                            rounds=settings.improvement.rounds if improve is None else improve))
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
                                 log=(lambda _: None) if quiet else typer.echo, workers=pool)
     _echo_results(summary["results"])

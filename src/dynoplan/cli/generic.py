@@ -84,7 +84,8 @@ def pipeline(
     improve: int | None = typer.Option(
         None, "--improve", **_bounds("improve"),
         help="Rounds of learning from DynoPlan's own episodes before the evaluation: "
-             "refit on them, their successes as demonstrations [0]."),
+             "refit on them, their successes as demonstrations (0: the paper's pipeline) "
+             "[1]."),
     improve_episodes: int | None = typer.Option(
         None, "--improve-episodes", **_bounds("improve_episodes"),
         help="DynoPlan's episodes per improvement round [30]."),
@@ -96,7 +97,7 @@ def pipeline(
         None, "--improve-keep",
         help="Models the evaluation uses after the improvement rounds: last (the last "
              "refit's) or best (those whose own episodes succeeded most often; one more "
-             "batch measures the last refit) [last]."),
+             "batch measures the last refit) [best]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),

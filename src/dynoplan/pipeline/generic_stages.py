@@ -55,10 +55,15 @@ from dynoplan.pipeline.fit import (
     fit_models,
 )
 from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
-from dynoplan.pipeline.improve import own_episodes
+from dynoplan.pipeline.improve import (
+    OwnEpisode,
+    improvement_rounds,
+    learning_curve_text,
+    own_episodes,
+)
 from dynoplan.pipeline.run_settings import PipelineSettings, jsonable, run_seeds
 from dynoplan.pipeline.task import PipelineRun, Task
-from dynoplan.seeding import episode_seeds
+from dynoplan.seeding import EpisodeSeed, episode_seeds
 
 
 @dataclass
@@ -272,41 +277,27 @@ class GenericStages:
 
     def after_fit(self, run: PipelineRun, models: FittedModels) -> FittedModels:
         """``settings.improve`` rounds of DynoPlan's own episodes, refitted on after each
-        (:mod:`~dynoplan.pipeline.improve`); the models ``settings.improve_keep`` says
-        (the last, or the best on their own episodes)."""
-        settings, say = self.settings, run.clock.switch
-        n = settings.improve_episodes
-        best = int(settings.improve > 0 and settings.improve_keep == "best")
+        (:func:`~dynoplan.pipeline.improve.improvement_rounds`); the models
+        ``settings.improve_keep`` says (the last, or the best on their own episodes)."""
+        settings = self.settings
+        improvement = settings.improvement
         fit_demos, fit_transitions = list(self.demos), list(self.transitions)
-        own_seeds = (episode_seeds(self.seeds["improve"], (settings.improve + best) * n)
-                     if settings.improve else [])
-        self.curve: list[dict[str, Any]] = []
-        candidates: list[tuple[float, FittedModels]] = []
-        for r in range(settings.improve + best):
-            last = r == settings.improve  # the extra batch that measures the last refit
-            say("improvement check" if last else f"improvement round {r + 1}")
-            own = own_episodes(self.environment, self._dynoplan(models),
-                               own_seeds[r * n:(r + 1) * n])
-            success = float(np.mean([e.success for e in own]))
-            candidates.append((success, models))
-            if last:
-                self.curve.append({"round": r + 1, "episodes": n, "success_rate": success,
-                                   "demonstrations_added": 0, "check": True})
-                break
-            added = [e.demonstration for e in own if e.demonstration is not None]
-            fit_demos += added
-            fit_transitions += [piece for e in own for piece in e.pieces]
-            self.curve.append({"round": r + 1, "episodes": n, "success_rate": success,
-                               "demonstrations_added": len(added)})
-            models = fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
-                                self.seeds["fit"], flat_state, self.fitter, say, self.name,
-                                region_demos=None if settings.improve_regions
-                                else self.demos)
-        if best:  # the first of the models whose own episodes succeeded most often
-            kept = max(range(len(candidates)), key=lambda i: (candidates[i][0], -i))
-            models = candidates[kept][1]
-            for i, c in enumerate(self.curve):
-                c["kept"] = i == kept
+
+        def play(models: FittedModels, seeds: Sequence[EpisodeSeed]) -> list[OwnEpisode]:
+            return own_episodes(self.environment, self._dynoplan(models), seeds)
+
+        def refit(_: int, own: list[OwnEpisode]) -> FittedModels:
+            fit_demos.extend(e.demonstration for e in own if e.demonstration is not None)
+            fit_transitions.extend(piece for e in own for piece in e.pieces)
+            return fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
+                              self.seeds["fit"], flat_state, self.fitter, run.clock.switch,
+                              self.name, region_demos=None if improvement.regions
+                              else self.demos)
+
+        seeds = (episode_seeds(self.seeds["improve"], improvement.batches * improvement.episodes)
+                 if improvement.rounds else [])
+        models, self.curve = improvement_rounds(models, improvement, seeds, play, refit,
+                                                run.clock.switch)
         self.run_options, self.planner_options = models.build(self.specs)
         return models
 
@@ -390,12 +381,7 @@ def _write_outputs(folder: Path, env: gym.Env[Any, Any], names: list[str],
            "(the composition ratio).\n\n")
     curve = summary.get("improvement") or []
     if curve:
-        bar += ("DynoPlan's success on its own episodes in each improvement round (refit "
-                "on them after each): " + ", ".join(
-                    (f"check of the last refit: {c['success_rate']:.2f}" if c.get("check")
-                     else f"round {c['round']}: {c['success_rate']:.2f} "
-                          f"(+{c['demonstrations_added']} demonstrations)")
-                    + (" (kept)" if c.get("kept") else "") for c in curve) + ".\n\n")
+        bar += learning_curve_text(curve) + "\n\n"
     write_text(folder / "results.md",
                f"{head} ({n} seeded episodes per controller, seed {settings.seed}).\n\n"
                f"{results_table(summary['controllers'])}\n\n{bar}"

@@ -15,13 +15,16 @@ fitted again on everything:
   ``t / T``; the regions and the goal are fitted on it as on the demonstrator's).
 
 The share of each round's episodes that succeeded is the learning curve
-(``summary.json``'s ``improvement``).
+(``summary.json``'s ``improvement``). :func:`improvement_rounds` is the one loop of every
+task (the generic stages' and the gear's ``after_fit``): what a task does is how it runs
+its own episodes (here, or on workers through :class:`OwnEpisodesJob`) and how it
+refits on them.
 """
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from itertools import pairwise
-from typing import Any
+from typing import Any, TypeVar
 
 import gymnasium as gym
 import numpy as np
@@ -34,6 +37,9 @@ from dynoplan.data.episodes import (
     PROGRESS_KEY,
     Episode,
 )
+from dynoplan.errors import DynoplanError
+from dynoplan.pipeline.evaluate import ControllerRunner
+from dynoplan.pipeline.jobs import EpisodeJob
 from dynoplan.seeding import EpisodeSeed
 
 HOLD = -1
@@ -141,18 +147,150 @@ def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Seque
     return OwnEpisode(trace.success, tuple(pieces), demonstration)
 
 
+class OwnEpisodeRunner:
+    """A :class:`~dynoplan.pipeline.evaluate.ControllerRunner` whose episodes are recorded
+    step by step and returned cut for the fit (:func:`own_episode`), the steps labelled by
+    their option's index in ``option_names`` (default: the controller's options)."""
+
+    def __init__(self, runner: ControllerRunner,
+                 option_names: Sequence[str] | None = None) -> None:
+        self.recorder = StepRecorder(runner.env)
+        self.runner = replace(runner, env=self.recorder)
+        self.names = list(option_names if option_names is not None
+                          else [o.name for o in runner.controller.options])
+
+    def episode(self, seed: EpisodeSeed) -> OwnEpisode:
+        """Episode ``seed`` (reset with its ``env_seed``, every other choice drawn from its
+        ``rng``), cut for the fit."""
+        return own_episode(self.recorder, self.runner.run(seed), self.names, seed.env_seed)
+
+
+@dataclass(frozen=True)
+class OwnEpisodesJob:
+    """The controller ``job`` builds (a :class:`~dynoplan.pipeline.evaluate.ControllerJob`
+    whose runner is a :class:`~dynoplan.pipeline.evaluate.ControllerRunner`) as a worker
+    rebuilds it, its episodes recorded for the fit (:class:`OwnEpisodeRunner`, labels
+    indexing ``option_names``)."""
+
+    job: EpisodeJob
+    option_names: tuple[str, ...]
+
+    def build(self) -> OwnEpisodeRunner:
+        runner = self.job.build()
+        if not isinstance(runner, ControllerRunner):
+            raise DynoplanError("improvement rounds record a planning controller's episodes; "
+                                f"{type(runner).__name__} is not one")
+        return OwnEpisodeRunner(runner, self.option_names)
+
+
 def own_episodes(env: gym.Env[Any, Any], controller: Controller,
                  seeds: Sequence[EpisodeSeed]) -> list[OwnEpisode]:
-    """The controller's episodes on ``seeds`` (each reset with its ``env_seed``, every
-    other choice drawn from its ``rng``), cut for the fit (:func:`own_episode`)."""
-    recorder = StepRecorder(env)
-    names = [o.name for o in controller.options]
-    out = []
-    for seed in seeds:
-        trace = controller.run(recorder, seed.rng(), seed=seed.env_seed)
-        out.append(own_episode(recorder, trace, names, seed.env_seed))
-    return out
+    """The controller's episodes on ``seeds`` here, one after another
+    (:class:`OwnEpisodeRunner`)."""
+    runner = OwnEpisodeRunner(ControllerRunner(env, controller))
+    return [runner.episode(seed) for seed in seeds]
 
 
-__all__ = ["HOLD", "OwnEpisode", "StepRecorder", "interruptions", "own_episode",
-           "own_episodes", "step_labels"]
+IMPROVE_KEEP = ("last", "best")
+"""Values of :attr:`ImprovementSettings.keep`."""
+
+
+@dataclass(frozen=True)
+class ImprovementSettings:
+    """How a run learns from its controller's own episodes before the evaluation.
+
+    Attributes:
+        rounds: rounds of DynoPlan's own episodes, each followed by a refit (0: none, the
+            paper's pipeline; the default, 1, with ``keep`` ``"best"``: the composition
+            suite's measurements in ``docs/suite.md``).
+        episodes: DynoPlan's episodes per round.
+        regions: the rounds' successes taken as demonstrations refit the safety regions
+            too (``False``: the goal heuristic alone; the regions stay those of the
+            demonstrator's demonstrations).
+        keep: which models the evaluation uses: ``"last"``, the last refit's;
+            ``"best"``, those whose own episodes succeeded most often (each round's
+            episodes measure the models they ran on; one more batch of ``episodes``
+            measures the last refit's; the earliest on a tie), as DAgger returns the best
+            of its policies on validation (Ross, Gordon and Bagnell 2011). A refit that
+            made DynoPlan worse is not kept.
+    """
+
+    rounds: int = 1
+    episodes: int = 30
+    regions: bool = True
+    keep: str = "best"
+
+    def validate(self) -> None:
+        if self.rounds < 0:
+            raise DynoplanError(f"improve must be >= 0, got {self.rounds}")
+        if self.episodes < 1:
+            raise DynoplanError(f"improve_episodes must be >= 1, got {self.episodes}")
+        if self.keep not in IMPROVE_KEEP:
+            raise DynoplanError(f"improve_keep must be one of {', '.join(IMPROVE_KEEP)}, got "
+                                f"'{self.keep}'")
+
+    @property
+    def batches(self) -> int:
+        """Batches of own episodes: one per round, and the check of the last refit when
+        the best models are kept."""
+        return self.rounds + int(self.rounds > 0 and self.keep == "best")
+
+
+Models = TypeVar("Models")
+
+
+def improvement_rounds(models: Models, settings: ImprovementSettings,
+                       seeds: Sequence[EpisodeSeed],
+                       play: Callable[[Models, Sequence[EpisodeSeed]], list[OwnEpisode]],
+                       refit: Callable[[int, list[OwnEpisode]], Models],
+                       say: Callable[[str], None]) -> tuple[Models, list[dict[str, Any]]]:
+    """``settings.rounds`` rounds from ``models``: ``play(models, seeds)`` runs DynoPlan on
+    the models of the round on its ``settings.episodes`` of ``seeds`` (``settings.batches
+    * settings.episodes`` of them, a stream no other stage uses), then ``refit(round,
+    own)`` fits again on everything so far and this round's own episodes (the task keeps
+    what it has added); ``say`` is told of each round as it starts.
+
+    Returns:
+        The models ``settings.keep`` says and the learning curve: per batch ``round``,
+        ``episodes``, ``success_rate`` and ``demonstrations_added``, with ``check`` on the
+        batch that only measures the last refit, and ``kept`` on every entry when the
+        best models are kept.
+    """
+    n = settings.episodes
+    curve: list[dict[str, Any]] = []
+    candidates: list[tuple[float, Models]] = []
+    for r in range(settings.batches):
+        last = r == settings.rounds  # the extra batch that measures the last refit
+        say("improvement check" if last else f"improvement round {r + 1}")
+        own = play(models, seeds[r * n:(r + 1) * n])
+        success = float(np.mean([e.success for e in own]))
+        candidates.append((success, models))
+        if last:
+            curve.append({"round": r + 1, "episodes": n, "success_rate": success,
+                          "demonstrations_added": 0, "check": True})
+            break
+        curve.append({"round": r + 1, "episodes": n, "success_rate": success,
+                      "demonstrations_added": sum(e.demonstration is not None for e in own)})
+        models = refit(r, own)
+    if settings.batches > settings.rounds:  # the first of the models that succeeded most
+        kept = max(range(len(candidates)), key=lambda i: (candidates[i][0], -i))
+        models = candidates[kept][1]
+        for i, c in enumerate(curve):
+            c["kept"] = i == kept
+    return models, curve
+
+
+def learning_curve_text(curve: Sequence[dict[str, Any]]) -> str:
+    """One sentence of ``results.md`` on the learning curve of :func:`improvement_rounds`."""
+    return ("DynoPlan's success on its own episodes in each improvement round (refit on them "
+            "after each): " + ", ".join(
+                (f"check of the last refit: {c['success_rate']:.2f}" if c.get("check")
+                 else f"round {c['round']}: {c['success_rate']:.2f} "
+                      f"(+{c['demonstrations_added']} demonstrations)")
+                + (" (kept)" if c.get("kept") else "") for c in curve) + ".")
+
+
+__all__ = ["HOLD", "IMPROVE_KEEP", "ImprovementSettings", "OwnEpisode", "OwnEpisodeRunner",
+           "OwnEpisodesJob", "StepRecorder", "improvement_rounds", "interruptions",
+           "learning_curve_text",
+           "own_episode", "own_episodes", "step_labels"]

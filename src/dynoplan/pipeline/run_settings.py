@@ -16,6 +16,7 @@ from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.fit import (
     FitSettings,
 )
+from dynoplan.pipeline.improve import ImprovementSettings
 
 
 @dataclass(frozen=True)
@@ -36,18 +37,10 @@ class PipelineSettings:
         control: how DynoPlan plans and every controller runs.
         controllers: which controllers to evaluate (default: DynoPlan, each option
             alone, random choice).
-        improve: rounds of learning from DynoPlan's own episodes before the evaluation
-            (:mod:`~dynoplan.pipeline.improve`; 0: none, the paper's pipeline).
-        improve_episodes: DynoPlan's episodes per improvement round.
-        improve_regions: the successes of the improvement rounds taken as demonstrations
-            refit the safety regions too (``False``: the goal heuristic alone; the
-            regions stay those of the demonstrator's demonstrations).
-        improve_keep: which models the evaluation uses after the improvement rounds:
-            ``"last"``, the last refit's; ``"best"``, those whose own episodes succeeded
-            most often (each round's episodes measure the models they ran on; one more
-            batch of ``improve_episodes`` measures the last refit's; the earliest on a
-            tie), as DAgger returns the best of its policies on validation (Ross, Gordon
-            and Bagnell 2011). A refit that made DynoPlan worse is not kept.
+        improve, improve_episodes, improve_regions, improve_keep: how the run learns
+            from DynoPlan's own episodes before the evaluation (:mod:`~dynoplan.pipeline.
+            improve`): the ``rounds``, ``episodes``, ``regions`` and ``keep`` of
+            :class:`~dynoplan.pipeline.improve.ImprovementSettings` (:attr:`improvement`).
     """
 
     demos: int = 5
@@ -59,30 +52,27 @@ class PipelineSettings:
     fit: FitSettings = field(default_factory=FitSettings)
     control: ControllerSettings = field(default_factory=ControllerSettings)
     controllers: tuple[str, ...] | None = None
-    improve: int = 0
-    improve_episodes: int = 30
-    improve_regions: bool = True
-    improve_keep: str = "last"
+    improve: int = ImprovementSettings.rounds
+    improve_episodes: int = ImprovementSettings.episodes
+    improve_regions: bool = ImprovementSettings.regions
+    improve_keep: str = ImprovementSettings.keep
 
     def validate(self) -> None:
-        for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes",
-                     "improve_episodes"):
+        for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes"):
             if getattr(self, name) < 1:
                 raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.exploration_branches < 0:
             raise DynoplanError("exploration_branches must be >= 0, got "
                                 f"{self.exploration_branches}")
-        if self.improve < 0:
-            raise DynoplanError(f"improve must be >= 0, got {self.improve}")
-        if self.improve_keep not in IMPROVE_KEEP:
-            raise DynoplanError(f"improve_keep must be one of {', '.join(IMPROVE_KEEP)}, got "
-                                f"'{self.improve_keep}'")
+        self.improvement.validate()
         self.fit.validate()
         self.control.validate()
 
-
-IMPROVE_KEEP = ("last", "best")
-"""Values of :attr:`PipelineSettings.improve_keep`."""
+    @property
+    def improvement(self) -> ImprovementSettings:
+        """The improvement rounds' settings."""
+        return ImprovementSettings(self.improve, self.improve_episodes, self.improve_regions,
+                                   self.improve_keep)
 
 
 def run_seeds(seed: int, improve: bool = False) -> dict[str, int]:
@@ -107,4 +97,4 @@ def jsonable(value: Any) -> Any:
     return value
 
 
-__all__ = ["IMPROVE_KEEP", "PipelineSettings", "jsonable", "run_seeds"]
+__all__ = ["PipelineSettings", "jsonable", "run_seeds"]

@@ -324,7 +324,9 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     record ``settings.demos`` demonstrations (or use ``demos``), fit the goal heuristic
     and regions (:func:`fit_task`), evaluate the controllers; arguments as
     :func:`~dynoplan.pipeline.run.run_pipeline` (``settings.exploration_*`` are not used:
-    nothing is explored).
+    nothing is explored; nor are the improvement rounds' ``settings.improve*``: a task
+    fitted on an options folder learns from its demonstrations alone, which is what its
+    ``task_fit`` record measures).
 
     Args:
         runs: the task's own option runs (:func:`read_option_runs`: a dataset folder such

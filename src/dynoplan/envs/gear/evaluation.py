@@ -46,6 +46,10 @@ initiation learned from outcomes, rollouts not stopped at the continuation set),
 with the gear's own former settings in place of the library's defaults
 (:data:`~dynoplan.envs.gear.controllers.GEAR_TUNED`)."""
 
+IMPROVE_SEED_OFFSET = 2000
+"""The improvement rounds' own episodes use seeds derived from ``seed +
+IMPROVE_SEED_OFFSET`` (disjoint from the evaluation's and the demonstrations')."""
+
 ORACLE_FIRST = ("oracle",)
 """Rows whose episodes are submitted first (the oracle's cost ten times the others'), so
 that no long episode is left running alone at the end of the stage."""
@@ -57,6 +61,11 @@ Rows = dict[str, tuple[ControllerJob, Sequence[EpisodeSeed]]]
 def evaluation_seeds(seed: int, episodes: int) -> list[EpisodeSeed]:
     """The evaluation episodes of ``gear run`` / ``gear evaluate`` with ``--seed seed``."""
     return episode_seeds(seed + EVAL_SEED_OFFSET, episodes)
+
+
+def improvement_seeds(seed: int, episodes: int) -> list[EpisodeSeed]:
+    """The own episodes of ``gear run``'s improvement rounds with ``--seed seed``."""
+    return episode_seeds(seed + IMPROVE_SEED_OFFSET, episodes)
 
 
 def controller_rows(models: Path, seeds: Sequence[EpisodeSeed], planner: ControllerSettings,
@@ -112,5 +121,6 @@ def video_episode(episodes: Sequence[EpisodeRecord]) -> int:
         not episodes[i].success, seconds(episodes[i]), i))
 
 
-__all__ = ["ABLATION_ROWS", "EVAL_SEED_OFFSET", "ORACLE_FIRST", "VARIANT_ROWS", "Rows",
-           "controller_rows", "evaluation_seeds", "fault_rows", "video_episode"]
+__all__ = ["ABLATION_ROWS", "EVAL_SEED_OFFSET", "IMPROVE_SEED_OFFSET", "ORACLE_FIRST",
+           "VARIANT_ROWS", "Rows", "controller_rows", "evaluation_seeds", "fault_rows",
+           "improvement_seeds", "video_episode"]

@@ -9,7 +9,9 @@ networks, ``models/``), ``demos`` (demonstrations by
 ``heldout/``), ``collect`` (``transitions/``), ``train`` (goal, regions, dynamics;
 ``models/metrics.json``), ``figures`` (Fig. 3(a), 3(b); ``figures/``), ``flat_ppo``
 (``flat_ppo/``), ``outcomes`` (outcome runs and the initiation learned from them;
-``outcomes/``, ``models/initiation.safetensors``), ``evaluate`` (every controller, the
+``outcomes/``, ``models/initiation.safetensors``), ``improve`` (the improvement rounds,
+:mod:`dynoplan.envs.gear.improve`; ``improve/``, the kept models in ``models/``),
+``evaluate`` (every controller, the
 variants :data:`~dynoplan.envs.gear.evaluation.VARIANT_ROWS` and the ablation
 :data:`~dynoplan.envs.gear.evaluation.ABLATION_ROWS` on the same seeded episodes;
 ``results.csv``, ``episodes.json``), ``faults`` and ``video`` (``episode.mp4``). The
@@ -22,7 +24,7 @@ are their own durations. Results are the same on one worker or many.
 """
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +38,7 @@ from dynoplan.envs.gear.evaluation import (
     fault_rows,
     video_episode,
 )
-from dynoplan.envs.gear.learning.files import load_gear_models
+from dynoplan.envs.gear.learning.files import METRICS_FILE, load_gear_models
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
     DEFAULT_SETTINGS,
@@ -47,10 +49,12 @@ from dynoplan.envs.gear.learning.settings import (
 from dynoplan.envs.gear.reports.results import results_rows, summarise, write_results
 from dynoplan.envs.gear.stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
 from dynoplan.errors import DynoplanError
+from dynoplan.io import read_json_object
 from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.pipeline.fit import FitSettings
+from dynoplan.pipeline.improve import ImprovementSettings
 from dynoplan.pipeline.jobs import evaluate_rows
 from dynoplan.pipeline.task import PipelineRun
 
@@ -89,7 +93,8 @@ class GearRunSettings:
     """Sizes of every stage (recorded in ``summary.json``): ``demos`` demonstrations (and
     held-out trials), ``collect``'s option runs, how the models are fitted (``fit``) and
     measured (``metrics``), t-SNE ``figure_points``, ``ppo_steps`` of the flat baseline,
-    ``outcomes``' runs (``runs`` 0: no outcomes stage, the Eq. 5 regions alone)."""
+    ``outcomes``' runs (``runs`` 0: no outcomes stage, the Eq. 5 regions alone), the
+    ``improvement`` rounds on DynoPlan's own episodes (the pipeline's defaults)."""
 
     demos: int = 10
     collect: OptionRunSettings = TRANSITION_RUNS
@@ -101,6 +106,7 @@ class GearRunSettings:
     faults: FaultSettings = FaultSettings()
     video: bool = True
     outcomes: OptionRunSettings = OUTCOME_RUNS
+    improvement: ImprovementSettings = field(default_factory=ImprovementSettings)
 
 
 QUICK_RUN = GearRunSettings(
@@ -110,7 +116,8 @@ QUICK_RUN = GearRunSettings(
     evaluation=EvaluationSettings(6, 2, 2, replace(GEAR_CONTROL, horizon=6, samples=32,
                                                    oracle_horizon=3)),
     faults=FaultSettings(episodes=3),
-    outcomes=OptionRunSettings(runs=2, max_decisions=6, lead_decisions=2))
+    outcomes=OptionRunSettings(runs=2, max_decisions=6, lead_decisions=2),
+    improvement=ImprovementSettings(episodes=3))
 """``--quick``: every stage on small settings (CI, a first look)."""
 
 
@@ -132,9 +139,9 @@ class GearStages:
     - ``demonstrations``: the operator's demonstrations and held-out trials;
     - ``option_runs``: every option's runs from its own starts;
     - ``fit``: goal, regions and dynamics, measured on the held-out trials;
-    - ``after_fit``: Fig. 3 of the fitted models, the flat PPO baseline, and the
-      initiation learned from outcome runs (after every stage whose results it could
-      touch);
+    - ``after_fit``: the flat PPO baseline, the initiation learned from outcome runs
+      (after every stage whose results it could touch), the improvement rounds and Fig. 3
+      of the models kept;
     - ``evaluate``: every controller, the flat baseline, the variants and the ablation
       rows (the oracle on the first episodes) on the same seeded episodes;
     - ``report``: the faults and the video.
@@ -195,12 +202,10 @@ class GearStages:
 
     def after_fit(self, run: PipelineRun, models: Path) -> Path:
         from dynoplan.envs.gear.flat_policy import fit_flat_policy, save_flat_policy
+        from dynoplan.envs.gear.improve import improved_models
         from dynoplan.envs.gear.stages import figures, learned_initiation
 
         out, seed, settings = _folder(run), self.seed, self.settings
-        self.summary["figures"] = run.clock.stage("figures", lambda: figures(
-            models, out / "demos", out / "heldout", out / "figures", seed,
-            settings.figure_points))
         if self._flat is None:
             self._flat = run.clock.start("flat_ppo", fit_flat_policy, settings.ppo_steps, seed,
                                          workers=run.workers)
@@ -209,6 +214,16 @@ class GearStages:
             self.summary["outcomes"] = run.clock.stage("outcomes", lambda: learned_initiation(
                 models, out / "outcomes", seed, settings.outcomes, run.progress,
                 run.workers))
+        if settings.improvement.rounds:
+            self.summary["improvement"] = run.clock.stage("improve", lambda: improved_models(
+                out, seed, settings.improvement, settings.fit, settings.metrics,
+                settings.outcomes, settings.evaluation.planner, run.progress, run.workers))
+            kept = read_json_object(models / METRICS_FILE, "the kept models' metrics")
+            self.summary["model_metrics"] = {k: v for k, v in kept.items()
+                                             if not isinstance(v, dict)}
+        self.summary["figures"] = run.clock.stage("figures", lambda: figures(
+            models, out / "demos", out / "heldout", out / "figures", seed,
+            settings.figure_points))
         return models
 
     def evaluate(self, run: PipelineRun, models: Path) -> dict[str, list[EpisodeRecord]]:

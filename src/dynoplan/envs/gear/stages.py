@@ -108,11 +108,12 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
 def learned_models(demos: Path, transitions: Path | None, models: Path, seed: int,
                    heldout: Path | None, fit: FitSettings = DEFAULT_SETTINGS,
                    metrics: GearMetricsSettings = DEFAULT_METRICS, progress: bool = True,
-                   workers: Workers = SERIAL,
-                   log: Callable[[str], None] = _silent) -> dict[str, Any]:
-    """Stage ``train``: goal heuristic, safety regions and dynamics fitted as ``fit`` says
-    into ``models`` and measured as ``metrics`` says; the content of ``metrics.json``.
-    ``heldout`` ``None``: :func:`heldout_trials` into ``models/heldout-demos``."""
+                   workers: Workers = SERIAL, log: Callable[[str], None] = _silent,
+                   region_demos: Path | None = None) -> dict[str, Any]:
+    """Stage ``train``: goal heuristic, safety regions (on ``region_demos``, default
+    ``demos``) and dynamics fitted as ``fit`` says into ``models`` and measured as
+    ``metrics`` says; the content of ``metrics.json``. ``heldout`` ``None``:
+    :func:`heldout_trials` into ``models/heldout-demos``."""
     from dynoplan.envs.gear.learning.training import train_gear_models
 
     if heldout is None:
@@ -121,7 +122,8 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
     # the previous models stay loadable until the new folder is complete
     with staged_folder(models, keep=True) as staged:
         return train_gear_models(demos, transitions, staged, seed, heldout, False,
-                                 progress=progress, settings=fit, measures=metrics)
+                                 progress=progress, settings=fit, measures=metrics,
+                                 region_demos=region_demos)
 
 
 def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",

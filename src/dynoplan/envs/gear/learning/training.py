@@ -115,7 +115,8 @@ __all__ = ["train_gear_models"]
 def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: int,
                       heldout_demos: Path, quick: bool, progress: bool,
                       settings: FitSettings | None = None,
-                      measures: GearMetricsSettings | None = None) -> dict[str, Any]:
+                      measures: GearMetricsSettings | None = None,
+                      region_demos: Path | None = None) -> dict[str, Any]:
     """Fit the goal heuristic, the safety regions and one dynamics model per option.
 
     Args:
@@ -135,6 +136,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
             :data:`DEFAULT_SETTINGS` and :data:`DEFAULT_METRICS`.
         progress: progress bars on stderr.
         settings, measures: override ``quick``.
+        region_demos: the demonstrations the safety regions are fitted on (default:
+            ``demos``; the improvement rounds' ``regions`` False: the demonstrator's alone).
 
     Returns:
         The content of ``metrics.json``. The model files are the same to the bit for the
@@ -164,6 +167,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     train_set = read_demos(demos, "demonstrations")
     clock = StageClock()
 
+    region_set = (train_set if region_demos is None
+                  else read_demos(region_demos, "region demonstrations"))
     held_set = read_demos(heldout_demos, "held-out trials")
     check_disjoint(train_set, held_set, heldout_demos)
     if transitions is None:
@@ -193,7 +198,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
 
     def fit_regions() -> None:
         results["regions"], fitted["regions"] = _train_regions(
-            list(train_set), list(held_set), planner, cfg, measure, seed)
+            list(region_set), list(held_set), planner, cfg, measure, seed)
 
     dyn_reports: dict[str, Any] = {}
 

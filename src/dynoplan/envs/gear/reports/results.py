@@ -30,6 +30,7 @@ from dynoplan.envs.gear.env import CONTROL_DT, MAX_EPISODE_STEPS
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY
 from dynoplan.io import write_csv, write_json
 from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
+from dynoplan.pipeline.improve import learning_curve_text
 from dynoplan.reports.tables import markdown_table
 
 RESULT_COLUMNS = (
@@ -168,6 +169,9 @@ def results_markdown(summary: dict[str, Any]) -> str:
                   "paper's method); `epistemic=0.3` penalises the dynamics ensemble's "
                   "disagreement.", "",
                   markdown_table(summary["ablation"], RESULT_COLUMNS)]
+    if summary.get("improvement"):
+        lines += ["", "## Learning from its own episodes", "",
+                  learning_curve_text(summary["improvement"])]
     lines += ["", "## Faults (DynoPlan)", "",
               markdown_table(summary["faults"], ("fault", "episodes", "success_rate",
                                                  "contacts", "switches", "holds")),
