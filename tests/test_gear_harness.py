@@ -16,7 +16,8 @@ from dynoplan.envs.gear.env import HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
 from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
 from dynoplan.envs.gear.options.base import GearOptionPolicy
-from dynoplan.envs.gear.options.starts import reach_start, shifted_schedule
+from dynoplan.envs.gear.options.catalog import reach_start
+from dynoplan.envs.gear.options.starts import shifted_schedule
 from dynoplan.envs.gear.options.trials import run_option_trials
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState, proximity_beta
 from dynoplan.envs.gear.task import STAGE_INDEX

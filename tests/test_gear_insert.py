@@ -9,6 +9,7 @@ import torch
 from safetensors.numpy import save_file
 
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.options.catalog import reach_start
 from dynoplan.envs.gear.options.insert import (
     FEATURE_DIM,
     InsertionNetwork,
@@ -23,7 +24,6 @@ from dynoplan.envs.gear.options.insert_training import (
     fit_insertion,
     train_insertion,
 )
-from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import PlannerState
 from dynoplan.envs.gear.task import SEAT_DEPTH
 from dynoplan.errors import DynoplanError

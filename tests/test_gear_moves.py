@@ -6,6 +6,7 @@ import pytest
 
 from dynoplan.envs.gear.env import ACT_DIM, GRIPPER_CLOSED, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.grasp import held_gear_position
+from dynoplan.envs.gear.options.catalog import reach_start
 from dynoplan.envs.gear.options.moves import (
     CAUTIOUS_SAFETY_DISTANCE,
     GOAL_TOLERANCE,
@@ -13,7 +14,6 @@ from dynoplan.envs.gear.options.moves import (
     FastMovePolicy,
     PreInsertionBeta,
 )
-from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import STATE_SLICES, PlannerState
 from dynoplan.options.termination import Termination
 

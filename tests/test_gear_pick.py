@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from dynoplan.envs.gear.env import OBS_SLICES, GearAssemblyEnv
+from dynoplan.envs.gear.options.catalog import reach_start
 from dynoplan.envs.gear.options.motion import LeftArmPlanner
 from dynoplan.envs.gear.options.pick import PickPolicy
 from dynoplan.envs.gear.options.recognition import (
@@ -18,7 +19,6 @@ from dynoplan.envs.gear.options.recognition import (
     grasp_features,
     train_recognizer,
 )
-from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
 from dynoplan.models.storage import save_arrays

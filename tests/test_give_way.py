@@ -8,7 +8,7 @@ from dynoplan.envs.gear.arm_points import arm_joints
 from dynoplan.envs.gear.env import CONTROL_DT, GRIPPER_CLOSED, HOME_Q, GearAssemblyEnv
 from dynoplan.envs.gear.operator import OptionOperator
 from dynoplan.envs.gear.options import GearOptionPolicy, temporary_gear_options
-from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS, PAPER_OPTIONS
+from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS, PAPER_OPTIONS, reach_start
 from dynoplan.envs.gear.options.give_way import (
     GIVE_WAY,
     GIVE_WAY_CLEARANCE,
@@ -17,7 +17,6 @@ from dynoplan.envs.gear.options.give_way import (
     GiveWayPolicy,
     left_arm_hand_distance,
 )
-from dynoplan.envs.gear.options.starts import reach_start
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES, PlannerState
 from dynoplan.pipeline.collect import RunStart, record_episode
 

@@ -15,22 +15,6 @@ import dynoplan
 
 PACKAGE = Path(dynoplan.__file__).parent
 
-KNOWN_MODULE_CYCLES = {
-    # The gear options' implementations (pick's recogniser, the insertion network's
-    # training) reach their starts by option name through the catalog, which imports
-    # them to load and train their networks.
-    frozenset({
-        "dynoplan.envs.gear.options.catalog",
-        "dynoplan.envs.gear.options.insert_training",
-        "dynoplan.envs.gear.options.pick",
-        "dynoplan.envs.gear.options.recognition",
-        "dynoplan.envs.gear.options.registry",
-        "dynoplan.envs.gear.options.starts",
-    }),
-}
-"""Cycles between modules that are known and not yet removed; a new cycle, or one that
-grows, fails the test."""
-
 
 def _modules(root: Path) -> dict[str, tuple[Path, bool]]:
     """Module name -> (file, is a package) for every ``.py`` file under ``root``."""
@@ -155,8 +139,5 @@ def test_no_cycle_between_the_top_level_parts():
     assert _cycles(graph) == []
 
 
-def test_no_cycle_between_modules_but_the_known_ones():
-    cycles = _cycles(_import_graph(_modules(PACKAGE)))
-    unknown = [sorted(c) for c in cycles
-               if not any(c <= known for known in KNOWN_MODULE_CYCLES)]
-    assert unknown == []
+def test_no_cycle_between_modules():
+    assert _cycles(_import_graph(_modules(PACKAGE))) == []

@@ -4,7 +4,7 @@ of :class:`~dynoplan.pipeline.collect.OptionRunTask` (through
 
 - :func:`own_start` (option transitions): the human's behaviour drawn among
   :data:`~dynoplan.envs.gear.human.HUMAN_MODES`, the env driven to a start of the option
-  itself (:func:`~dynoplan.envs.gear.options.starts.reach_start`) and, in
+  itself (:func:`~dynoplan.envs.gear.options.catalog.reach_start`) and, in
   :data:`PERTURBED_FRACTION` of the runs, the arm held at a random joint offset first;
 - :func:`beyond_start` (outcome runs): with probability ``own_fraction`` a start of the
   option itself, else a start of another registered option, the *source*, which then
@@ -22,7 +22,7 @@ import numpy as np
 
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, GRIPPER_OPEN, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
-from dynoplan.envs.gear.options.starts import reach_start
+from dynoplan.envs.gear.options.catalog import reach_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.pipeline.collect import (
     OptionRun,

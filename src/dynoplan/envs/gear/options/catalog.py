@@ -52,9 +52,17 @@ from dynoplan.envs.gear.options.preconditions import (
     not_carried,
 )
 from dynoplan.envs.gear.options.registry import GearOption, GearOptionRegistry, OptionNetwork
-from dynoplan.envs.gear.options.starts import after_pick, at_reset, before_insertion
+from dynoplan.envs.gear.options.starts import (
+    OptionStart,
+    StartConfig,
+    after_pick,
+    at_reset,
+    before_insertion,
+    drive_to_start,
+)
 from dynoplan.options.initiation import AllOf, AnyOf, InitiationFromCallable
 from dynoplan.parallel import SERIAL, Workers, imap_unordered
+from dynoplan.types import Generator
 
 RECOGNIZER_FILE = "grasp_recognizer.safetensors"
 INSERT_FILE = "insert_policy.safetensors"
@@ -179,6 +187,19 @@ def gear_option(name: str) -> GearOption:
     return GEAR_OPTIONS.get(name)
 
 
+def reach_start(env: GearAssemblyEnv, option: str, rng: Generator,
+                human_mode: str | None = None,
+                config: StartConfig | None = None) -> OptionStart:
+    """Reset ``env`` and drive it to a start state of the registered option ``option``
+    (its ``start`` sampler, :func:`~dynoplan.envs.gear.options.starts.drive_to_start`),
+    with a schedule of ``human_mode`` (default: the option's) unless the option's start
+    installs its own (:attr:`~dynoplan.envs.gear.options.registry.GearOption.
+    start_sets_human`); all randomness from ``rng``."""
+    record = gear_option(option)
+    return drive_to_start(env, record.start, rng, human_mode or record.human_mode,
+                          record.start_sets_human, config, option)
+
+
 def gear_option_names() -> tuple[str, ...]:
     """The registered options' names, in label order."""
     return GEAR_OPTIONS.names()
@@ -285,6 +306,7 @@ __all__ = [
     "network_data_episode",
     "network_files",
     "policy_factories",
+    "reach_start",
     "register_gear_option",
     "temporary_gear_options",
     "train_option_networks",

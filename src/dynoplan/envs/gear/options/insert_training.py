@@ -4,7 +4,7 @@ Demonstrations: a scripted insertion teacher (:class:`ScriptedInserter`) reprodu
 expert's insertion (:class:`~dynoplan.envs.gear.expert.GearExpert`'s ``insert`` step: put
 the gear on the peg axis with its axis aligned, by IK, lower it along the axis, wait above
 the tip until centred) as a stateless function of the observation, from seeded noisy
-pre-insertion poses (:func:`~dynoplan.envs.gear.options.starts.reach_start` with
+pre-insertion poses (:func:`~dynoplan.envs.gear.options.starts.drive_to_start` with
 ``"insert"``, the human away). The expert itself keeps an internal commanded height and a
 jam timer that the observation does not show; cloned directly, the learner hovered above
 the tip (20% success in a first try), so the teacher has none.
@@ -44,7 +44,11 @@ from dynoplan.envs.gear.options.insert import (
     InsertionNetwork,
     insertion_features,
 )
-from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
+from dynoplan.envs.gear.options.starts import (
+    DATA_EPISODE_STEPS,
+    before_insertion,
+    drive_to_start,
+)
 from dynoplan.envs.gear.task import STAGE_INDEX, relation
 from dynoplan.errors import DynoplanError
 from dynoplan.models.trainer import (
@@ -186,7 +190,8 @@ def insertion_episode(env: GearAssemblyEnv, teacher: ScriptedInserter, seed: int
     noise come from ``default_rng([seed, episode])`` alone (no OMPL), so it is the same in
     any process, after any other."""
     rng = np.random.default_rng([int(seed), int(episode)])
-    start = reach_start(env, INSERT_NAME, rng)
+    start = drive_to_start(env, before_insertion, rng, "away",  # insert's own start
+                           option=INSERT_NAME)
     sigma = noise_std * rng.uniform()
     obs, info = start.observation, start.info
     q_right = start_joints(env, obs)[6:12]  # held where commanded (measured angles sag)

@@ -30,7 +30,7 @@ own training data (:func:`~dynoplan.envs.gear.options.recognition.generate_grasp
 """
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -54,8 +54,13 @@ from dynoplan.types import FloatArray, Generator
 PICK_NAME = "pick"
 """The option's name (its registry record, datasets, model files, the command line)."""
 
-if TYPE_CHECKING:
-    from dynoplan.envs.gear.options.recognition import GraspRecognizer
+
+
+class GraspProbability(Protocol):
+    """What decides the pick's end: ``P(grasped)`` of an observation ``(50,)`` (the
+    trained :class:`~dynoplan.envs.gear.options.recognition.GraspRecognizer`)."""
+
+    def probability(self, observations: FloatArray) -> FloatArray | float: ...
 
 LIFTED_HEIGHT = 0.03
 """The pick succeeded when the held gear's bottom is at least this far (m) above the table."""
@@ -116,7 +121,7 @@ class PickPolicy(GearOptionPolicy):
 
     name = PICK_NAME
 
-    def __init__(self, env: GearAssemblyEnv, recognizer: "GraspRecognizer | None",
+    def __init__(self, env: GearAssemblyEnv, recognizer: GraspProbability | None,
                  config: PickConfig | None = None, planner: str = "RRTConnect") -> None:
         super().__init__(env)
         self.recognizer = recognizer

@@ -22,7 +22,8 @@ gear_axis_z         ``z`` component of the gear's axis (cosine of its tilt)
 the gear (``info["pads_on_gear"] >= 2``) and its bottom is off the table (more than
 :data:`OFF_TABLE_HEIGHT` above the table top).
 
-**Data** (:func:`generate_grasp_data`): seeded pick starts (:func:`reach_start`) and the
+**Data** (:func:`generate_grasp_data`): seeded pick starts
+(:func:`~dynoplan.envs.gear.options.starts.drive_to_start`) and the
 pick option's own scripted grasp (:class:`PickPolicy` without a recogniser), with
 perturbations that make both classes and the cases near the boundary common: a nominal
 grasp, a grasp aimed off the gear by 0.5-4 cm (missed, one-pad and tilted grasps), the
@@ -52,7 +53,7 @@ from dynoplan.envs.gear.env import GRIPPER_OPEN, OBS_DIM, OBS_SLICES, GearAssemb
 from dynoplan.envs.gear.kinematics import ArmKinematics
 from dynoplan.envs.gear.options.motion import reseed_ompl
 from dynoplan.envs.gear.options.pick import PICK_NAME, PickPolicy
-from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, reach_start
+from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, at_reset, drive_to_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp import MLP, uniform_weight_init
@@ -274,7 +275,7 @@ def grasp_episode(env: GearAssemblyEnv, policy: PickPolicy, seed: int, episode: 
     reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
     rng = np.random.default_rng(key)
     kind = str(rng.choice(PERTURBATIONS, p=PERTURBATION_WEIGHTS))
-    start = reach_start(env, PICK_NAME, rng)
+    start = drive_to_start(env, at_reset, rng, "away", option=PICK_NAME)  # pick's own start
     obs, info = start.observation, start.info
     offset = np.zeros(3)
     if kind == "offset":

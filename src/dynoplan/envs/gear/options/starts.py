@@ -17,6 +17,7 @@ human's schedule is replaced by one of the requested mode (default: the option's
 option meets the human while it runs.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -98,28 +99,28 @@ def before_insertion(env: GearAssemblyEnv, rng: Generator, config: StartConfig) 
     return _displace(env, rng, config) is not None
 
 
-def reach_start(env: GearAssemblyEnv, option: str, rng: Generator,
-                human_mode: str | None = None,
-                config: StartConfig | None = None) -> OptionStart:
-    """Reset ``env`` and drive it to a start state of the registered option ``option``
-    (its ``start`` sampler), then install a schedule of ``human_mode`` (default: the
-    option's) unless the option's start installs its own
-    (:attr:`~dynoplan.envs.gear.options.registry.GearOption.start_sets_human`); all
-    randomness from ``rng``. Raises :class:`DynoplanError`
-    if no attempt reaches it."""
-    from dynoplan.envs.gear.options.catalog import gear_option
+StartSampler = Callable[[GearAssemblyEnv, Generator, StartConfig], bool]
+"""An option's start sampler: drives an env just reset to a start of the option (False:
+this attempt did not reach one)."""
 
-    record = gear_option(option)
+
+def drive_to_start(env: GearAssemblyEnv, start: StartSampler, rng: Generator, mode: str,
+                   start_sets_human: bool = False, config: StartConfig | None = None,
+                   option: str = "the option") -> OptionStart:
+    """Reset ``env`` and drive it to a start state with the sampler ``start``, then
+    install a schedule of ``human_mode`` unless ``start_sets_human`` (the sampler installs
+    its own); all randomness from ``rng``. The registered options' starts by name:
+    :func:`~dynoplan.envs.gear.options.catalog.reach_start`. Raises
+    :class:`DynoplanError` if no attempt reaches it."""
     cfg = config or StartConfig()
-    mode = human_mode or record.human_mode
     if mode not in HUMAN_MODES:
         raise DynoplanError(f"human mode must be one of {HUMAN_MODES}, got {mode!r}")
     for _ in range(cfg.attempts):
         seed = int(rng.integers(2**31 - 1))
         env.reset(seed=seed, options={"human_mode": "away"})
-        if not record.start(env, rng, cfg):
+        if not start(env, rng, cfg):
             continue
-        schedule = (env.schedule if record.start_sets_human
+        schedule = (env.schedule if start_sets_human
                     else shifted_schedule(env, mode, rng, cfg.event_delay))
         obs, info = env.set_human_schedule(schedule)
         return OptionStart(observation=obs, info=info, env_seed=seed, human_mode=schedule.mode)
@@ -164,4 +165,5 @@ def _displace(env: GearAssemblyEnv, rng: Generator,
 
 
 __all__ = ["CARRY_STEP", "DATA_EPISODE_STEPS", "INSERT_STEP", "OptionStart", "StartConfig",
-           "after_pick", "at_reset", "before_insertion", "reach_start", "shifted_schedule"]
+           "StartSampler", "after_pick", "at_reset", "before_insertion", "drive_to_start",
+           "shifted_schedule"]

@@ -2,7 +2,7 @@
 (success, robot-human contacts and distance, planning time) and an optional video.
 
 Per trial ``i`` of seed ``S``: ``rng = default_rng([S, i])``; the env is driven to a start
-of the option (:func:`~dynoplan.envs.gear.options.starts.reach_start`), the policy is
+of the option (:func:`~dynoplan.envs.gear.options.catalog.reach_start`), the policy is
 reset there and acts until it reports that it is finished or ``max_steps`` env steps
 pass; then the policy judges its own success from the simulator (``succeeded(info)``).
 """
@@ -20,8 +20,7 @@ from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
-from dynoplan.envs.gear.options.catalog import gear_option
-from dynoplan.envs.gear.options.starts import reach_start
+from dynoplan.envs.gear.options.catalog import gear_option, reach_start
 from dynoplan.errors import DynoplanError
 from dynoplan.io import check_writable, staged_folder, write_json
 from dynoplan.options.termination import ConstantTermination
