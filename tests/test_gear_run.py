@@ -223,11 +223,13 @@ def test_failed_episodes_are_counted_by_how_they_ended():
     assert summarise("x", episodes[:1])["failures"] == {}
 
 
-def test_gear_run_rejects_bad_episode_counts(tmp_path: Path):
+@pytest.mark.parametrize("args", [["--episodes", "0"], ["--improve", "-1"],
+                                  ["--improve", "101"]])
+def test_gear_run_rejects_bad_episode_counts(tmp_path: Path, args):
     result = CliRunner().invoke(app, ["gear", "run", "--quick", "--out", str(tmp_path / "x"),
-                                      "--episodes", "0"])
-    assert result.exit_code != 0
-    assert not (tmp_path / "x" / "results.csv").exists()
+                                      *args])
+    assert result.exit_code == 2
+    assert not (tmp_path / "x").exists()
 
 
 def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
