@@ -6,7 +6,14 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from dynoplan.cli.params import folder, human_mode, models_folder, out_folder, require_gear
+from dynoplan.cli.params import (
+    folder,
+    human_mode,
+    models_folder,
+    out_folder,
+    require_gear,
+    setting_bounds,
+)
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.limits import (
     DEPTH_MAX,
@@ -15,7 +22,6 @@ from dynoplan.limits import (
     POINTS_MAX,
     SAMPLES_MAX,
     SEED_MAX,
-    SETTING_BOUNDS,
     STEPS_MAX,
 )
 
@@ -442,7 +448,7 @@ def run(
                                                  help="Episodes of each ablation row (the "
                                                  "first of the same list; default 30)."),
     improve: int | None = typer.Option(
-        None, "--improve", min=SETTING_BOUNDS["improve"][0], max=SETTING_BOUNDS["improve"][1],
+        None, "--improve", **setting_bounds("improve"),
         help="Rounds of learning from DynoPlan's own episodes before the evaluation, the "
              "best models kept (0: the paper's pipeline) [the pipeline's default]."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),

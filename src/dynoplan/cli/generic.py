@@ -13,15 +13,14 @@ overrides the file. The effective settings are written to ``OUT/settings.toml``.
 import shlex
 import sys
 from pathlib import Path
-from typing import Any
 
 import typer
 
 from dynoplan.cli.lines import warnings_as_lines
 from dynoplan.cli.params import folder, out_folder
+from dynoplan.cli.params import setting_bounds as _bounds
 from dynoplan.cli.workers import ray_address_option, workers_option
 from dynoplan.errors import DynoplanError
-from dynoplan.limits import SETTING_BOUNDS
 
 generic_app = typer.Typer(
     help="DynoPlan on any Gymnasium environment (a Box observation, or a Dict with a "
@@ -29,12 +28,6 @@ generic_app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-
-
-def _bounds(key: str) -> dict[str, Any]:
-    """typer's ``min``/``max`` of setting ``key`` (:data:`~dynoplan.limits.SETTING_BOUNDS`)."""
-    low, high = SETTING_BOUNDS[key]
-    return {k: v for k, v in (("min", low), ("max", high)) if abs(v) != float("inf")}
 
 
 @generic_app.callback(invoke_without_command=True)

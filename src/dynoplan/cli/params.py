@@ -3,14 +3,22 @@ typer's ``min``/``max`` with the bounds of :mod:`dynoplan.limits`)."""
 
 import importlib.util
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from dynoplan.errors import DynoplanError
 from dynoplan.io import check_writable
+from dynoplan.limits import SETTING_BOUNDS
 
 GEAR_MODULES = ("mujoco", "ompl", "mink", "daqp", "imageio", "stable_baselines3")
 """What the gear's commands import: the ``gear`` extra (the core install has none)."""
+
+
+def setting_bounds(key: str) -> dict[str, Any]:
+    """typer's ``min``/``max`` of setting ``key`` (:data:`~dynoplan.limits.SETTING_BOUNDS`)."""
+    low, high = SETTING_BOUNDS[key]
+    return {k: v for k, v in (("min", low), ("max", high)) if abs(v) != float("inf")}
 
 
 def folder(value: Path | None) -> Path | None:

@@ -196,8 +196,7 @@ class GearStages:
         metrics = run.clock.stage("train", lambda: learned_models(
             demos, runs, out / "models", self.seed, out / "heldout", settings.fit,
             settings.metrics, progress=run.progress, workers=run.workers))
-        self.summary["model_metrics"] = {k: v for k, v in metrics.items()
-                                         if not isinstance(v, dict)}
+        self.summary["model_metrics"] = _headline(metrics)
         return out / "models"
 
     def after_fit(self, run: PipelineRun, models: Path) -> Path:
@@ -218,9 +217,8 @@ class GearStages:
             self.summary["improvement"] = run.clock.stage("improve", lambda: improved_models(
                 out, seed, settings.improvement, settings.fit, settings.metrics,
                 settings.outcomes, settings.evaluation.planner, run.progress, run.workers))
-            kept = read_json_object(models / METRICS_FILE, "the kept models' metrics")
-            self.summary["model_metrics"] = {k: v for k, v in kept.items()
-                                             if not isinstance(v, dict)}
+            self.summary["model_metrics"] = _headline(read_json_object(
+                models / METRICS_FILE, "the kept models' metrics"))
         self.summary["figures"] = run.clock.stage("figures", lambda: figures(
             models, out / "demos", out / "heldout", out / "figures", seed,
             settings.figure_points))
@@ -268,6 +266,11 @@ class GearStages:
                                                out / "episode.mp4")
         self.summary["stages_s"] = run.clock.rounded(2)
         return self.summary
+
+
+def _headline(metrics: dict[str, Any]) -> dict[str, Any]:
+    """``metrics.json``'s top-level numbers (``summary.json``'s ``model_metrics``)."""
+    return {k: v for k, v in metrics.items() if not isinstance(v, dict)}
 
 
 def _folder(run: PipelineRun) -> Path:

@@ -33,7 +33,7 @@ from dynoplan.envs.gear.expert import FAST_MOVE as FAST_MOVE_LABEL
 from dynoplan.envs.gear.expert import INSERT as INSERT_LABEL
 from dynoplan.envs.gear.expert import PICK as PICK_LABEL
 from dynoplan.envs.gear.options.base import GearPolicyFactory
-from dynoplan.envs.gear.options.insert import INSERT_NAME
+from dynoplan.envs.gear.options.insert import INSERT_NAME, INSERT_START
 from dynoplan.envs.gear.options.moves import (
     CAUTIOUS_MOVE_NAME,
     CAUTIOUS_SAFETY_DISTANCE,
@@ -41,7 +41,7 @@ from dynoplan.envs.gear.options.moves import (
     CautiousMovePolicy,
     FastMovePolicy,
 )
-from dynoplan.envs.gear.options.pick import PICK_NAME
+from dynoplan.envs.gear.options.pick import PICK_NAME, PICK_START
 from dynoplan.envs.gear.options.preconditions import (
     FarFromGoal,
     hand_clear_of_tool,
@@ -56,8 +56,6 @@ from dynoplan.envs.gear.options.starts import (
     OptionStart,
     StartConfig,
     after_pick,
-    at_reset,
-    before_insertion,
     drive_to_start,
 )
 from dynoplan.options.initiation import AllOf, AnyOf, InitiationFromCallable
@@ -135,7 +133,7 @@ _FAR_FROM_GOAL = FarFromGoal()  # one forward-kinematics model for both moves
 _MOVE_GOES_ON = InitiationFromCallable(holding_gear)
 
 PICK = GearOption(
-    PICK_NAME, start=at_reset,
+    PICK_NAME, start=PICK_START,
     initiation=AllOf(InitiationFromCallable(not_carried),
                      InitiationFromCallable(hand_clear_of_tool)),
     network=OptionNetwork(RECOGNIZER_FILE, _load_pick, _pick_data_actor, _pick_data_episode,
@@ -156,7 +154,7 @@ CAUTIOUS_MOVE = GearOption(
 """Paper option 3: the same goal, keeping clearance from the human (see
 :data:`~dynoplan.envs.gear.options.moves.CAUTIOUS_SAFETY_DISTANCE`)."""
 INSERT = GearOption(
-    INSERT_NAME, start=before_insertion,
+    INSERT_NAME, start=INSERT_START,
     initiation=insert_may_start, continuation=insert_may_go_on,
     network=OptionNetwork(INSERT_FILE, _load_insert, _insert_data_actor, _insert_data_episode,
                           _fit_insertion),

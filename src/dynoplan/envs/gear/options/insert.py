@@ -42,6 +42,7 @@ from torch import nn
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_DIM, OBS_SLICES, RIGHT_HOLD, GearAssemblyEnv
 from dynoplan.envs.gear.grasp import quat_to_mat
 from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
+from dynoplan.envs.gear.options.starts import before_insertion
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
 from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
@@ -60,6 +61,9 @@ from dynoplan.types import FloatArray, Generator
 
 INSERT_NAME = "insert"
 """The option's name (its registry record, datasets, model files, the command line)."""
+INSERT_START = before_insertion
+"""Where the option starts (its registry record's ``start``): the gear held above the peg,
+the arm displaced."""
 
 MODEL_KIND = "gear_insertion_policy"
 FEATURE_NAMES: tuple[str, ...] = (

@@ -39,16 +39,13 @@ from dynoplan.envs.gear.options.insert import (
     DEFAULT_HIDDEN,
     FEATURE_DIM,
     INSERT_NAME,
+    INSERT_START,
     OUTPUT_DIM,
     OUTPUT_MEANING,
     InsertionNetwork,
     insertion_features,
 )
-from dynoplan.envs.gear.options.starts import (
-    DATA_EPISODE_STEPS,
-    before_insertion,
-    drive_to_start,
-)
+from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, drive_to_start
 from dynoplan.envs.gear.task import STAGE_INDEX, relation
 from dynoplan.errors import DynoplanError
 from dynoplan.models.trainer import (
@@ -190,8 +187,7 @@ def insertion_episode(env: GearAssemblyEnv, teacher: ScriptedInserter, seed: int
     noise come from ``default_rng([seed, episode])`` alone (no OMPL), so it is the same in
     any process, after any other."""
     rng = np.random.default_rng([int(seed), int(episode)])
-    start = drive_to_start(env, before_insertion, rng, "away",  # insert's own start
-                           option=INSERT_NAME)
+    start = drive_to_start(env, INSERT_START, rng, "away", option=INSERT_NAME)
     sigma = noise_std * rng.uniform()
     obs, info = start.observation, start.info
     q_right = start_joints(env, obs)[6:12]  # held where commanded (measured angles sag)

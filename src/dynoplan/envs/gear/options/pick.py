@@ -45,6 +45,7 @@ from dynoplan.envs.gear.expert import GRASP_TCP_HEIGHT
 from dynoplan.envs.gear.kinematics import ArmKinematics, downward_tool_rotation
 from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
 from dynoplan.envs.gear.options.motion import LeftArmPlanner
+from dynoplan.envs.gear.options.starts import at_reset
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.envs.gear.state import proximity_beta
 from dynoplan.envs.gear.trajectory import JointPath
@@ -53,7 +54,8 @@ from dynoplan.types import FloatArray, Generator
 
 PICK_NAME = "pick"
 """The option's name (its registry record, datasets, model files, the command line)."""
-
+PICK_START = at_reset
+"""Where the option starts (its registry record's ``start``): a fresh reset."""
 
 
 class GraspProbability(Protocol):
@@ -61,6 +63,7 @@ class GraspProbability(Protocol):
     trained :class:`~dynoplan.envs.gear.options.recognition.GraspRecognizer`)."""
 
     def probability(self, observations: FloatArray) -> FloatArray | float: ...
+
 
 LIFTED_HEIGHT = 0.03
 """The pick succeeded when the held gear's bottom is at least this far (m) above the table."""

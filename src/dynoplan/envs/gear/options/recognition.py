@@ -52,8 +52,8 @@ from torch import nn
 from dynoplan.envs.gear.env import GRIPPER_OPEN, OBS_DIM, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.kinematics import ArmKinematics
 from dynoplan.envs.gear.options.motion import reseed_ompl
-from dynoplan.envs.gear.options.pick import PICK_NAME, PickPolicy
-from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, at_reset, drive_to_start
+from dynoplan.envs.gear.options.pick import PICK_NAME, PICK_START, PickPolicy
+from dynoplan.envs.gear.options.starts import DATA_EPISODE_STEPS, drive_to_start
 from dynoplan.envs.gear.scene import TABLE_TOP_Z
 from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp import MLP, uniform_weight_init
@@ -275,7 +275,7 @@ def grasp_episode(env: GearAssemblyEnv, policy: PickPolicy, seed: int, episode: 
     reseed_ompl(int(np.random.SeedSequence(key).generate_state(1)[0]))
     rng = np.random.default_rng(key)
     kind = str(rng.choice(PERTURBATIONS, p=PERTURBATION_WEIGHTS))
-    start = drive_to_start(env, at_reset, rng, "away", option=PICK_NAME)  # pick's own start
+    start = drive_to_start(env, PICK_START, rng, "away", option=PICK_NAME)
     obs, info = start.observation, start.info
     offset = np.zeros(3)
     if kind == "offset":

@@ -108,7 +108,7 @@ def drive_to_start(env: GearAssemblyEnv, start: StartSampler, rng: Generator, mo
                    start_sets_human: bool = False, config: StartConfig | None = None,
                    option: str = "the option") -> OptionStart:
     """Reset ``env`` and drive it to a start state with the sampler ``start``, then
-    install a schedule of ``human_mode`` unless ``start_sets_human`` (the sampler installs
+    install a schedule of the human mode ``mode`` unless ``start_sets_human`` (the sampler installs
     its own); all randomness from ``rng``. The registered options' starts by name:
     :func:`~dynoplan.envs.gear.options.catalog.reach_start`. Raises
     :class:`DynoplanError` if no attempt reaches it."""
