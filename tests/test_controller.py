@@ -389,6 +389,40 @@ def test_two_options_that_undo_each_other_are_not_chosen_again_where_the_loop_cl
         Controller(options, FixedChoice(options, "up"), loop_tolerance=-1.0)
 
 
+def test_a_loop_judged_by_the_goal_bars_the_option_that_undid_the_progress():
+    # "grasp" (x < 0.5) moves to x = 1; "undo" (0.5 < x < 1.5) moves back to 0 and
+    # promises more than "carry" (x > 0.5), which alone gets to the goal. The loop closes
+    # back at x = 0, where "grasp" started it: the old rule bars "grasp" there and nothing
+    # is left; judged by the goal heuristic, "undo" lost the progress "grasp" made
+    from dynoplan.envs.random_walk import NoisyWalkGoal
+    from dynoplan.pipeline.evaluate import goal_means
+    from dynoplan.planning import OptionPlanner
+
+    def one_step(name, by, promise, where):
+        return Option(name, FunctionPolicy(lambda o, r: np.array([by])), _Shift(promise),
+                      ConstantTermination(1.0), initiation=InitiationFromCallable(where))
+
+    options = [one_step("grasp", 1.0, 5.0, lambda s: s[:, 0] < 0.5),
+               one_step("undo", -1.0, 4.0, lambda s: (s[:, 0] > 0.5) & (s[:, 0] < 1.5)),
+               Option("carry", FunctionPolicy(lambda o, r: np.array([1.0])), _Shift(1.0),
+                      ConstantTermination(0.0),
+                      initiation=InitiationFromCallable(lambda s: s[:, 0] > 0.5))]
+    goal = NoisyWalkGoal(0.0)
+
+    def run(progress):
+        planner = OptionPlanner(options, goal, horizon=2, samples=4)
+        return Controller(options, planner, max_decisions=30, loop_tolerance=0.5,
+                          progress=progress).run(Line(), np.random.default_rng(0))
+
+    by_state = run(None)  # "grasp" may not start at x = 0 again: nothing is admissible
+    assert not by_state.success
+    assert [d.option for d in by_state.decisions] == ["grasp", "undo", None]
+    for _ in range(2):  # a new episode forgets the bar
+        trace = run(goal_means(goal))
+        assert trace.success
+        assert [d.option for d in trace.decisions] == ["grasp", "undo", "grasp", "carry"]
+
+
 def test_a_planners_copy_of_an_option_sees_where_its_run_ended_without_effect():
     # the planner may hold copies of the controller's options (noisy dynamics, other
     # feature maps): what the controller records must reach them

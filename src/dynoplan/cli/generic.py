@@ -132,7 +132,16 @@ def pipeline(
     goal_off_demos: bool | None = typer.Option(
         None, "--goal-off-demos/--no-goal-off-demos",
         help="The goal heuristic also fits the exploration states, labelled below the "
-             "nearest demonstration state by their distance to it [off]."),
+             "nearest demonstration state by their distance to it [on]."),
+    goal_off_radius: float | None = typer.Option(
+        None, "--goal-off-radius", **_bounds("fit.goal_off_radius"),
+        help="Distance from the demonstrations, in demonstration steps, at which an "
+             "exploration state's label falls to exp(-1) of its nearest demonstration "
+             "state's [5]."),
+    goal_off_decay: str | None = typer.Option(
+        None, "--goal-off-decay",
+        help="How that label falls with the distance r: gaussian, exp(-(r/R)^2); cauchy, "
+             "1/(1+(r/R)^2) [gaussian]."),
     regions: bool | None = typer.Option(None, "--regions/--no-regions",
                                         help="Fit the safety regions (Eq. 5) and enforce "
                                         "them [on]."),
@@ -236,6 +245,10 @@ def pipeline(
         help="Where the state comes back to where an earlier decision started an option "
              "(each coordinate within this share of its spread over the fitted data), "
              "that option does not start there again (0: no such rule) [0.05]."),
+    loop_progress: bool | None = typer.Option(
+        None, "--loop-progress/--no-loop-progress",
+        help="Judge a loop by the goal heuristic: the options whose runs in it lowered it "
+             "do not start anywhere until it passes the loop's highest value [off]."),
     start_where_done: bool | None = typer.Option(
         None, "--start-where-done/--no-start-where-done",
         help="An option may start where its termination is certain (it ends at its first "

@@ -27,7 +27,12 @@ The same holds for a loop of two or more options (``loop_tolerance``): where the
 comes back to a state at which it made an earlier decision (every coordinate within the
 tolerance), the options chosen there did not get it anywhere, and none of them starts there again
 until the state leaves that spot (two options that undo each other: go behind a cube and
-retreat, reach and grasp at one spot).
+retreat, reach and grasp at one spot). Given the goal heuristic (``progress``), the loop is
+judged by it instead: the options of the loop whose own runs lost progress (the goal
+heuristic lower where the run ended than where it started) undid what the others did, and
+they may not start anywhere until the goal heuristic passes the highest value it had in
+the loop (or until no option is admissible); where no run of the loop lost progress, the
+rule above applies.
 
 Where the controller held and the hold changed nothing, far from the goal
 (``stall_progress``), it does not hold again for want of an option that gains: the best
@@ -164,6 +169,10 @@ class Controller:
             would not gain on a goal heuristic below this value (the chooser's
             ``Plan.gain_floor``), that option starts: a hold that changes nothing, far
             from the goal, waits forever (``None``: no such rule).
+        progress: the goal heuristic's mean at states, ``(batch, state_dim) -> (batch,)``:
+            with ``loop_tolerance``, a loop bars the options whose runs in it lost progress
+            (see above; ``None``: the options started where the loop began are not started
+            there again).
     """
 
     def __init__(
@@ -183,6 +192,7 @@ class Controller:
         no_effect_tolerance: float | FloatArray | None = None,
         loop_tolerance: float | FloatArray | None = None,
         stall_progress: float | None = None,
+        progress: Callable[[FloatArray], FloatArray] | None = None,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
@@ -196,6 +206,7 @@ class Controller:
         if loop_tolerance is not None and not np.all(np.asarray(loop_tolerance) >= 0.0):
             raise DynoplanError(f"loop_tolerance must be >= 0, got {loop_tolerance}")
         self.chooser = chooser
+        self._index = {o.name: i for i, o in enumerate(self.options)}
         self.state_fn = state_fn
         self.max_decisions = max_decisions
         self.max_option_steps = max_option_steps
@@ -209,6 +220,7 @@ class Controller:
         self.no_effect_tolerance = no_effect_tolerance
         self.loop_tolerance = loop_tolerance
         self.stall_progress = stall_progress
+        self.progress = progress
 
     def run(self, env: gym.Env[Any, Any], rng: Generator, seed: int | None = None,
             reset_options: dict[str, Any] | None = None) -> EpisodeTrace:
@@ -225,11 +237,17 @@ class Controller:
         running: int | None = None  # an option interrupted by ``replan_every``
         committed = np.nan  # the score the running option was chosen with
         starts = _DecisionStarts()
+        bars: dict[int, float] = {}  # barred option -> the progress that lifts its bar
         for k in range(self.max_decisions):
+            if bars:
+                self._lift_bars(bars, state)
             if self.loop_tolerance is not None:
-                self._close_loops(trace, state, starts)
+                self._close_loops(trace, state, starts, bars)
             t0 = time.perf_counter()
             plan = self.chooser.choose(state, rng, running)
+            if bars and not plan.admissible.any():
+                self._lift_bars(bars, None)
+                plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
             chosen = self._keep_running(plan, running, committed)
             if chosen is None:
@@ -292,15 +310,44 @@ class Controller:
         return trace
 
     def _close_loops(self, trace: EpisodeTrace, state: FloatArray,
-                     starts: "_DecisionStarts") -> None:
-        """Every option started at an earlier decision whose state ``state`` is back at
-        (within ``loop_tolerance``) may not start again while the state stays there. The
-        last decision is left to the no-effect rule: a loop takes two or more."""
+                     starts: "_DecisionStarts", bars: dict[int, float]) -> None:
+        """Where ``state`` is back at (within ``loop_tolerance``) the state of an earlier
+        decision, the loop since the latest such decision is judged: with ``progress``,
+        the loop's options whose runs lost progress are barred (``bars``: until the
+        progress passes the loop's highest); without it, or where no run lost progress,
+        every option started at those decisions may not start again while the state
+        stays there. The last decision is left to the no-effect rule: a loop takes two
+        or more."""
         assert self.loop_tolerance is not None
         starts.extend(trace.decisions[:-1])
-        for name in starts.started_near(state, self.loop_tolerance):
-            next(o for o in self.options if o.name == name).ended_without_effect(
+        near = starts.started_near(state, self.loop_tolerance)
+        if not near:
+            return
+        if self.progress is not None:
+            loop = [d for d in trace.decisions[near[-1]:] if d.option is not None]
+            g = self.progress(np.stack([d.state for d in loop]
+                                       + [d.state_after for d in loop]))
+            before, after = g[:len(loop)], g[len(loop):]
+            losers = {self._index[str(d.option)]
+                      for d, b, a in zip(loop, before, after, strict=True) if a < b}
+            if losers:
+                top = float(np.max(g))
+                for i in losers:
+                    bars[i] = max(top, bars.get(i, -np.inf))
+                    self.options[i].runs.barred = True
+                return
+        for j in near:
+            self.options[self._index[str(trace.decisions[j].option)]].ended_without_effect(
                 state, self.loop_tolerance)
+
+    def _lift_bars(self, bars: dict[int, float], state: FloatArray | None) -> None:
+        """Lift the bars ``bars`` whose progress the goal heuristic at ``state`` passes
+        (every bar, with ``state`` ``None``)."""
+        g = np.inf if state is None or self.progress is None \
+            else float(self.progress(state[None])[0])
+        for i in [i for i, top in bars.items() if g > top]:
+            self.options[i].runs.barred = False
+            del bars[i]
 
     def _unstall(self, plan: Plan, trace: EpisodeTrace, state: FloatArray) -> int | None:
         """The best-scoring admissible option where the last decision held without moving
@@ -350,11 +397,12 @@ class _DecisionStarts:
     def __init__(self) -> None:
         self.states: np.ndarray | None = None  # (capacity, state_dim), rows [0, n) in use
         self.options: list[str] = []
+        self.decisions: list[int] = []  # the index of each row's decision in the episode
         self.seen = 0  # decisions taken in so far
 
     def extend(self, decisions: Sequence[Decision]) -> None:
         """Take in the decisions after those already seen (the ones that ran an option)."""
-        for d in decisions[self.seen:]:
+        for j, d in enumerate(decisions[self.seen:], start=self.seen):
             if d.option is None:
                 continue
             row = np.asarray(d.state).reshape(-1)
@@ -365,12 +413,14 @@ class _DecisionStarts:
                 self.states = np.concatenate([self.states, np.empty_like(self.states)])
             self.states[n] = row
             self.options.append(d.option)
+            self.decisions.append(j)
         self.seen = max(self.seen, len(decisions))
 
-    def started_near(self, state: FloatArray, tolerance: float | FloatArray) -> list[str]:
-        """The options (each once, in the order first started) started at a state within
-        ``tolerance`` of ``state`` (shape ``(state_dim,)``) in every coordinate."""
+    def started_near(self, state: FloatArray, tolerance: float | FloatArray) -> list[int]:
+        """The decisions (their indices in the episode, in order) that started an option
+        at a state within ``tolerance`` of ``state`` (shape ``(state_dim,)``) in every
+        coordinate."""
         if self.states is None:
             return []
         near = np.all(np.abs(state - self.states[:len(self.options)]) <= tolerance, axis=1)
-        return list(dict.fromkeys(self.options[i] for i in np.flatnonzero(near)))
+        return [self.decisions[i] for i in np.flatnonzero(near)]

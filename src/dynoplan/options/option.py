@@ -75,10 +75,13 @@ class FailureModel(Protocol):
 @dataclass
 class RunMemory:
     """What a controller told an option about its runs: where the last one ended without
-    effect (``where``, ``(state_dim,)``, or ``None``) and the tolerance it was judged by."""
+    effect (``where``, ``(state_dim,)``, or ``None``) and the tolerance it was judged by,
+    and whether the option is barred (``barred``: a run of it undid a loop's progress,
+    and it may not start anywhere until the controller lifts the bar)."""
 
     where: np.ndarray | None = None
     tolerance: float | np.ndarray = 0.0
+    barred: bool = False
 
 
 @dataclass
@@ -201,12 +204,16 @@ class Option:
         self.runs.tolerance = np.array(tolerance, dtype=np.float64)
 
     def forget_runs(self) -> None:
-        """Forget :meth:`ended_without_effect` (a controller calls it at every reset)."""
+        """Forget :meth:`ended_without_effect` and any bar (a controller calls it at every
+        reset)."""
         self.runs.where = None
+        self.runs.barred = False
 
     def without_effect_at(self, state: np.ndarray) -> bool:
-        """Whether ``state`` is within the tolerance of where the option's last run
-        ended without effect."""
+        """Whether the option is barred (:attr:`RunMemory.barred`), or ``state`` is within
+        the tolerance of where the option's last run ended without effect."""
+        if self.runs.barred:
+            return True
         where = self.runs.where
         if where is None:
             return False
@@ -277,10 +284,10 @@ def admissible_batch(options: Sequence[Option], states: np.ndarray,
 
 
 def _blocked(option: Option, states: np.ndarray) -> BoolArray:
-    """``(batch,)`` where ``option`` may not start whatever its sets say: its last run
-    ended there without effect, or its termination is certain there (when it may not
-    start where done)."""
-    out = np.zeros(states.shape[0], dtype=bool)
+    """``(batch,)`` where ``option`` may not start whatever its sets say: it is barred,
+    its last run ended there without effect, or its termination is certain there (when
+    it may not start where done)."""
+    out = np.full(states.shape[0], option.runs.barred, dtype=bool)
     where = option.runs.where
     if where is not None and where.shape == states.shape[1:]:
         out |= np.all(np.abs(states - where) <= option.runs.tolerance, axis=-1)

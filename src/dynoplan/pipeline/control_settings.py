@@ -59,6 +59,11 @@ class ControllerSettings:
             over the fitted data, the options started there may not start again while
             the state stays there (:class:`~dynoplan.control.Controller`'s
             ``loop_tolerance``; ``None``: no such rule).
+        loop_progress: a loop is judged by the goal heuristic: the options whose runs
+            in it lowered the goal heuristic undid the others' progress and may not
+            start anywhere until it passes the loop's highest value
+            (:class:`~dynoplan.control.Controller`'s ``progress``); ``False``: the
+            options started where the loop began may not start there again.
         fallback_own_sets: where no option may start under its learned initiation set
             (region, outcomes), the options whose own initiation sets hold may (the
             chooser picks among them as always; the options' ``fallback``); where the
@@ -102,6 +107,7 @@ class ControllerSettings:
     no_effect_tolerance: float | None = None
     no_effect_share: float | None = 0.01
     loop_share: float | None = 0.05
+    loop_progress: bool = False
     start_where_done: bool = False
     fallback_own_sets: bool = True
     fallback_must_gain: bool = True

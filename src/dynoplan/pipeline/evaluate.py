@@ -322,7 +322,13 @@ def make_controller(kind: str | ControllerVariant, options: Sequence[Option],
                       no_effect_tolerance=no_effect_tolerance(settings, state_scale),
                       loop_tolerance=None if settings.loop_share is None or state_scale is None
                       else settings.loop_share * np.asarray(state_scale, dtype=np.float64),
-                      stall_progress=settings.stall_progress)
+                      stall_progress=settings.stall_progress,
+                      progress=goal_means(goal) if settings.loop_progress else None)
+
+
+def goal_means(goal: GoalHeuristic) -> Callable[[FloatArray], FloatArray]:
+    """The goal heuristic's mean at states, ``(batch, state_dim) -> (batch,)``."""
+    return lambda states: goal.mean_std(states)[0]
 
 
 def no_effect_tolerance(settings: ControllerSettings, state_scale: FloatArray | None

@@ -23,17 +23,14 @@ GoalModel = GoalNetwork | GoalOnFeatures
 """A goal heuristic as fitted: on the planner state, or on a named feature map of it."""
 
 
-OFF_DEMO_RADIUS = 5.0
-"""How far from the demonstrations, in steps of a demonstration (the median distance
-between consecutive demonstration states), a state's progress label falls to
-``exp(-1)`` of its nearest demonstration state's (:func:`off_demonstration_progress`)."""
-
-
 def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups: IntArray,
-                               off: FloatArray) -> FloatArray:
+                               off: FloatArray, radius: float,
+                               decay: str = "gaussian") -> FloatArray:
     """Progress labels ``(M,)`` for states ``off`` ``(M, d)`` that no demonstration visited:
-    the progress of the nearest demonstration state, times ``exp(-(r / R)^2)``, where ``r``
-    is the distance to it and ``R`` is :data:`OFF_DEMO_RADIUS` demonstration steps.
+    the progress of the nearest demonstration state, times ``exp(-(r / R)^2)`` (``decay``
+    ``"gaussian"``) or ``1 / (1 + (r / R)^2)`` (``"cauchy"``), where ``r``
+    is the distance to it and ``R`` is ``radius`` demonstration steps (a step: the median
+    distance between consecutive demonstration states).
 
     Distances are measured with every dimension scaled by its spread over the
     demonstration states (a dimension that never changes there is left out). A state on a
@@ -57,7 +54,8 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
     steps = np.linalg.norm(np.diff(z, axis=0), axis=1)[same]
     step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
     distance, nearest = cKDTree(z).query(off[:, keep] / spread[keep])
-    return progress[nearest] * np.exp(-(distance / (OFF_DEMO_RADIUS * step)) ** 2)
+    ratio = (distance / (radius * step)) ** 2
+    return progress[nearest] * (np.exp(-ratio) if decay == "gaussian" else 1.0 / (1.0 + ratio))
 
 
 def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
@@ -85,7 +83,9 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
                   if settings.goal_off_demos and off else np.zeros((0, states.shape[1])))
     if len(off_states):
         x_off = off_states if features is None else features(off_states)
-        labels = off_demonstration_progress(x, progress, groups, x_off)
+        labels = off_demonstration_progress(x, progress, groups, x_off,
+                                            settings.goal_off_radius,
+                                            settings.goal_off_decay)
         labels[_failed_ends(off)] = 0.0  # where an episode failed, no progress is left
         x_fit = np.concatenate([x, x_off])
         p_fit = np.concatenate([progress, labels])
@@ -126,5 +126,5 @@ def _batch_states(observations: np.ndarray, state_fn: ObservationFn) -> FloatArr
                      for o in observations])
 
 
-__all__ = ["OFF_DEMO_RADIUS", "GoalModel", "fit_goal", "fit_goal_network",
+__all__ = ["GoalModel", "fit_goal", "fit_goal_network",
            "off_demonstration_progress"]

@@ -1,11 +1,15 @@
 """How the pipeline's models are learned: :class:`FitSettings` (recorded in the summary and
 in ``models.json``)."""
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
 from dynoplan.errors import DynoplanError
+
+OFF_DECAYS = ("gaussian", "cauchy")
+"""The shapes of :attr:`FitSettings.goal_off_decay`."""
 
 
 @dataclass(frozen=True)
@@ -42,6 +46,12 @@ class FitSettings:
             (:func:`~dynoplan.pipeline.fit_goal.off_demonstration_progress`), so that it
             ranks states off the demonstrations below the demonstrated states they are
             near.
+        goal_off_radius: how far from the demonstrations, in steps of a demonstration,
+            an off-demonstration state's progress label falls to ``exp(-1)`` of its
+            nearest demonstration state's (``goal_off_demos``).
+        goal_off_decay: how the label falls with the distance ``r``: ``"gaussian"``,
+            ``exp(-(r / R)^2)``; ``"cauchy"``, ``1 / (1 + (r / R)^2)``, whose tail still
+            ranks far states by their distance.
         goal_features, region_features: names of the task's feature maps the goal
             heuristic and the regions read (``None``: the planner state itself).
         regions: fit the safety regions (Eq. 5) and intersect every option's initiation
@@ -95,6 +105,8 @@ class FitSettings:
     goal_epochs: int = 150
     goal_ranking: float = 0.0
     goal_off_demos: bool = True
+    goal_off_radius: float = 5.0
+    goal_off_decay: str = "gaussian"
     goal_features: str | None = None
     region_features: str | None = None
     regions: bool = True
@@ -136,6 +148,12 @@ class FitSettings:
             raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
         if not self.goal_ranking >= 0.0:
             raise DynoplanError(f"goal_ranking must be >= 0, got {self.goal_ranking}")
+        if self.goal_off_decay not in OFF_DECAYS:
+            raise DynoplanError(f"goal_off_decay must be one of {', '.join(OFF_DECAYS)}, "
+                                f"got {self.goal_off_decay!r}")
+        if not 0.0 < self.goal_off_radius < math.inf:
+            raise DynoplanError(f"goal_off_radius must be > 0 and finite, got "
+                                f"{self.goal_off_radius}")
         if not 0.0 < self.region_cv_coverage <= 1.0:
             raise DynoplanError(f"region_cv_coverage must be in (0, 1], got "
                                 f"{self.region_cv_coverage}")
