@@ -42,7 +42,10 @@ from torch import nn
 from dynoplan.envs.gear.env import GRIPPER_CLOSED, OBS_DIM, OBS_SLICES, RIGHT_HOLD, GearAssemblyEnv
 from dynoplan.envs.gear.grasp import quat_to_mat
 from dynoplan.envs.gear.options.base import GearOptionPolicy, start_joints
-from dynoplan.envs.gear.options.starts import before_insertion
+from dynoplan.envs.gear.options.motion import reseed_ompl
+from dynoplan.envs.gear.options.moves import FastMovePolicy
+from dynoplan.envs.gear.options.pick import PickPolicy
+from dynoplan.envs.gear.options.starts import StartConfig, displace
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
 from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
 from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
@@ -61,9 +64,39 @@ from dynoplan.types import FloatArray, Generator
 
 INSERT_NAME = "insert"
 """The option's name (its registry record, datasets, model files, the command line)."""
-INSERT_START = before_insertion
-"""Where the option starts (its registry record's ``start``): the gear held above the peg,
-the arm displaced."""
+
+
+def after_the_moves(env: GearAssemblyEnv, rng: Generator, config: StartConfig) -> bool:
+    """Start at a noisy pre-insertion pose reached as the task reaches it: the ``pick``
+    option grasps and lifts the gear (its scripted form, without the recogniser: the
+    grasp the recogniser then confirms), the ``fast_move`` option carries it to the
+    pre-insertion pose, and the left arm is held at a random joint offset
+    (``config.insert_noise``) for ``config.settle_steps`` steps with the gear held
+    (:func:`~dynoplan.envs.gear.options.starts.displace`). OMPL is reseeded from ``rng``
+    first, so the start depends on ``rng`` alone.
+
+    The insertion network learns from these starts: started from the expert's grasp
+    instead (:func:`~dynoplan.envs.gear.options.starts.before_insertion`), a network can
+    insert every gear the expert grasped and still hover above the peg with 3 in 10 of the
+    gears the ``pick`` option grasped (``docs/gear-options.md``)."""
+    reseed_ompl(int(rng.integers(2**31 - 1)))
+    obs, info = env.set_human_schedule(env.schedule)
+    for policy in (PickPolicy(env, recognizer=None), FastMovePolicy(env)):
+        policy.reset(obs, rng)
+        for _ in range(config.max_expert_steps):
+            obs, _, terminated, truncated, info = env.step(policy.act(obs))
+            if terminated or truncated:
+                return False
+            if policy.finished():
+                break
+        if not policy.succeeded(info):
+            return False
+    return displace(env, rng, config) is not None
+
+
+INSERT_START = after_the_moves
+"""Where the option starts (its registry record's ``start``): the gear grasped by the pick
+option, carried above the peg by the fast move, the arm displaced."""
 
 MODEL_KIND = "gear_insertion_policy"
 FEATURE_NAMES: tuple[str, ...] = (

@@ -96,7 +96,7 @@ def before_insertion(env: GearAssemblyEnv, rng: Generator, config: StartConfig) 
     (``config.insert_noise``) for ``config.settle_steps`` steps with the gear held."""
     if _run_expert_until(env, INSERT_STEP, config.max_expert_steps) is None:
         return False
-    return _displace(env, rng, config) is not None
+    return displace(env, rng, config) is not None
 
 
 StartSampler = Callable[[GearAssemblyEnv, Generator, StartConfig], bool]
@@ -145,8 +145,8 @@ def _run_expert_until(env: GearAssemblyEnv, step: str,
     return None
 
 
-def _displace(env: GearAssemblyEnv, rng: Generator,
-              cfg: StartConfig) -> tuple[FloatArray, dict[str, Any]] | None:
+def displace(env: GearAssemblyEnv, rng: Generator,
+             cfg: StartConfig) -> tuple[FloatArray, dict[str, Any]] | None:
     """Hold the left arm at a random joint offset for a few steps; ``None`` if the gear
     is no longer held."""
     q = env.arm_qpos
@@ -165,5 +165,5 @@ def _displace(env: GearAssemblyEnv, rng: Generator,
 
 
 __all__ = ["CARRY_STEP", "DATA_EPISODE_STEPS", "INSERT_STEP", "OptionStart", "StartConfig",
-           "StartSampler", "after_pick", "at_reset", "before_insertion", "drive_to_start",
-           "shifted_schedule"]
+           "StartSampler", "after_pick", "at_reset", "before_insertion", "displace",
+           "drive_to_start", "shifted_schedule"]
