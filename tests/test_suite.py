@@ -10,7 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from benchmarks.suite import __main__ as suite
-from benchmarks.suite import registry, rerun
+from benchmarks.suite import registry, rerun, trace
 from dynoplan.pipeline import probe_options, record_demonstrations
 
 INSTALLED = [e for e in registry.TASKS if e.missing() is None]
@@ -44,6 +44,14 @@ def test_a_task_whose_package_is_missing_is_skipped_with_one_line(tmp_path, monk
     assert json.loads((tmp_path / "suite.json").read_text())["tasks"] == []
 
 
+def test_a_trace_of_a_missing_run_is_one_error_line(tmp_path, capsys):
+    assert trace.main([str(tmp_path), "minigrid-doorkey", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("trace: error: ") and err.count("\n") == 1
+    assert trace.main([str(tmp_path), "minigrid-doorkey", "0", "--set", "fit.stride=2"]) == 2
+    assert "control.*" in capsys.readouterr().err
+
+
 def test_an_unknown_task_or_setting_is_one_error_line(tmp_path, capsys):
     assert suite.main(["--tasks", "nope", "--out", str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("suite: error: unknown suite task(s) nope")
@@ -54,7 +62,8 @@ def test_an_unknown_task_or_setting_is_one_error_line(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.skipif(registry.select("minigrid-doorkey")[0].missing() is not None,
                     reason="needs minigrid (pip install 'dynoplan[minigrid]')")
-def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp_path):
+def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp_path,
+                                                                            capsys):
     assert suite.main(["--tasks", "minigrid-doorkey", "--seeds", "0", "--episodes", "3",
                        "--set", "demos=3", "--set", "exploration_episodes=4",
                        "--set", "fit.dynamics_epochs=5", "--set", "fit.dynamics_min_updates=50",
@@ -79,3 +88,11 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
         cells = [c.strip() for c in table.read_text().splitlines()[-1].split("|")[1:-1]]
         assert cells[0] == "minigrid-doorkey" and cells[1:3] == cells[3:5]
     assert rerun.main([str(tmp_path), "--set", "fit.stride=2"]) == 2
+    # the same episodes decision by decision: the run's own success
+    capsys.readouterr()
+    assert trace.main([str(tmp_path), "minigrid-doorkey", "0", "--decisions", "0"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rate = run["controllers"]["dynoplan"]["success_rate"]
+    assert lines[-1] == f"DynoPlan: {round(3 * rate)} of 3 (the run's: {rate:.2f})"
+    assert lines[0].startswith("  step    0  G ")  # episode 0's first decision
+    assert sum(line[0].isdigit() for line in lines) == 3  # one line per episode
