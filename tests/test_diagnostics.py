@@ -13,6 +13,7 @@ from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.diagnostics import (
     constant_dimensions,
     constant_dimensions_warning,
+    no_start_warning,
     seeded_reset_warning,
     sole_admissible_warnings,
     weak_dynamics_warnings,
@@ -99,6 +100,16 @@ def test_a_model_no_better_than_no_change_and_a_forced_choice_are_reported():
     notes = sole_admissible_warnings([only_right, anywhere], states)
     assert [n.split("'")[1] for n in notes] == ["right", "left"]
     assert "at 75% of the demonstration states" in notes[0]
+
+
+def test_start_states_where_no_option_may_start_are_reported():
+    right = make_option("right", lambda s: 1.0, Still(), initiation=lambda s: s[:, 0] > 0)
+    left = make_option("left", lambda s: -1.0, Still(), initiation=lambda s: s[:, 0] < -1)
+    starts = np.array([[1.0], [2.0], [-0.5], [-2.0]])  # -0.5: neither may start
+    note = no_start_warning([right, left], starts)
+    assert note is not None
+    assert note.startswith("no option may start at 1 of the 4 evaluation start states (25%)")
+    assert no_start_warning([right, left], starts[[0, 1, 3]]) is None
 
 
 def test_an_option_does_not_start_where_its_termination_is_certain():

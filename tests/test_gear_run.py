@@ -215,11 +215,13 @@ def test_failed_episodes_are_counted_by_how_they_ended():
                 episode(False, 800, 400, [("pick", 400)]),  # half held: held
                 episode(False, 800, 56, [("insert", 50), ("pick", 694)]),
                 episode(False, 800, 74, [("insert", 614), ("pick", 112)]),
-                episode(False, 800, 0, [])]  # no options (a flat policy)
+                episode(False, 800, 0, []),  # no options (a flat policy)
+                episode(False, 800, 800, [])]  # nothing admissible from the first step
     row = summarise("dynoplan_safe", episodes)
-    assert row["failures"] == {"held": 2, "dropped": 1, "insert": 1, "pick": 1, "ran": 1}
-    assert "| dynoplan_safe | 6 | held 2, dropped 1, insert 1, pick 1, ran 1 |" in (
-        failure_table([row]))
+    assert row["failures"] == {"held": 2, "dropped": 1, "insert": 1, "pick": 1, "ran": 1,
+                               "never started": 1}
+    assert ("| dynoplan_safe | 7 | held 2, dropped 1, insert 1, never started 1, pick 1, "
+            "ran 1 |") in failure_table([row])
     assert summarise("x", episodes[:1])["failures"] == {}
 
 

@@ -12,7 +12,9 @@
 - :func:`weak_dynamics_warnings`: an option's one-step model is no better than
   predicting no change;
 - :func:`sole_admissible_warnings`: an option is the only admissible one in a share of
-  the demonstration states, so there the planner has no choice to make.
+  the demonstration states, so there the planner has no choice to make;
+- :func:`no_start_warning`: no option may start at some of the evaluation's start
+  states, so those episodes hold (or end) from their first step.
 """
 
 import copy
@@ -153,6 +155,22 @@ def sole_admissible_warnings(options: Sequence[Option], states: FloatArray,
     return out
 
 
+def no_start_warning(options: Sequence[Option], starts: FloatArray) -> str | None:
+    """A warning when no option may start (under its own set, its learned set or its
+    fallback: :func:`~dynoplan.options.option.admissible`) at some of ``starts``
+    ``(N, d)``, the evaluation's start states: those episodes cannot begin. ``None``
+    when every start state admits an option."""
+    x = np.asarray(starts, dtype=np.float64)
+    if len(x) == 0:
+        return None
+    stuck = int(sum(not admissible(options, s).any() for s in x))
+    if not stuck:
+        return None
+    return (f"no option may start at {stuck} of the {len(x)} evaluation start states "
+            f"({stuck / len(x):.0%}): those episodes hold (or end) from their first step; "
+            "the learned regions do not reach them (more demonstrations cover more starts)")
+
+
 __all__ = ["SOLE_SHARE", "constant_dimensions",
-           "constant_dimensions_warning", "seeded_reset_warning", "sole_admissible_warnings",
-           "weak_dynamics_warnings"]
+           "constant_dimensions_warning", "no_start_warning", "seeded_reset_warning",
+           "sole_admissible_warnings", "weak_dynamics_warnings"]

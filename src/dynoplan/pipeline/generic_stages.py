@@ -33,6 +33,7 @@ from dynoplan.pipeline.collect import (
 )
 from dynoplan.pipeline.diagnostics import (
     episode_history_warning,
+    no_start_warning,
     seeded_reset_warning,
     sole_admissible_warnings,
     weak_dynamics_warnings,
@@ -173,7 +174,8 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
     say("admissibility")
     starts = start_states(environment, evaluation_seed, settings.episodes, state_fn)
     admissible, where = admissibility(run_options, starts, demo_episodes, state_fn)
-    notes = [*notes, *where, *later_notes]
+    stuck = no_start_warning(run_options, starts)
+    notes = [*notes, *where, *([stuck] if stuck else []), *later_notes]
     for note in notes:
         warnings.warn(note, DynoplanWarning, stacklevel=stacklevel)
     models_dir = models.save(folder / "models") if folder is not None else None

@@ -75,10 +75,12 @@ def after_the_moves(env: GearAssemblyEnv, rng: Generator, config: StartConfig) -
     (:func:`~dynoplan.envs.gear.options.starts.displace`). OMPL is reseeded from ``rng``
     first, so the start depends on ``rng`` alone.
 
-    The insertion network learns from these starts: started from the expert's grasp
-    instead (:func:`~dynoplan.envs.gear.options.starts.before_insertion`), a network can
-    insert every gear the expert grasped and still hover above the peg with 3 in 10 of the
-    gears the ``pick`` option grasped (``docs/gear-options.md``)."""
+    The insertion network learns from these starts. Trained from the expert's grasps
+    instead (:func:`~dynoplan.envs.gear.options.starts.before_insertion`), a network
+    could insert every gear the expert grasped and still hover above the peg with gears
+    the ``pick`` option grasped: the fixed script chaining the options succeeded in 41 %
+    of the episodes with one such network, 94 % with another (``docs/gear-options.md``,
+    "Where the insertion starts")."""
     reseed_ompl(int(rng.integers(2**31 - 1)))
     obs, info = env.set_human_schedule(env.schedule)
     for policy in (PickPolicy(env, recognizer=None), FastMovePolicy(env)):

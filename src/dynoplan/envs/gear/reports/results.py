@@ -54,12 +54,15 @@ def human_mode(record: EpisodeRecord) -> str:
 
 def failure_kind(record: EpisodeRecord) -> str:
     """How a failed episode ended: ``dropped`` (before the step limit: the env ends an
-    episode early only when the gear falls off the table), ``held`` (to the limit, half of
-    its steps or more with no option run: nothing admissible, or every option unsafe),
-    or, to the limit, the option that ran the most steps (``ran`` for a controller
+    episode early only when the gear falls off the table), ``never started`` (to the
+    limit without running an option: nothing admissible, or every option unsafe, at every
+    step from the first), ``held`` (to the limit, half of its steps or more with no option
+    run), or, to the limit, the option that ran the most steps (``ran`` for a controller
     without options)."""
     if record.env_steps < MAX_EPISODE_STEPS:
         return "dropped"
+    if record.no_admissible >= record.env_steps:
+        return "never started"
     if 2 * record.no_admissible >= record.env_steps:
         return "held"
     if not record.option_steps:
@@ -144,9 +147,10 @@ def failure_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 FAILURE_NOTE = ("How failed episodes ended: `dropped`, the gear fell off the table; "
-                "`held`, to the 40 s limit with no option run on half of the steps or more "
-                "(nothing admissible, or every option unsafe); an option's name, to the "
-                "limit with that option running the most steps.")
+                "`never started`, to the 40 s limit without running an option (nothing "
+                "admissible, or every option unsafe, from the first step on); `held`, to "
+                "the limit with no option run on half of the steps or more; an option's "
+                "name, to the limit with that option running the most steps.")
 
 
 def results_markdown(summary: dict[str, Any]) -> str:
