@@ -327,3 +327,33 @@ def test_the_gear_controllers_do_not_repeat_an_option_without_effect_unless_told
     for command in ("evaluate", "episode"):
         shown = CliRunner().invoke(app, ["gear", command, "--help"], terminal_width=200)
         assert "--repeat-no-effect" in shown.output
+
+
+@pytest.mark.slow
+def test_start_states_labelled_by_the_operator_reach_the_pick_region(quick_gear_run: Path,
+                                                                    tmp_path: Path):
+    # the regions fitted on the demonstrations and the operator's start states admit
+    # "pick" at those states; without them, the quick run's 10 demonstrations may not
+    import shutil
+
+    from dynoplan.data import read_dataset
+    from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
+    from dynoplan.envs.gear.stages import STARTS_DIR, learned_models, start_states
+    from dynoplan.envs.gear.state import PlannerState
+
+    shutil.copytree(quick_gear_run / "demos", tmp_path / "demos")
+    report = start_states(30, 0, tmp_path / STARTS_DIR, quick_gear_run / "models")
+    assert report["states"] == 30 and report["chosen"] == {"pick": 30}
+    starts = read_dataset(tmp_path / STARTS_DIR).episodes[0]
+    states = PlannerState()(starts.observations[:-1])
+    admitted = {}
+    for name, with_starts in (("with", tmp_path / STARTS_DIR), ("without", None)):
+        models = tmp_path / f"models-{name}"
+        shutil.copytree(quick_gear_run / "models", models)
+        learned_models(tmp_path / "demos", quick_gear_run / "transitions", models, 0,
+                       quick_gear_run / "heldout", QUICK_SETTINGS, QUICK_METRICS,
+                       progress=False, region_starts=with_starts)
+        regions = load_gear_models(models).regions
+        admitted[name] = float(np.mean(regions.contains(states, "pick")))
+    assert admitted["with"] >= 0.9 and admitted["with"] >= admitted["without"]

@@ -501,3 +501,24 @@ def test_cli_user_errors_are_one_line_with_exit_status_2(tmp_path, monkeypatch, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
     assert err.startswith("dynoplan: error: ")
+
+
+def test_start_states_are_labelled_by_the_demonstrators_first_choice():
+    from dynoplan.pipeline import CallableDemonstrator
+    from dynoplan.pipeline.collect import start_choices
+
+    # the demonstrator starts "up" right of 0 and "back" left of it; at x < -0.5 it
+    # chooses nothing, and those starts are left out
+    def first(obs):
+        x = float(obs[0])
+        return None if x < -0.5 else ("up" if x > 0 else "back")
+
+    starts = start_choices(line_env(), CallableDemonstrator(first), ["back", "up"], 3, 40)
+    assert starts is not None
+    x = starts.observations[:-1, 0]
+    assert len(starts) == len(x) and 20 <= len(x) < 40  # about a quarter left out
+    assert np.all(x >= -0.5) and np.array_equal(starts.observations[-1], starts.observations[-2])
+    assert starts.options.tolist() == [1 if v > 0 else 0 for v in x]
+    again = start_choices(line_env(), CallableDemonstrator(first), ["back", "up"], 3, 40)
+    assert np.array_equal(again.observations, starts.observations)  # seeded
+    assert start_choices(line_env(), CallableDemonstrator(lambda o: None), ["up"], 3, 5) is None

@@ -451,6 +451,10 @@ def run(
         None, "--improve", **setting_bounds("improve"),
         help="Rounds of learning from DynoPlan's own episodes before the evaluation, the "
              "best models kept (0: the paper's pipeline) [the pipeline's default]."),
+    region_starts: int | None = typer.Option(
+        None, "--region-starts", **setting_bounds("region_starts"),
+        help="Start states labelled by the operator's first choice, which the regions fit "
+             "too (0: none) [0]."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
@@ -479,6 +483,7 @@ def run(
         sizes, episodes=n, oracle_episodes=min(oracle, n), ablation_episodes=min(ablation, n)),
         faults=replace(settings.faults, episodes=min(settings.faults.episodes, n)),
         video=not no_video,
+        region_starts=settings.region_starts if region_starts is None else region_starts,
         improvement=replace(settings.improvement,
                             rounds=settings.improvement.rounds if improve is None else improve))
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,

@@ -70,6 +70,10 @@ def pipeline(
         None, "--exploration-branches", **_bounds("exploration_branches"),
         help="Further exploration episodes that branch off a demonstration (start where "
              "it was after a random step, its reset seed replayed) [0]."),
+    region_starts: int | None = typer.Option(
+        None, "--region-starts", **_bounds("region_starts"),
+        help="Start states (resets of their own seeds) where the demonstrator's first "
+             "choice is asked; the regions fit them too (0: none) [0]."),
     episodes: int | None = typer.Option(None, "--episodes", **_bounds("episodes"),
                                         help="Evaluation episodes per controller [100]."),
     seed: int | None = typer.Option(None, "--seed", **_bounds("seed"),

@@ -802,3 +802,42 @@ def collect_option_runs(job: OptionRunsJob, runs_per_option: int, workers: Worke
     items = [(name, run) for name in job.options for run in range(runs_per_option)]
     return parallel_map(build_option_runs, option_run, job, items, workers, description,
                         progress)
+
+
+def start_choices(env: gym.Env[Any, Any], demonstrator: "Demonstrator",
+                  option_names: Sequence[str], seed: int, episodes: int) -> Episode | None:
+    """The demonstrator's first choice at ``episodes`` start states of ``env`` (its resets
+    with the seeds of :func:`~dynoplan.seeding.episode_seeds` ``(seed, episodes)``), as one
+    episode of labelled states for the safety regions: ``observations`` ``(n + 1, ...)``
+    (the last repeated: no step is taken), zero actions and ``infos["option"]`` ``(n,)``,
+    the index in ``option_names`` of the option the demonstrator starts with there.
+
+    The demonstrations show where the task starts only at their own few resets; the
+    regions fitted on them can miss the rest of the start states, where then no option
+    may start. Starts where the demonstrator chooses nothing (or acts itself) are left
+    out; ``None`` when that leaves none."""
+    names = list(option_names)
+    observations: list[Any] = []
+    labels: list[int] = []
+    observe = getattr(demonstrator, "observe", None)
+    for s in episode_seeds(seed, episodes):
+        obs, info = env.reset(seed=s.env_seed)
+        if observe is not None:
+            observe(info)
+        demonstrator.reset(obs, s.rng())
+        choice = demonstrator.choose(obs)
+        decision = Decision(choice) if isinstance(choice, str) else choice
+        if decision is None or decision.action is not None or decision.option not in names:
+            continue
+        observations.append(obs)
+        labels.append(names.index(decision.option))
+    if not labels:
+        return None
+    n = len(labels)
+    shape = env.action_space.shape or ()
+    return Episode(
+        observations=np.asarray([*observations, observations[-1]],
+                                dtype=_float_dtype(observations)),
+        actions=np.zeros((n, *shape)), rewards=np.zeros(n),
+        terminations=np.zeros(n, dtype=bool), truncations=np.zeros(n, dtype=bool),
+        infos={OPTION_KEY: np.asarray(labels, dtype=np.int64)}, seed=seed)

@@ -30,6 +30,7 @@ from dynoplan.pipeline.collect import (
     make_env,
     probe_options,
     record_demonstrations,
+    start_choices,
 )
 from dynoplan.pipeline.diagnostics import (
     episode_history_warning,
@@ -62,7 +63,7 @@ from dynoplan.pipeline.improve import (
     learning_curve_text,
     own_episodes,
 )
-from dynoplan.pipeline.run_settings import PipelineSettings, jsonable, run_seeds
+from dynoplan.pipeline.run_settings import PipelineSettings, jsonable, run_seeds, starts_seed
 from dynoplan.pipeline.task import PipelineRun, Task
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -222,6 +223,7 @@ class GenericStages:
         self.env, self.options, self.demonstrator, self.given = env, options, demonstrator, demos
         self.state_fn, self.success, self.fitter = state_fn, success, fitter
         self.command, self.task = command, task
+        self.starts: Episode | None = None  # the labelled start states (region_starts)
 
     def prepare(self, run: PipelineRun) -> None:
         """The environment made and the options probed in it; the controllers checked."""
@@ -256,7 +258,17 @@ class GenericStages:
                                                progress=run.progress)
         else:
             raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
+        if self.settings.region_starts and self.demonstrator is not None:
+            run.clock.switch("start states")
+            self.starts = start_choices(self.environment, self.demonstrator, self.names,
+                                        starts_seed(self.seeds["demos"]),
+                                        self.settings.region_starts)
         return self.demos
+
+    def _region_demos(self, demos: list[Episode]) -> list[Episode]:
+        """What the regions fit: ``demos``, and the labelled start states when there are
+        any (``settings.region_starts``)."""
+        return demos if self.starts is None else [*demos, self.starts]
 
     def option_runs(self, run: PipelineRun, demos: list[Episode]) -> list[Episode]:
         """Exploration episodes of randomly chosen options
@@ -275,7 +287,8 @@ class GenericStages:
         self.name = (self.task.name if self.task is not None
                      else _env_id(self.environment) or "")
         return fit_models(self.specs, runs, demos, self.settings.fit, self.seeds["fit"],
-                          flat_state, self.fitter, run.clock.switch, self.name)
+                          flat_state, self.fitter, run.clock.switch, self.name,
+                          region_demos=self._region_demos(demos))
 
     def after_fit(self, run: PipelineRun, models: FittedModels) -> FittedModels:
         """``settings.improve`` rounds of DynoPlan's own episodes, refitted on after each
@@ -293,8 +306,8 @@ class GenericStages:
             fit_transitions.extend(piece for e in own for piece in e.pieces)
             return fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
                               self.seeds["fit"], flat_state, self.fitter, run.clock.switch,
-                              self.name, region_demos=None if improvement.regions
-                              else self.demos)
+                              self.name, region_demos=self._region_demos(
+                                  fit_demos if improvement.regions else self.demos))
 
         seeds = (episode_seeds(self.seeds["improve"], improvement.batches * improvement.episodes)
                  if improvement.rounds else [])

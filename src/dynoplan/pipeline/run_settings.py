@@ -37,6 +37,11 @@ class PipelineSettings:
         control: how DynoPlan plans and every controller runs.
         controllers: which controllers to evaluate (default: DynoPlan, each option
             alone, random choice).
+        region_starts: start states of the task (resets of a seed stream of their own)
+            at which the demonstrator's first choice is asked
+            (:func:`~dynoplan.pipeline.collect.start_choices`); the regions also fit
+            them, each as a state of the option chosen there (0: none, the regions fit
+            the demonstrations alone).
         improve, improve_episodes, improve_regions, improve_keep: how the run learns
             from DynoPlan's own episodes before the evaluation (:mod:`~dynoplan.pipeline.
             improve`): the ``rounds``, ``episodes``, ``regions`` and ``keep`` of
@@ -47,6 +52,7 @@ class PipelineSettings:
     exploration_episodes: int = 20
     exploration_option_steps: int = 100
     exploration_branches: int = 0
+    region_starts: int = 0
     episodes: int = 100
     seed: int = 0
     fit: FitSettings = field(default_factory=FitSettings)
@@ -61,6 +67,8 @@ class PipelineSettings:
         for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes"):
             if getattr(self, name) < 1:
                 raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.region_starts < 0:
+            raise DynoplanError(f"region_starts must be >= 0, got {self.region_starts}")
         if self.exploration_branches < 0:
             raise DynoplanError("exploration_branches must be >= 0, got "
                                 f"{self.exploration_branches}")
@@ -73,6 +81,13 @@ class PipelineSettings:
         """The improvement rounds' settings."""
         return ImprovementSettings(self.improve, self.improve_episodes, self.improve_regions,
                                    self.improve_keep)
+
+
+def starts_seed(demos_seed: int) -> int:
+    """The seed stream of a run's start states (``region_starts``), apart from every other
+    stream of :func:`run_seeds` (derived from the demonstrations' so that those stay the
+    same with or without it)."""
+    return int(np.random.SeedSequence([int(demos_seed), 7]).generate_state(1)[0] % 2**31)
 
 
 def run_seeds(seed: int, improve: bool = False) -> dict[str, int]:
@@ -97,4 +112,4 @@ def jsonable(value: Any) -> Any:
     return value
 
 
-__all__ = ["PipelineSettings", "jsonable", "run_seeds"]
+__all__ = ["PipelineSettings", "jsonable", "run_seeds", "starts_seed"]

@@ -57,10 +57,12 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
                     metrics: GearMetricsSettings, outcomes: OptionRunSettings,
                     planner: ControllerSettings, progress: bool = False,
                     workers: Workers = SERIAL,
-                    say: Callable[[str], None] = lambda _: None) -> list[dict[str, Any]]:
+                    say: Callable[[str], None] = lambda _: None,
+                    region_starts: Path | None = None) -> list[dict[str, Any]]:
     """``settings.rounds`` improvement rounds on the gear run in ``out`` (its ``demos/``,
     ``heldout/``, ``transitions/``, ``outcomes/`` and ``models/``; ``outcomes.runs`` 0: no
-    initiation learned from outcomes), DynoPlan planning as ``planner`` says; the models
+    initiation learned from outcomes), DynoPlan planning as ``planner`` says, the regions
+    refitted with the labelled start states ``region_starts`` when given; the models
     ``settings.keep`` says end in ``out/models``. The learning curve
     (:func:`~dynoplan.pipeline.improve.improvement_rounds`)."""
     folder = out / IMPROVE_DIR
@@ -89,7 +91,8 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
         shutil.copytree(first, models)
         learned_models(round_dir / "demos", round_dir / "transitions", models, seed,
                        out / "heldout", fit, metrics, progress=progress, workers=workers,
-                       region_demos=None if settings.regions else out / "demos")
+                       region_demos=None if settings.regions else out / "demos",
+                       region_starts=region_starts)
         if outcomes.runs:
             outcome_initiation(models, out / "outcomes", seed, outcomes, progress, workers,
                                collect=False)

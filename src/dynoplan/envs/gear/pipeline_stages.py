@@ -94,9 +94,12 @@ class GearRunSettings:
     held-out trials), ``collect``'s option runs, how the models are fitted (``fit``) and
     measured (``metrics``), t-SNE ``figure_points``, ``ppo_steps`` of the flat baseline,
     ``outcomes``' runs (``runs`` 0: no outcomes stage, the Eq. 5 regions alone), the
-    ``improvement`` rounds on DynoPlan's own episodes (the pipeline's defaults)."""
+    ``improvement`` rounds on DynoPlan's own episodes (the pipeline's defaults),
+    ``region_starts`` start states labelled by the operator's first choice for the
+    regions (the pipeline's ``region_starts``; 0: none)."""
 
     demos: int = 10
+    region_starts: int = 0
     collect: OptionRunSettings = TRANSITION_RUNS
     fit: FitSettings = DEFAULT_SETTINGS
     metrics: GearMetricsSettings = DEFAULT_METRICS
@@ -178,6 +181,11 @@ class GearStages:
                            workers=run.workers),
             demonstrations(n, seed, out / "heldout", out / "models", heldout=True,
                            progress=run.progress, workers=run.workers)])
+        if self.settings.region_starts:
+            from dynoplan.envs.gear.stages import STARTS_DIR, start_states
+
+            self.summary["starts"] = run.clock.stage("starts", lambda: start_states(
+                self.settings.region_starts, seed, out / STARTS_DIR, out / "models"))
         return out / "demos"
 
     def option_runs(self, run: PipelineRun, demos: Path) -> Path:
@@ -195,7 +203,8 @@ class GearStages:
         out, settings = _folder(run), self.settings
         metrics = run.clock.stage("train", lambda: learned_models(
             demos, runs, out / "models", self.seed, out / "heldout", settings.fit,
-            settings.metrics, progress=run.progress, workers=run.workers))
+            settings.metrics, progress=run.progress, workers=run.workers,
+            region_starts=_starts(out, settings)))
         self.summary["model_metrics"] = _headline(metrics)
         return out / "models"
 
@@ -216,7 +225,8 @@ class GearStages:
         if settings.improvement.rounds:
             self.summary["improvement"] = run.clock.stage("improve", lambda: improved_models(
                 out, seed, settings.improvement, settings.fit, settings.metrics,
-                settings.outcomes, settings.evaluation.planner, run.progress, run.workers))
+                settings.outcomes, settings.evaluation.planner, run.progress, run.workers,
+                region_starts=_starts(out, settings)))
             self.summary["model_metrics"] = _headline(read_json_object(
                 models / METRICS_FILE, "the kept models' metrics"))
         self.summary["figures"] = run.clock.stage("figures", lambda: figures(
@@ -271,6 +281,13 @@ class GearStages:
 def _headline(metrics: dict[str, Any]) -> dict[str, Any]:
     """``metrics.json``'s top-level numbers (``summary.json``'s ``model_metrics``)."""
     return {k: v for k, v in metrics.items() if not isinstance(v, dict)}
+
+
+def _starts(out: Path, settings: GearRunSettings) -> Path | None:
+    """The run's labelled start states for the regions, when it records them."""
+    from dynoplan.envs.gear.stages import STARTS_DIR
+
+    return out / STARTS_DIR if settings.region_starts else None
 
 
 def _folder(run: PipelineRun) -> Path:

@@ -90,6 +90,45 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
                         workers=workers)
 
 
+STARTS_DIR = "starts"
+"""The run's folder of start states labelled by the operator (``region_starts``)."""
+
+
+def start_states(n: int, seed: int, out: Path, models: Path) -> dict[str, Any]:
+    """Stage ``starts``: ``n`` start states of the gear assembly (resets of the seed stream
+    :func:`~dynoplan.pipeline.run_settings.starts_seed` of ``seed``), each labelled with
+    the option the operator starts there
+    (:func:`~dynoplan.pipeline.collect.start_choices`), as a dataset in ``out`` that the
+    regions fit too; the operator's networks from ``models``. Returns its size and the
+    options chosen."""
+    from collections import Counter
+    from dataclasses import replace
+
+    from dynoplan.data.dataset import write_dataset
+    from dynoplan.envs.gear.env import GearAssemblyEnv
+    from dynoplan.envs.gear.operator import OptionOperator
+    from dynoplan.envs.gear.options.catalog import gear_option_names, policy_factories
+    from dynoplan.pipeline.collect import start_choices
+    from dynoplan.pipeline.run_settings import starts_seed
+
+    check_dataset_target(out)
+    env = GearAssemblyEnv()
+    try:
+        names = gear_option_names()
+        episode = start_choices(env, OptionOperator(env, policy_factories(models)), names,
+                                starts_seed(seed), n)
+    finally:
+        env.close()
+    if episode is None:
+        raise DynoplanError("the operator starts no option at any of the start states")
+    demos = read_dataset(out.parent / "demos").metadata
+    write_dataset(out, [episode], replace(
+        demos, dataset_id="dynoplan/gear-assembly/start-states-v0", seed=seed,
+        extra={"labels": "the operator's first choice at each start state; no step taken"}))
+    chosen = Counter(names[int(k)] for k in episode.infos["option"])
+    return {"dataset": str(out), "states": len(episode), "chosen": dict(sorted(chosen.items()))}
+
+
 def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisions: int,
                        progress: bool = True, workers: Workers = SERIAL,
                        log: Callable[[str], None] = _silent) -> dict[str, Any]:
@@ -109,11 +148,13 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
                    heldout: Path | None, fit: FitSettings = DEFAULT_SETTINGS,
                    metrics: GearMetricsSettings = DEFAULT_METRICS, progress: bool = True,
                    workers: Workers = SERIAL, log: Callable[[str], None] = _silent,
-                   region_demos: Path | None = None) -> dict[str, Any]:
+                   region_demos: Path | None = None,
+                   region_starts: Path | None = None) -> dict[str, Any]:
     """Stage ``train``: goal heuristic, safety regions (on ``region_demos``, default
-    ``demos``) and dynamics fitted as ``fit`` says into ``models`` and measured as
-    ``metrics`` says; the content of ``metrics.json``. ``heldout`` ``None``:
-    :func:`heldout_trials` into ``models/heldout-demos``."""
+    ``demos``, and the labelled start states ``region_starts`` when given) and dynamics
+    fitted as ``fit`` says into ``models`` and measured as ``metrics`` says; the content
+    of ``metrics.json``. ``heldout`` ``None``: :func:`heldout_trials` into
+    ``models/heldout-demos``."""
     from dynoplan.envs.gear.learning.training import train_gear_models
 
     if heldout is None:
@@ -123,7 +164,7 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
     with staged_folder(models, keep=True) as staged:
         return train_gear_models(demos, transitions, staged, seed, heldout, False,
                                  progress=progress, settings=fit, measures=metrics,
-                                 region_demos=region_demos)
+                                 region_demos=region_demos, region_starts=region_starts)
 
 
 def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",

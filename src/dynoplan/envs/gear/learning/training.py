@@ -116,7 +116,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                       heldout_demos: Path, quick: bool, progress: bool,
                       settings: FitSettings | None = None,
                       measures: GearMetricsSettings | None = None,
-                      region_demos: Path | None = None) -> dict[str, Any]:
+                      region_demos: Path | None = None,
+                      region_starts: Path | None = None) -> dict[str, Any]:
     """Fit the goal heuristic, the safety regions and one dynamics model per option.
 
     Args:
@@ -138,6 +139,9 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         settings, measures: override ``quick``.
         region_demos: the demonstrations the safety regions are fitted on (default:
             ``demos``; the improvement rounds' ``regions`` False: the demonstrator's alone).
+        region_starts: start states labelled by the operator's first choice
+            (:func:`~dynoplan.envs.gear.stages.start_states`), which the regions fit
+            too (``None``: none).
 
     Returns:
         The content of ``metrics.json``. The model files are the same to the bit for the
@@ -167,8 +171,10 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     train_set = read_demos(demos, "demonstrations")
     clock = StageClock()
 
-    region_set = (train_set if region_demos is None
-                  else read_demos(region_demos, "region demonstrations"))
+    region_set = list(train_set if region_demos is None
+                      else read_demos(region_demos, "region demonstrations"))
+    if region_starts is not None:
+        region_set += list(read_labelled(region_starts, "start states"))
     held_set = read_demos(heldout_demos, "held-out trials")
     check_disjoint(train_set, held_set, heldout_demos)
     if transitions is None:
