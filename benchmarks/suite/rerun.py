@@ -27,6 +27,7 @@ import argparse
 import json
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +77,40 @@ def refit_goal(fitted: FittedModels, folder: Path, summary: dict[str, Any],
     return replace(fitted, goal=goal, learned_initiation=learned)
 
 
+@dataclass(frozen=True)
+class RunSeed:
+    """One task and seed of a suite run: its ``task`` (the registry's), its ``folder``,
+    ``summary.json``, the recorded controller ``rows`` (clean or disturbed, as asked) and
+    its fitted models."""
+
+    task: Any
+    folder: Path
+    summary: dict[str, Any]
+    rows: dict[str, Any]
+    fitted: FittedModels
+
+
+def load_run_seed(run: Path, task_name: str, seed: int, disturbed: bool) -> RunSeed:
+    """Task ``task_name``'s seed ``seed`` of the suite run ``run`` (its ``--out``); torch
+    on one thread, as the suite runs.
+
+    Raises:
+        DynoplanError: the folder holds no such task and seed."""
+    import torch
+
+    torch.set_num_threads(1)
+    folder = run / task_name / f"seed{seed}"
+    summary_file = folder / "summary.json"
+    if not summary_file.is_file():
+        raise DynoplanError(f"{summary_file}: not found (RUN TASK SEED name one task and "
+                            "seed of a suite run's --out folder)")
+    (entry,) = select(task_name)
+    recorded = json.loads((folder / "suite-run.json").read_text())
+    return RunSeed(entry.load(), folder, json.loads(summary_file.read_text()),
+                   recorded["disturbed"] if disturbed else recorded["controllers"],
+                   FittedModels.load(folder / "models"))
+
+
 def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
               disturbed: bool, goal_seed: int = 0) -> tuple[float, float, float]:
     """DynoPlan's success on ``settings`` over the evaluation episodes of one task and
@@ -83,19 +118,12 @@ def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
     success on the same episodes (``disturbed``: the rows under the disturbance). With
     ``fit.goal_*`` keys in ``sets`` or a ``goal_seed``, the goal is fitted again
     (:func:`refit_goal`)."""
-    import torch
-
-    torch.set_num_threads(1)
-    (entry,) = select(task_name)
-    task = entry.load()
-    folder = run / task_name / f"seed{seed}"
-    recorded = json.loads((folder / "suite-run.json").read_text())
-    summary = json.loads((folder / "summary.json").read_text())
-    rows = recorded["disturbed"] if disturbed else recorded["controllers"]
+    loaded = load_run_seed(run, task_name, seed, disturbed)
+    task, folder, summary, rows, fitted = (loaded.task, loaded.folder, loaded.summary,
+                                           loaded.rows, loaded.fitted)
     goal_sets = {k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}
     control = {k: v for k, v in sets.items() if k not in goal_sets}
     settings = pipeline_settings({**control, "episodes": int(rows[DYNOPLAN]["episodes"])})
-    fitted = FittedModels.load(folder / "models")
     if goal_seed or goal_sets:
         fitted = refit_goal(fitted, folder, summary, goal_sets, goal_seed)
     options, planner_options = fitted.build(task.module.make_options())

@@ -18,7 +18,6 @@ why it stopped, and the score of every option the planner judged admissible.
 """
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -26,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.suite.__main__ import parse_sets
-from benchmarks.suite.registry import select
+from benchmarks.suite.rerun import load_run_seed
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.config import pipeline_settings
@@ -37,20 +36,19 @@ from dynoplan.pipeline.evaluate import (
     make_controller,
     planning_settings,
 )
-from dynoplan.pipeline.fit import FittedModels
 from dynoplan.seeding import episode_seeds
 
 
 def option_runs(trace: EpisodeTrace) -> str:
     """The options ``trace`` ran, consecutive decisions of one option merged:
     ``reach:9 grasp:1 hold:3`` (steps each)."""
-    runs: list[list[object]] = []
+    runs: list[tuple[str, int]] = []
     for d in trace.decisions:
         name = d.option or "hold"
         if runs and runs[-1][0] == name:
-            runs[-1][1] = int(str(runs[-1][1])) + d.steps
+            runs[-1] = (name, runs[-1][1] + d.steps)
         else:
-            runs.append([name, d.steps])
+            runs.append((name, d.steps))
     return " ".join(f"{name}:{steps}" for name, steps in runs)
 
 
@@ -80,24 +78,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="under the task's disturbance")
     args = parser.parse_args(argv)
     try:
-        import torch
-
-        torch.set_num_threads(1)
         sets = parse_sets(args.set)
         if any(not k.startswith("control.") for k in sets):
             raise DynoplanError("--set takes controller settings (control.*) only")
         wanted = {int(i) for i in args.decisions.split(",") if i.strip()}
-        folder = args.run / args.task / f"seed{args.seed}"
-        summary_file = folder / "summary.json"
-        if not summary_file.is_file():
-            raise DynoplanError(f"{summary_file}: not found (RUN TASK SEED name one task and "
-                                "seed of a suite run's --out folder)")
-        summary = json.loads(summary_file.read_text())
-        recorded = json.loads((folder / "suite-run.json").read_text())
-        rows = recorded["disturbed"] if args.disturbed else recorded["controllers"]
-        (entry,) = select(args.task)
-        task = entry.load()
-        fitted = FittedModels.load(folder / "models")
+        loaded = load_run_seed(args.run, args.task, args.seed, args.disturbed)
+        task, summary, rows, fitted = loaded.task, loaded.summary, loaded.rows, loaded.fitted
         options, planner_options = fitted.build(task.module.make_options())
         settings = pipeline_settings(sets)
         env = task.make_env(disturbed=args.disturbed)

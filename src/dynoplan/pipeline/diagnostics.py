@@ -25,7 +25,7 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.models.regions import constant_mask
-from dynoplan.options.option import Option, admissible
+from dynoplan.options.option import Option, admissible, admissible_batch
 from dynoplan.types import FloatArray
 
 HISTORY_STEPS = 30
@@ -157,13 +157,13 @@ def sole_admissible_warnings(options: Sequence[Option], states: FloatArray,
 
 def no_start_warning(options: Sequence[Option], starts: FloatArray) -> str | None:
     """A warning when no option may start (under its own set, its learned set or its
-    fallback: :func:`~dynoplan.options.option.admissible`) at some of ``starts``
+    fallback: :func:`~dynoplan.options.option.admissible_batch`) at some of ``starts``
     ``(N, d)``, the evaluation's start states: those episodes cannot begin. ``None``
     when every start state admits an option."""
     x = np.asarray(starts, dtype=np.float64)
     if len(x) == 0:
         return None
-    stuck = int(sum(not admissible(options, s).any() for s in x))
+    stuck = int(np.sum(~admissible_batch(options, x).any(axis=0)))
     if not stuck:
         return None
     return (f"no option may start at {stuck} of the {len(x)} evaluation start states "

@@ -99,8 +99,9 @@ def start_states(n: int, seed: int, out: Path, models: Path) -> dict[str, Any]:
     :func:`~dynoplan.pipeline.run_settings.starts_seed` of ``seed``), each labelled with
     the option the operator starts there
     (:func:`~dynoplan.pipeline.collect.start_choices`), as a dataset in ``out`` that the
-    regions fit too; the operator's networks from ``models``. Returns its size and the
-    options chosen."""
+    regions fit too, with the metadata of the demonstrations beside it
+    (``out.parent / "demos"``, stage ``demos``); the operator's networks from ``models``.
+    Returns its size and the options chosen."""
     from collections import Counter
     from dataclasses import replace
 
