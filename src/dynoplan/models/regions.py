@@ -63,6 +63,10 @@ class SafetyRegions:
             (``precision = L @ L.T``).
         members: ``(options, components)`` booleans, row ``k`` is ``J_k``.
         log_thresholds: ``(options,)`` membership thresholds on ``log L(s | k)``.
+        log_offsets: ``(components,)`` added to each component's log density: zero for a
+            fitted mixture (``None`` stands for zeros); a component that joined an option
+            from another region (:meth:`joined`) carries the difference of the two
+            thresholds, so that the option's one threshold tests both.
     """
 
     option_names: list[str]
@@ -70,6 +74,7 @@ class SafetyRegions:
     precisions_cholesky: FloatArray
     members: BoolArray
     log_thresholds: FloatArray
+    log_offsets: FloatArray | None = None
     _last: tuple[bytes, FloatArray] | None = field(default=None, init=False, repr=False,
                                                    compare=False)
     """The last few states asked about and their densities: a controller asks about one
@@ -115,6 +120,8 @@ class SafetyRegions:
         diff = x[:, None, :] - self.means[None, :, :]
         z = np.einsum("bmd,mde->bme", diff, self.precisions_cholesky)
         log_det = np.log(np.diagonal(self.precisions_cholesky, axis1=1, axis2=2)).sum(axis=1)
+        if self.log_offsets is not None:
+            log_det = log_det + self.log_offsets
         return -0.5 * (d * np.log(2 * np.pi) + np.sum(z * z, axis=2)) + log_det[None, :]
 
     def log_likelihood(self, states: FloatArray, option: str | int) -> FloatArray:
@@ -313,13 +320,48 @@ class SafetyRegions:
                            dtype=bool)
         members[:len(first.option_names), :m1] = first.members
         members[len(first.option_names):, m1:] = second.members
+        offsets = (None if first.log_offsets is None and second.log_offsets is None else
+                   np.concatenate([first.offsets, second.offsets]))
         return cls(option_names=[*first.option_names, *second.option_names],
                    means=np.concatenate([first.means, second.means]),
                    precisions_cholesky=np.concatenate([first.precisions_cholesky,
                                                        second.precisions_cholesky]),
                    members=members,
                    log_thresholds=np.concatenate([first.log_thresholds,
-                                                  second.log_thresholds]))
+                                                  second.log_thresholds]),
+                   log_offsets=offsets)
+
+    @property
+    def offsets(self) -> FloatArray:
+        """:attr:`log_offsets`, zeros when ``None``: ``(components,)``."""
+        return (np.zeros(self.n_components) if self.log_offsets is None
+                else self.log_offsets)
+
+    def joined(self, into: dict[str, str]) -> "SafetyRegions":
+        """Each option ``a`` of ``into``'s keys joins option ``into[a]``: ``b``'s region
+        becomes the union of both regions, and ``a`` is dropped.
+
+        Exact: ``L(s | b)`` is a maximum over ``J_b``, so ``a``'s components join ``J_b``
+        with the log offset ``threshold_b - threshold_a``; a state passes ``b``'s
+        threshold through them exactly when it passed ``a``'s. (A component shared by
+        both options keeps ``b``'s own density: it is inside ``b``'s region already.)
+
+        Raises:
+            DynoplanError: an unknown name, or an option that would join itself.
+        """
+        offsets = self.offsets.copy()
+        members = self.members.copy()
+        for source, target in into.items():
+            a, b = self.option_index(source), self.option_index(target)
+            if a == b:
+                raise DynoplanError(f"option '{source}' cannot join itself")
+            moved = members[a] & ~members[b]
+            offsets[moved] += self.log_thresholds[b] - self.log_thresholds[a]
+            members[b] |= moved
+        keep = [k for k, n in enumerate(self.option_names) if n not in into]
+        return SafetyRegions([self.option_names[k] for k in keep], self.means,
+                             self.precisions_cholesky, members[keep],
+                             self.log_thresholds[keep], offsets)
 
     @classmethod
     def nowhere(cls, option_names: Sequence[str], state_dim: int) -> "SafetyRegions":
@@ -342,6 +384,8 @@ class SafetyRegions:
                 "precisions_cholesky": self.precisions_cholesky,
                 "members": self.members.astype(np.uint8),
                 "log_thresholds": self.log_thresholds,
+                # written only when a region joined another (files of plain fits unchanged)
+                **({} if not self.offsets.any() else {"log_offsets": self.offsets}),
             },
             {"option_names": self.option_names, "state_dim": self.state_dim},
         )
@@ -363,6 +407,9 @@ class SafetyRegions:
             members=require(arrays, "members", (o, m), path).astype(bool),
             log_thresholds=require_finite(arrays, "log_thresholds", (o,), None,
                                           path).astype(np.float64),
+            log_offsets=(require_finite(arrays, "log_offsets", (m,), None,
+                                        path).astype(np.float64)
+                         if "log_offsets" in arrays else None),
         )
 
 

@@ -403,7 +403,8 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                progress: Callable[[str], None] | None = None,
                task: str = "",
                feature_maps: Mapping[str, FeatureMap] | None = None,
-               region_demos: Sequence[Episode] | None = None) -> FittedModels:
+               region_demos: Sequence[Episode] | None = None,
+               region_starts: Sequence[Episode] = ()) -> FittedModels:
     """Fit dynamics (on transitions and demonstrations), goal and regions (on demonstrations).
 
     Args:
@@ -413,6 +414,9 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
             ``settings.region_features``).
         region_demos: the demonstrations the regions are fitted on, when not ``demos``
             (the improvement rounds' ``improve_regions=False``).
+        region_starts: start states labelled by the demonstrator's first choice, which
+            widen the regions where the options start the task
+            (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`).
     """
     settings.validate()
     goal_map = named_feature_map(settings.goal_features, feature_maps)
@@ -440,7 +444,7 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
         say("safety regions")
         regions, region_report = fit_option_regions(
             demos if region_demos is None else region_demos, transitions, names, settings,
-            seed, state_fn, region_map)
+            seed, state_fn, region_map, region_starts)
         region_report["options"] = regions.option_names
         for message in region_report["warnings"]:
             warnings.warn(message, DynoplanWarning, stacklevel=2)

@@ -41,11 +41,17 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
                        option_names: Sequence[str], settings: FitSettings, seed: int,
                        state_fn: ObservationFn = flat_state,
                        features: FeatureMap | None = None,
+                       starts: Sequence[Episode] = (),
                        ) -> tuple[RegionsModel, dict[str, Any]]:
     """The regions of every option (on ``features`` of the states when given, then
     wrapped to read full states), and what the fit measured.
 
-    Demonstrated options: Eq. 5 on the demonstrations (``settings.region_fit``). Options
+    Demonstrated options: Eq. 5 on the demonstrations (``settings.region_fit``); with
+    ``starts`` (start states labelled by the demonstrator's first choice,
+    :func:`~dynoplan.pipeline.collect.start_choices`), a demonstrated option's region is
+    the union of that and a region of its own fitted on the start states labelled with it
+    (:func:`start_regions`), so the starts widen where the option starts the task and
+    nowhere else. Options
     no demonstration shows follow ``settings.region_undemonstrated``: ``"runs"`` fits
     their regions the same way on the states where they acted in ``transitions``
     (merged into one model: the same ``L(s | k)``); ``"none"``, or ``"runs"``
@@ -68,8 +74,15 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
     states, labels, groups = labelled_states(demos, len(names), state_fn)
     if features is not None:
         states = features(states)
-    regions, report, shown = _demonstrated_regions(states, labels, groups, names, settings,
-                                                   seed)
+    if starts:
+        start_states, start_labels, _ = labelled_states(starts, len(names), state_fn)
+        if features is not None:
+            start_states = features(start_states)
+        regions, report, shown = start_regions(states, labels, groups, start_states,
+                                               start_labels, names, settings, seed)
+    else:
+        regions, report, shown = _demonstrated_regions(states, labels, groups, names,
+                                                       settings, seed)
     unshown = [k for k in range(len(names)) if k not in shown]
     report["undemonstrated"] = {}
     report["warnings"] = []
@@ -154,6 +167,40 @@ def _demonstrated_regions(states: FloatArray, labels: IntArray, groups: IntArray
     return regions, report, shown
 
 
+START_REGION = "{} (start states)"
+"""The name, in a fit's report, of an option's region fitted on the start states."""
+
+
+def start_regions(states: FloatArray, labels: IntArray, groups: IntArray,
+                  start_states: FloatArray, start_labels: IntArray, names: list[str],
+                  settings: FitSettings, seed: int
+                  ) -> tuple[SafetyRegions, dict[str, Any], list[int]]:
+    """:func:`_demonstrated_regions` widened by the start states ``(S, d)`` labelled
+    ``(S,)``: each demonstrated option with at least :data:`MIN_REGION_STATES` start
+    states also gets a region fitted on them alone (:data:`START_REGION`, one group: its
+    folds are blocks of them), in the same fit as the demonstrations' regions (one
+    standardisation), and its region is the union of both
+    (:meth:`~dynoplan.models.regions.SafetyRegions.joined`). Start states of an option
+    the demonstrations do not show are left out (they would be its only region)."""
+    counts = np.bincount(labels, minlength=len(names))
+    shown = [k for k in range(len(names)) if counts[k] >= MIN_REGION_STATES]
+    start_counts = np.bincount(start_labels, minlength=len(names))
+    widened = [k for k in shown if start_counts[k] >= MIN_REGION_STATES]
+    keep = np.isin(labels, shown)
+    keep_starts = np.isin(start_labels, widened)
+    pseudo = len(names) + np.asarray(start_labels[keep_starts])  # the start regions' labels
+    x = np.concatenate([states[keep], start_states[keep_starts]])
+    y = np.concatenate([labels[keep], pseudo])
+    g = np.concatenate([groups[keep], np.full(len(pseudo), int(groups.max(initial=-1)) + 1)])
+    start_names = [START_REGION.format(names[k]) for k in widened]
+    regions, report = fit_labelled_regions(
+        x, y, g, [names[k] for k in shown] + start_names,
+        shown + [len(names) + k for k in widened], settings, seed)
+    report["start_states"] = {names[k]: int(start_counts[k]) for k in widened}
+    return (regions.joined({START_REGION.format(names[k]): names[k] for k in widened}),
+            report, shown)
+
+
 def _on_features(regions: SafetyRegions, features: FeatureMap | None) -> RegionsModel:
     return regions if features is None else RegionsOnFeatures(regions, features)
 
@@ -236,5 +283,6 @@ def fit_regions_cross_validated(
                      "folds": folds}
 
 
-__all__ = ["MIN_REGION_STATES", "RegionsModel", "fit_labelled_regions", "fit_option_regions",
-           "fit_regions", "fit_regions_cross_validated"]
+__all__ = ["MIN_REGION_STATES", "START_REGION", "RegionsModel", "fit_labelled_regions",
+           "fit_option_regions", "fit_regions", "fit_regions_cross_validated",
+           "start_regions"]

@@ -265,10 +265,10 @@ class GenericStages:
                                         self.settings.region_starts)
         return self.demos
 
-    def _region_demos(self, demos: list[Episode]) -> list[Episode]:
-        """What the regions fit: ``demos``, and the labelled start states when there are
-        any (``settings.region_starts``)."""
-        return demos if self.starts is None else [*demos, self.starts]
+    def _region_starts(self) -> list[Episode]:
+        """The labelled start states the regions are widened by, when there are any
+        (``settings.region_starts``)."""
+        return [] if self.starts is None else [self.starts]
 
     def option_runs(self, run: PipelineRun, demos: list[Episode]) -> list[Episode]:
         """Exploration episodes of randomly chosen options
@@ -288,7 +288,7 @@ class GenericStages:
                      else _env_id(self.environment) or "")
         return fit_models(self.specs, runs, demos, self.settings.fit, self.seeds["fit"],
                           flat_state, self.fitter, run.clock.switch, self.name,
-                          region_demos=self._region_demos(demos))
+                          region_starts=self._region_starts())
 
     def after_fit(self, run: PipelineRun, models: FittedModels) -> FittedModels:
         """``settings.improve`` rounds of DynoPlan's own episodes, refitted on after each
@@ -306,8 +306,9 @@ class GenericStages:
             fit_transitions.extend(piece for e in own for piece in e.pieces)
             return fit_models(self.specs, fit_transitions, fit_demos, settings.fit,
                               self.seeds["fit"], flat_state, self.fitter, run.clock.switch,
-                              self.name, region_demos=self._region_demos(
-                                  fit_demos if improvement.regions else self.demos))
+                              self.name,
+                              region_demos=fit_demos if improvement.regions else self.demos,
+                              region_starts=self._region_starts())
 
         seeds = (episode_seeds(self.seeds["improve"], improvement.batches * improvement.episodes)
                  if improvement.rounds else [])

@@ -39,9 +39,10 @@ class PipelineSettings:
             alone, random choice).
         region_starts: start states of the task (resets of a seed stream of their own)
             at which the demonstrator's first choice is asked
-            (:func:`~dynoplan.pipeline.collect.start_choices`); the regions also fit
-            them, each as a state of the option chosen there (0: none, the regions fit
-            the demonstrations alone).
+            (:func:`~dynoplan.pipeline.collect.start_choices`); each option chosen
+            there gets a region of its own on those states, joined to its region on the
+            demonstrations (:func:`~dynoplan.pipeline.fit_regions.start_regions`; 0:
+            none, the regions fit the demonstrations alone).
         improve, improve_episodes, improve_regions, improve_keep: how the run learns
             from DynoPlan's own episodes before the evaluation (:mod:`~dynoplan.pipeline.
             improve`): the ``rounds``, ``episodes``, ``regions`` and ``keep`` of

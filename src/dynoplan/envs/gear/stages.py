@@ -98,9 +98,10 @@ def start_states(n: int, seed: int, out: Path, models: Path) -> dict[str, Any]:
     """Stage ``starts``: ``n`` start states of the gear assembly (resets of the seed stream
     :func:`~dynoplan.pipeline.run_settings.starts_seed` of ``seed``), each labelled with
     the option the operator starts there
-    (:func:`~dynoplan.pipeline.collect.start_choices`), as a dataset in ``out`` that the
-    regions fit too, with the metadata of the demonstrations beside it
-    (``out.parent / "demos"``, stage ``demos``); the operator's networks from ``models``.
+    (:func:`~dynoplan.pipeline.collect.start_choices`), as a dataset in ``out`` that
+    widens the regions where the options start (stage ``train``), with the metadata of
+    the demonstrations beside it (``out.parent / "demos"``, stage ``demos``); the
+    operator's networks from ``models``.
     Returns its size and the options chosen."""
     from collections import Counter
     from dataclasses import replace
@@ -152,7 +153,7 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
                    region_demos: Path | None = None,
                    region_starts: Path | None = None) -> dict[str, Any]:
     """Stage ``train``: goal heuristic, safety regions (on ``region_demos``, default
-    ``demos``, and the labelled start states ``region_starts`` when given) and dynamics
+    ``demos``, widened by the labelled start states ``region_starts`` when given) and dynamics
     fitted as ``fit`` says into ``models`` and measured as ``metrics`` says; the content
     of ``metrics.json``. ``heldout`` ``None``: :func:`heldout_trials` into
     ``models/heldout-demos``."""

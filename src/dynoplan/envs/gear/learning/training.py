@@ -140,8 +140,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         region_demos: the demonstrations the safety regions are fitted on (default:
             ``demos``; the improvement rounds' ``regions`` False: the demonstrator's alone).
         region_starts: start states labelled by the operator's first choice
-            (:func:`~dynoplan.envs.gear.stages.start_states`), which the regions fit
-            too (``None``: none).
+            (:func:`~dynoplan.envs.gear.stages.start_states`), which widen the regions
+            where the options start the task (``None``: none).
 
     Returns:
         The content of ``metrics.json``. The model files are the same to the bit for the
@@ -173,8 +173,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
 
     region_set = list(train_set if region_demos is None
                       else read_demos(region_demos, "region demonstrations"))
-    if region_starts is not None:
-        region_set += list(read_labelled(region_starts, "start states"))
+    start_set = ([] if region_starts is None
+                 else list(read_labelled(region_starts, "start states")))
     held_set = read_demos(heldout_demos, "held-out trials")
     check_disjoint(train_set, held_set, heldout_demos)
     if transitions is None:
@@ -204,7 +204,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
 
     def fit_regions() -> None:
         results["regions"], fitted["regions"] = _train_regions(
-            list(region_set), list(held_set), planner, cfg, measure, seed)
+            list(region_set), list(held_set), planner, cfg, measure, seed, start_set)
 
     dyn_reports: dict[str, Any] = {}
 
@@ -321,14 +321,16 @@ def _train_goal(train_set: Sequence[Episode],
 
 def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
                    planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
-                   seed: int) -> tuple[dict[str, Any], RegionsOnFeatures]:
+                   seed: int, starts: Sequence[Episode] = ()
+                   ) -> tuple[dict[str, Any], RegionsOnFeatures]:
     """The regions of the demonstrated options, fitted by the pipeline
-    (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`; undemonstrated options get
-    none); the report of ``metrics.json``'s ``regions`` and the regions."""
+    (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`, widened by the labelled
+    start states ``starts``; undemonstrated options get none); the report of
+    ``metrics.json``'s ``regions`` and the regions."""
     features = gear_features(cfg.region_features)
     names = gear_option_names()
     regions, info = fit_option_regions(train_set, (), names, cfg, seed, state_fn=planner,
-                                       features=features)
+                                       features=features, starts=starts)
     assert isinstance(regions, RegionsOnFeatures)  # fitted on a feature map
     fitted = regions.regions
     s, y, _ = labelled_states(train_set, len(names), planner)
