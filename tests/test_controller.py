@@ -148,6 +148,29 @@ def test_an_option_started_under_its_fallback_goes_on_while_the_fallback_holds()
     assert [d.stop_reason for d in trace.decisions] == ["left_region", "episode_end"]
 
 
+def test_with_fallback_goes_on_an_option_leaving_its_set_where_none_may_start_goes_on():
+    # "up" starts inside its learned set (x < 2) and leaves it after two steps; there no
+    # option may start under its learned set ("idle" only at x < -5), so with the rule it
+    # goes on under its own set, as an option started there would
+    own = InitiationFromCallable(lambda s: s[:, 0] < 2)
+    anywhere = InitiationFromCallable(lambda s: s[:, 0] < 100)
+    up = Option("up", FunctionPolicy(lambda o, r: np.array([1.0])), _Identity(),
+                ConstantTermination(0.0), initiation=AllOf(own, anywhere), fallback=anywhere)
+    idle = _option("idle", 0.0, initiation=InitiationFromCallable(lambda s: s[:, 0] < -5))
+
+    def run(goes_on, options):
+        controller = Controller(options, FixedChoice(options, "up"), max_decisions=20,
+                                hold_action=np.array([0.0]), fallback_goes_on=goes_on)
+        return [d.steps for d in controller.run(Line(), np.random.default_rng(0), seed=0)
+                .decisions]
+
+    assert run(False, [up, idle]) == [2, 8]  # stopped at the edge, chosen again
+    assert run(True, [up, idle]) == [10]  # one run to the goal
+    # where another option may start under its learned set, the edge stops it as always
+    other = _option("other", 0.0, initiation=InitiationFromCallable(lambda s: s[:, 0] >= 2))
+    assert run(True, [up, other])[0] == 2
+
+
 def _options_run_on_scores(calls, **rules):
     """The options ("a", "b") a controller replanning at every step runs, given the
     chooser's scores at each decision (``calls``) and the controller's ``rules``."""

@@ -261,6 +261,10 @@ def pipeline(
         None, "--fallback-own-sets/--no-fallback-own-sets",
         help="Where no option may start under its learned initiation set, the options "
              "whose own sets hold may (--no-fallback-own-sets: hold or end there) [on]."),
+    fallback_goes_on: bool | None = typer.Option(
+        None, "--fallback-goes-on/--no-fallback-goes-on",
+        help="An option that leaves its learned set where no option may start under its "
+             "learned set goes on while its own set holds [off]."),
     fallback_must_gain: bool | None = typer.Option(
         None, "--fallback-must-gain/--no-fallback-must-gain",
         help="DynoPlan starts an option under its own set only where it scores at least "

@@ -9,7 +9,8 @@ One episode:
 4. run the chosen option step by step until its termination fires, it leaves its
    continuation set (its initiation set unless the option gives another; an option
    started under its fallback set, where no option was admissible, goes on while that
-   set holds), the state
+   set holds; with ``fallback_goes_on``, so does one that leaves its continuation set
+   where no option may start under its own initiation set), the state
    becomes non-finite, ``replan_every`` steps pass, or ``max_option_steps`` is reached;
 5. repeat until the environment terminates or truncates, or ``max_decisions`` is hit.
 
@@ -193,6 +194,7 @@ class Controller:
         loop_tolerance: float | FloatArray | None = None,
         stall_progress: float | None = None,
         progress: Callable[[FloatArray], FloatArray] | None = None,
+        fallback_goes_on: bool = False,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
@@ -216,6 +218,7 @@ class Controller:
         self.hold_action = hold_action
         self.success_fn = success_fn
         self.record_infos = record_infos
+        self.fallback_goes_on = fallback_goes_on
         self.termination_every = termination_every
         self.no_effect_tolerance = no_effect_tolerance
         self.loop_tolerance = loop_tolerance
@@ -288,7 +291,7 @@ class Controller:
                     reason = "invalid_state"
                     break
                 if not option.can_continue(state) and not (
-                        fell_back and option.in_fallback(state)):
+                        (fell_back or self._falls_back(state)) and option.in_fallback(state)):
                     reason = "left_region"
                     break
                 if option.policy.finished() or (steps % self.termination_every == 0
@@ -308,6 +311,14 @@ class Controller:
                 break
         trace.success = self.success_fn(terminated, info)
         return trace
+
+    def _falls_back(self, state: FloatArray) -> bool:
+        """Whether a running option that left its continuation set at ``state``
+        (``(state_dim,)``) goes on under its fallback set: with ``fallback_goes_on``, where
+        no option may start under its own initiation set (where the controller, choosing
+        again, would choose under the fallback sets too)."""
+        return self.fallback_goes_on and not any(o.may_run(state, False)
+                                                 for o in self.options)
 
     def _close_loops(self, trace: EpisodeTrace, state: FloatArray,
                      starts: "_DecisionStarts", bars: dict[int, float]) -> None:

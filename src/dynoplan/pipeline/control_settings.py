@@ -70,6 +70,11 @@ class ControllerSettings:
             controller can hold, DynoPlan starts one there only if it scores at least the
             goal heuristic at the present state (``fallback_must_gain``); ``False``: the
             controller holds (``hold_action``) or ends the episode there.
+        fallback_goes_on: with ``fallback_own_sets``, an option that leaves its
+            continuation set where no option may start under its learned initiation set
+            goes on while its own set holds, as one started there would
+            (:class:`~dynoplan.control.Controller`); ``False``: it stops there, and the
+            controller chooses again under the fallback sets.
         fallback_must_gain: with ``fallback_own_sets``, where the controller can hold,
             DynoPlan starts an option under its own set only if it scores at least the
             goal heuristic at the present state, and holds otherwise; ``False``: it starts
@@ -110,6 +115,7 @@ class ControllerSettings:
     loop_progress: bool = False
     start_where_done: bool = False
     fallback_own_sets: bool = True
+    fallback_goes_on: bool = False
     fallback_must_gain: bool = True
     stall_progress: float | None = 0.5
     score_failures: bool = True

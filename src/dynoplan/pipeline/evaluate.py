@@ -323,7 +323,8 @@ def make_controller(kind: str | ControllerVariant, options: Sequence[Option],
                       loop_tolerance=None if settings.loop_share is None or state_scale is None
                       else settings.loop_share * np.asarray(state_scale, dtype=np.float64),
                       stall_progress=settings.stall_progress,
-                      progress=goal_means(goal) if settings.loop_progress else None)
+                      progress=goal_means(goal) if settings.loop_progress else None,
+                      fallback_goes_on=settings.fallback_own_sets and settings.fallback_goes_on)
 
 
 def goal_means(goal: GoalHeuristic) -> Callable[[FloatArray], FloatArray]:
