@@ -10,7 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from benchmarks.suite import __main__ as suite
-from benchmarks.suite import registry, rerun, trace
+from benchmarks.suite import regions, registry, rerun, trace
 from dynoplan.pipeline import probe_options, record_demonstrations
 
 INSTALLED = [e for e in registry.TASKS if e.missing() is None]
@@ -50,6 +50,9 @@ def test_a_trace_of_a_missing_run_is_one_error_line(tmp_path, capsys):
     assert err.startswith("trace: error: ") and err.count("\n") == 1
     assert trace.main([str(tmp_path), "minigrid-doorkey", "0", "--set", "fit.stride=2"]) == 2
     assert "control.*" in capsys.readouterr().err
+    assert regions.main([str(tmp_path), "minigrid-doorkey", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("regions: error: ") and err.count("\n") == 1
 
 
 def test_an_unknown_task_or_setting_is_one_error_line(tmp_path, capsys):
@@ -96,3 +99,9 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
     assert lines[-1] == f"DynoPlan: {round(3 * rate)} of 3 (the run's: {rate:.2f})"
     assert lines[0].startswith("  step    0  G ")  # episode 0's first decision
     assert sum(line[0].isdigit() for line in lines) == 3  # one line per episode
+    # how far the regions reach: on fresh demonstrations, without and with start states
+    assert regions.main([str(tmp_path), "minigrid-doorkey", "0", "--fresh", "2",
+                         "--starts", "5"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("fresh states inside their option's region: go_to_key ") == 2
+    assert "regions on the demonstrations and 5 start states:" in out
