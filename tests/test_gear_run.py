@@ -330,27 +330,23 @@ def test_the_gear_controllers_do_not_repeat_an_option_without_effect_unless_told
 
 
 @pytest.mark.slow
-def test_the_operators_start_runs_reach_the_pick_region(quick_gear_run: Path,
-                                                       tmp_path: Path):
-    # the regions widened by the operator's first option run from 30 start states admit
+def test_start_states_labelled_by_the_operator_reach_the_pick_region(quick_gear_run: Path,
+                                                                    tmp_path: Path):
+    # the regions fitted on the demonstrations and the operator's start states admit
     # "pick" at those states; without them, the quick run's 10 demonstrations may not
     import shutil
 
     from dynoplan.data import read_dataset
     from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
-    from dynoplan.envs.gear.options.catalog import gear_option_names
     from dynoplan.envs.gear.stages import STARTS_DIR, learned_models, start_states
     from dynoplan.envs.gear.state import PlannerState
 
     shutil.copytree(quick_gear_run / "demos", tmp_path / "demos")
     report = start_states(30, 0, tmp_path / STARTS_DIR, quick_gear_run / "models")
-    assert report["runs"] == 30 and report["chosen"] == {"pick": 30}
-    runs = read_dataset(tmp_path / STARTS_DIR).episodes
-    pick = gear_option_names().index("pick")
-    assert len(runs) == 30 and all(r.options.tolist() == [pick] * len(r) for r in runs)
-    assert report["states"] == sum(len(r) for r in runs) > 30  # the picks ran
-    states = PlannerState()(np.stack([r.observations[0] for r in runs]))
+    assert report["states"] == 30 and report["chosen"] == {"pick": 30}
+    starts = read_dataset(tmp_path / STARTS_DIR).episodes[0]
+    states = PlannerState()(starts.observations[:-1])
     admitted = {}
     for name, with_starts in (("with", tmp_path / STARTS_DIR), ("without", None)):
         models = tmp_path / f"models-{name}"

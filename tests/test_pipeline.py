@@ -503,38 +503,22 @@ def test_cli_user_errors_are_one_line_with_exit_status_2(tmp_path, monkeypatch, 
     assert err.startswith("dynoplan: error: ")
 
 
-def test_start_runs_are_the_demonstrators_first_option_run_until_it_leaves_it():
+def test_start_states_are_labelled_by_the_demonstrators_first_choice():
     from dynoplan.pipeline import CallableDemonstrator
-    from dynoplan.pipeline.collect import start_runs
+    from dynoplan.pipeline.collect import start_choices
 
-    # the demonstrator moves "right" from x > 0 until x >= 3, "left" from x <= 0 until
-    # x <= -3, then turns; at x < -0.5 at the start it chooses nothing (left out)
-    def chain(obs):
+    # the demonstrator starts "up" right of 0 and "back" left of it; at x < -0.5 it
+    # chooses nothing, and those starts are left out
+    def first(obs):
         x = float(obs[0])
-        return "left" if -3 < x <= 0 or x >= 3 else "right"
+        return None if x < -0.5 else ("up" if x > 0 else "back")
 
-    class Script(CallableDemonstrator):
-        def reset(self, observation, rng):
-            self.started = False
-
-        def choose(self, observation):
-            if not self.started and float(observation[0]) < -0.5:
-                return None
-            self.started = True
-            return super().choose(observation)
-
-    runs = start_runs(line_env(), line_options(), Script(chain), ["right", "left"], 3, 40)
-    firsts = np.array([e.observations[0, 0] for e in runs])
-    assert 20 <= len(runs) < 40 and np.all(firsts >= -0.5)  # about a quarter left out
-    for run in runs:
-        x = run.observations[:, 0]
-        option = run.options[0]
-        assert np.all(run.options == option) and option == (0 if x[0] > 0 else 1)
-        # the run goes until the demonstrator leaves its first option, no further
-        assert (x[-1] >= 3) if option == 0 else (x[-1] <= -3)
-        assert np.all(x[:-1] < 3) if option == 0 else np.all(x[:-1] > -3)
-    again = start_runs(line_env(), line_options(), Script(chain), ["right", "left"], 3, 40)
-    assert all(np.array_equal(a.observations, b.observations)
-               for a, b in zip(runs, again, strict=True))  # seeded
-    assert start_runs(line_env(), line_options(), CallableDemonstrator(lambda o: None),
-                      ["right"], 3, 5) == []
+    starts = start_choices(line_env(), CallableDemonstrator(first), ["back", "up"], 3, 40)
+    assert starts is not None
+    x = starts.observations[:-1, 0]
+    assert len(starts) == len(x) and 20 <= len(x) < 40  # about a quarter left out
+    assert np.all(x >= -0.5) and np.array_equal(starts.observations[-1], starts.observations[-2])
+    assert starts.options.tolist() == [1 if v > 0 else 0 for v in x]
+    again = start_choices(line_env(), CallableDemonstrator(first), ["back", "up"], 3, 40)
+    assert np.array_equal(again.observations, starts.observations)  # seeded
+    assert start_choices(line_env(), CallableDemonstrator(lambda o: None), ["up"], 3, 5) is None

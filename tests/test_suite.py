@@ -104,4 +104,4 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
                          "--starts", "5"]) == 0
     out = capsys.readouterr().out
     assert out.count("fresh states inside their option's region: go_to_key ") == 2
-    assert "regions on the demonstrations and 5 start runs:" in out
+    assert "regions on the demonstrations and 5 start states:" in out

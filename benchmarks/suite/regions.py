@@ -9,14 +9,12 @@ For one task and seed of the suite run ``RUN`` (the ``--out`` of :mod:`benchmark
 this fits the Eq. 5 regions again on the run's own demonstrations
 (``RUN/<task>/seed<s>/demos``), with the run's fit settings and fit seed, as the first
 fit of the run does (the improvement round's refit is not repeated), and once more
-widened by the demonstrator's first option run from ``--starts`` start states, drawn as
-the run's ``region_starts`` would draw them
-(:func:`~dynoplan.pipeline.collect.start_runs`,
-:func:`~dynoplan.pipeline.fit_regions.start_regions`). Then it records ``--fresh`` new
-demonstrations from a seed stream none of the run's used (``--fresh-seed``) and prints,
-for each fit, the share of the fresh demonstrations' states labelled with each option
-that lie inside that option's region, and at their first states the share inside each
-option's region and inside none.
+widened by ``--starts`` start states labelled by the demonstrator's first choice, drawn
+as the run's ``region_starts`` would draw them (:func:`~dynoplan.pipeline.fit_regions.
+start_regions`). Then it records ``--fresh`` new demonstrations from a seed stream none
+of the run's used (``--fresh-seed``) and prints, for each fit, the share of the fresh
+demonstrations' states labelled with each option that lie inside that option's region,
+and at their first states the share inside each option's region and inside none.
 """
 
 import argparse
@@ -32,7 +30,7 @@ from benchmarks.suite.registry import select
 from dynoplan.control.controller import flat_state
 from dynoplan.data.dataset import read_dataset
 from dynoplan.errors import DynoplanError
-from dynoplan.pipeline.collect import record_demonstrations, start_runs
+from dynoplan.pipeline.collect import record_demonstrations, start_choices
 from dynoplan.pipeline.fit_data import labelled_states
 from dynoplan.pipeline.fit_regions import RegionsModel, fit_option_regions
 from dynoplan.pipeline.fit_settings import FitSettings
@@ -69,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fresh-seed", type=int, default=FRESH_SEED, metavar="S",
                         help=f"their seed stream [{FRESH_SEED}]")
     parser.add_argument("--starts", type=int, default=100, metavar="N",
-                        help="start states whose first option runs widen the fit [100]")
+                        help="start states for the widened fit [100]")
     args = parser.parse_args(argv)
     try:
         if args.fresh < 1 or args.starts < 1:
@@ -88,8 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         fit = FitSettings.from_record(summary["settings"]["fit"])
         fit_seed = int(summary["seeds"]["fit"])
         demos = read_dataset(folder / "demos").episodes
-        starts = start_runs(env, specs, task.module.make_demonstrator(), names,
-                            starts_seed(int(summary["seeds"]["demos"])), args.starts)
+        starts = start_choices(env, task.module.make_demonstrator(), names,
+                               starts_seed(int(summary["seeds"]["demos"])), args.starts)
         fresh = record_demonstrations(env, specs, task.module.make_demonstrator(),
                                       args.fresh, args.fresh_seed)
         states, labels, _ = labelled_states(fresh, len(names), flat_state)
@@ -97,8 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the fit's own warnings are the run's
             fits = {"demonstrations": fit_option_regions(demos, [], names, fit, fit_seed)[0],
-                    f"demonstrations and {args.starts} start runs": fit_option_regions(
-                        demos, [], names, fit, fit_seed, starts=starts)[0]}
+                    f"demonstrations and {args.starts} start states": fit_option_regions(
+                        demos, [], names, fit, fit_seed, starts=[] if starts is None
+                        else [starts])[0]}
         print(f"{args.task} seed {args.seed}: {len(demos)} demonstrations; {len(fresh)} "
               f"fresh ones ({len(states)} states)")
         for what, regions in fits.items():

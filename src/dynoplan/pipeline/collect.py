@@ -804,59 +804,40 @@ def collect_option_runs(job: OptionRunsJob, runs_per_option: int, workers: Worke
                         progress)
 
 
-class FirstOption(Demonstrator):
-    """``demonstrator`` until it leaves the option it started with: ``choose`` answers
-    ``None`` (the recording ends) at the first decision that names another option,
-    starts the option again or acts itself (:func:`start_runs`)."""
+def start_choices(env: gym.Env[Any, Any], demonstrator: "Demonstrator",
+                  option_names: Sequence[str], seed: int, episodes: int) -> Episode | None:
+    """The demonstrator's first choice at ``episodes`` start states of ``env`` (its resets
+    with the seeds of :func:`~dynoplan.seeding.episode_seeds` ``(seed, episodes)``), as one
+    episode of labelled states for the safety regions: ``observations`` ``(n + 1, ...)``
+    (the last repeated: no step is taken), zero actions and ``infos["option"]`` ``(n,)``,
+    the index in ``option_names`` of the option the demonstrator starts with there.
 
-    def __init__(self, demonstrator: Any) -> None:
-        self.demonstrator = demonstrator
-        self.first: str | None = None
-
-    def reset(self, observation: Any, rng: Generator) -> None:
-        self.first = None
-        self.demonstrator.reset(observation, rng)
-
-    def observe(self, info: dict[str, Any]) -> None:
-        observe = getattr(self.demonstrator, "observe", None)
-        if observe is not None:
-            observe(info)
-
-    def choose(self, observation: Any) -> "str | Decision | None":
-        choice = self.demonstrator.choose(observation)
-        decision = Decision(choice) if isinstance(choice, str) else choice
-        if decision is None or decision.action is not None or (
-                self.first is not None and (decision.option != self.first
-                                            or decision.restart)):
-            return None
-        self.first = decision.option
-        return decision
-
-
-def start_runs(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], demonstrator: Any,
-               option_names: Sequence[str], seed: int, episodes: int,
-               max_steps: int | None = None) -> list[Episode]:
-    """The demonstrator's first option run from ``episodes`` start states of ``env`` (its
-    resets with the seeds of :func:`~dynoplan.seeding.episode_seeds` ``(seed,
-    episodes)``), each until the demonstrator leaves it (:class:`FirstOption`), the
-    episode ends or ``max_steps`` pass: labelled episodes for the safety regions
-    (``infos["option"]``), one per start where the demonstrator starts an option of
-    ``option_names``. The demonstrations show where the task starts, and where its first
-    option goes from there, only from their own few resets."""
+    The demonstrations show where the task starts only at their own few resets; the
+    regions fitted on them can miss the rest of the start states, where then no option
+    may start. Starts where the demonstrator chooses nothing (or acts itself) are left
+    out; ``None`` when that leaves none."""
     names = list(option_names)
-    demo = demonstrator_from(demonstrator)
-    out = []
+    observations: list[Any] = []
+    labels: list[int] = []
+    observe = getattr(demonstrator, "observe", None)
     for s in episode_seeds(seed, episodes):
         obs, info = env.reset(seed=s.env_seed)
-        observe = getattr(demo, "observe", None)
         if observe is not None:
             observe(info)
-        demo.reset(obs, s.rng())
-        choice = demo.choose(obs)
+        demonstrator.reset(obs, s.rng())
+        choice = demonstrator.choose(obs)
         decision = Decision(choice) if isinstance(choice, str) else choice
         if decision is None or decision.action is not None or decision.option not in names:
             continue
-        out.append(record_episode(env, specs, FirstOption(demo), s.env_seed, s.rng(),
-                                  max_steps, option_names=names).episode)
-    return out
-
+        observations.append(obs)
+        labels.append(names.index(decision.option))
+    if not labels:
+        return None
+    n = len(labels)
+    shape = env.action_space.shape or ()
+    return Episode(
+        observations=np.asarray([*observations, observations[-1]],
+                                dtype=_float_dtype(observations)),
+        actions=np.zeros((n, *shape)), rewards=np.zeros(n),
+        terminations=np.zeros(n, dtype=bool), truncations=np.zeros(n, dtype=bool),
+        infos={OPTION_KEY: np.asarray(labels, dtype=np.int64)}, seed=seed)

@@ -47,11 +47,11 @@ def fit_option_regions(demos: Sequence[Episode], transitions: Sequence[Episode],
     wrapped to read full states), and what the fit measured.
 
     Demonstrated options: Eq. 5 on the demonstrations (``settings.region_fit``); with
-    ``starts`` (the demonstrator's first option run from start states of the task,
-    :func:`~dynoplan.pipeline.collect.start_runs`), a demonstrated option's region is
-    the union of that and a region of its own fitted on the runs' states labelled with it
+    ``starts`` (start states labelled by the demonstrator's first choice,
+    :func:`~dynoplan.pipeline.collect.start_choices`), a demonstrated option's region is
+    the union of that and a region of its own fitted on the start states labelled with it
     (:func:`start_regions`), so the starts widen where the option starts the task and
-    where it goes from there, and nowhere else. Options
+    nowhere else. Options
     no demonstration shows follow ``settings.region_undemonstrated``: ``"runs"`` fits
     their regions the same way on the states where they acted in ``transitions``
     (merged into one model: the same ``L(s | k)``); ``"none"``, or ``"runs"``
@@ -167,18 +167,18 @@ def _demonstrated_regions(states: FloatArray, labels: IntArray, groups: IntArray
     return regions, report, shown
 
 
-START_REGION = "{} (start runs)"
-"""The name, in a fit's report, of an option's region fitted on the start runs."""
+START_REGION = "{} (start states)"
+"""The name, in a fit's report, of an option's region fitted on the start states."""
 
 
 def start_regions(states: FloatArray, labels: IntArray, groups: IntArray,
                   start_states: FloatArray, start_labels: IntArray, names: list[str],
                   settings: FitSettings, seed: int
                   ) -> tuple[SafetyRegions, dict[str, Any], list[int]]:
-    """:func:`_demonstrated_regions` widened by the start runs' states ``(S, d)``
-    labelled ``(S,)``: each demonstrated option with at least :data:`MIN_REGION_STATES`
-    such states also gets a region fitted on them alone (:data:`START_REGION`, one
-    group: its folds are blocks of them), in the same fit as the demonstrations' regions (one
+    """:func:`_demonstrated_regions` widened by the start states ``(S, d)`` labelled
+    ``(S,)``: each demonstrated option with at least :data:`MIN_REGION_STATES` start
+    states also gets a region fitted on them alone (:data:`START_REGION`, one group: its
+    folds are blocks of them), in the same fit as the demonstrations' regions (one
     standardisation), and its region is the union of both
     (:meth:`~dynoplan.models.regions.SafetyRegions.joined`). Start states of an option
     the demonstrations do not show are left out (they would be its only region)."""

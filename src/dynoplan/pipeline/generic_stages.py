@@ -30,7 +30,7 @@ from dynoplan.pipeline.collect import (
     make_env,
     probe_options,
     record_demonstrations,
-    start_runs,
+    start_choices,
 )
 from dynoplan.pipeline.diagnostics import (
     episode_history_warning,
@@ -223,7 +223,7 @@ class GenericStages:
         self.env, self.options, self.demonstrator, self.given = env, options, demonstrator, demos
         self.state_fn, self.success, self.fitter = state_fn, success, fitter
         self.command, self.task = command, task
-        self.starts: list[Episode] = []  # the first options' runs (region_starts)
+        self.starts: Episode | None = None  # the labelled start states (region_starts)
 
     def prepare(self, run: PipelineRun) -> None:
         """The environment made and the options probed in it; the controllers checked."""
@@ -260,15 +260,15 @@ class GenericStages:
             raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
         if self.settings.region_starts and self.demonstrator is not None:
             run.clock.switch("start states")
-            self.starts = start_runs(self.environment, self.specs, self.demonstrator,
-                                     self.names, starts_seed(self.seeds["demos"]),
-                                     self.settings.region_starts)
+            self.starts = start_choices(self.environment, self.demonstrator, self.names,
+                                        starts_seed(self.seeds["demos"]),
+                                        self.settings.region_starts)
         return self.demos
 
     def _region_starts(self) -> list[Episode]:
         """The labelled start states the regions are widened by, when there are any
         (``settings.region_starts``)."""
-        return self.starts
+        return [] if self.starts is None else [self.starts]
 
     def option_runs(self, run: PipelineRun, demos: list[Episode]) -> list[Episode]:
         """Exploration episodes of randomly chosen options

@@ -38,10 +38,10 @@ class PipelineSettings:
         controllers: which controllers to evaluate (default: DynoPlan, each option
             alone, random choice).
         region_starts: start states of the task (resets of a seed stream of their own)
-            from which the demonstrator's first option is run until the demonstrator
-            leaves it (:func:`~dynoplan.pipeline.collect.start_runs`); each option run
-            so gets a region of its own on those runs' states, joined to its region on
-            the demonstrations (:func:`~dynoplan.pipeline.fit_regions.start_regions`; 0:
+            at which the demonstrator's first choice is asked
+            (:func:`~dynoplan.pipeline.collect.start_choices`); each option chosen
+            there gets a region of its own on those states, joined to its region on the
+            demonstrations (:func:`~dynoplan.pipeline.fit_regions.start_regions`; 0:
             none, the regions fit the demonstrations alone).
         improve, improve_episodes, improve_regions, improve_keep: how the run learns
             from DynoPlan's own episodes before the evaluation (:mod:`~dynoplan.pipeline.

@@ -95,14 +95,14 @@ STARTS_DIR = "starts"
 
 
 def start_states(n: int, seed: int, out: Path, models: Path) -> dict[str, Any]:
-    """Stage ``starts``: the operator's first option run from each of ``n`` start states
-    of the gear assembly (resets of the seed stream
-    :func:`~dynoplan.pipeline.run_settings.starts_seed` of ``seed``), until the operator
-    leaves it (:func:`~dynoplan.pipeline.collect.start_runs`), as a dataset in ``out``
-    that widens the regions where the options start (stage ``train``), with the metadata
-    of the demonstrations beside it (``out.parent / "demos"``, stage ``demos``); the
+    """Stage ``starts``: ``n`` start states of the gear assembly (resets of the seed stream
+    :func:`~dynoplan.pipeline.run_settings.starts_seed` of ``seed``), each labelled with
+    the option the operator starts there
+    (:func:`~dynoplan.pipeline.collect.start_choices`), as a dataset in ``out`` that
+    widens the regions where the options start (stage ``train``), with the metadata of
+    the demonstrations beside it (``out.parent / "demos"``, stage ``demos``); the
     operator's networks from ``models``.
-    Returns its size and the options the runs started with."""
+    Returns its size and the options chosen."""
     from collections import Counter
     from dataclasses import replace
 
@@ -110,28 +110,25 @@ def start_states(n: int, seed: int, out: Path, models: Path) -> dict[str, Any]:
     from dynoplan.envs.gear.env import GearAssemblyEnv
     from dynoplan.envs.gear.operator import OptionOperator
     from dynoplan.envs.gear.options.catalog import gear_option_names, policy_factories
-    from dynoplan.pipeline.collect import start_runs
+    from dynoplan.pipeline.collect import start_choices
     from dynoplan.pipeline.run_settings import starts_seed
 
     check_dataset_target(out)
     env = GearAssemblyEnv()
     try:
         names = gear_option_names()
-        operator = OptionOperator(env, policy_factories(models))
-        episodes = start_runs(env, operator.specs, operator, names, starts_seed(seed), n)
+        episode = start_choices(env, OptionOperator(env, policy_factories(models)), names,
+                                starts_seed(seed), n)
     finally:
         env.close()
-    if not episodes:
+    if episode is None:
         raise DynoplanError("the operator starts no option at any of the start states")
     demos = read_dataset(out.parent / "demos").metadata
-    write_dataset(out, episodes, replace(
-        demos, dataset_id="dynoplan/gear-assembly/start-runs-v0", seed=seed,
-        extra={"labels": "the operator's first option, run from each start state until "
-                         "the operator leaves it"}))
-    chosen = Counter(names[int(e.infos["option"][0])] for e in episodes)
-    return {"dataset": str(out), "runs": len(episodes),
-            "states": int(sum(len(e) for e in episodes)),
-            "chosen": dict(sorted(chosen.items()))}
+    write_dataset(out, [episode], replace(
+        demos, dataset_id="dynoplan/gear-assembly/start-states-v0", seed=seed,
+        extra={"labels": "the operator's first choice at each start state; no step taken"}))
+    chosen = Counter(names[int(k)] for k in episode.infos["option"])
+    return {"dataset": str(out), "states": len(episode), "chosen": dict(sorted(chosen.items()))}
 
 
 def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisions: int,
