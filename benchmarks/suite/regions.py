@@ -18,7 +18,6 @@ and at their first states the share inside each option's region and inside none.
 """
 
 import argparse
-import json
 import os
 import sys
 import warnings
@@ -27,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.suite.registry import select
+from benchmarks.suite.rerun import run_seed_folder
 from dynoplan.control.controller import flat_state
 from dynoplan.data.dataset import read_dataset
 from dynoplan.errors import DynoplanError
@@ -72,12 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.fresh < 1 or args.starts < 1:
             raise DynoplanError("--fresh and --starts must be >= 1")
-        folder = args.run / args.task / f"seed{args.seed}"
-        summary_file = folder / "summary.json"
-        if not summary_file.is_file():
-            raise DynoplanError(f"{summary_file}: not found (RUN TASK SEED name one task "
-                                "and seed of a suite run's --out folder)")
-        summary = json.loads(summary_file.read_text())
+        folder, summary = run_seed_folder(args.run, args.task, args.seed)
         (entry,) = select(args.task)
         task = entry.load()
         env = task.make_env()

@@ -99,16 +99,26 @@ def load_run_seed(run: Path, task_name: str, seed: int, disturbed: bool) -> RunS
     import torch
 
     torch.set_num_threads(1)
+    folder, summary = run_seed_folder(run, task_name, seed)
+    (entry,) = select(task_name)
+    recorded = json.loads((folder / "suite-run.json").read_text())
+    return RunSeed(entry.load(), folder, summary,
+                   recorded["disturbed"] if disturbed else recorded["controllers"],
+                   FittedModels.load(folder / "models"))
+
+
+def run_seed_folder(run: Path, task_name: str, seed: int) -> tuple[Path, dict[str, Any]]:
+    """The folder of task ``task_name``'s seed ``seed`` in the suite run ``run`` (its
+    ``--out``) and its ``summary.json``.
+
+    Raises:
+        DynoplanError: the folder holds no such task and seed."""
     folder = run / task_name / f"seed{seed}"
     summary_file = folder / "summary.json"
     if not summary_file.is_file():
         raise DynoplanError(f"{summary_file}: not found (RUN TASK SEED name one task and "
                             "seed of a suite run's --out folder)")
-    (entry,) = select(task_name)
-    recorded = json.loads((folder / "suite-run.json").read_text())
-    return RunSeed(entry.load(), folder, json.loads(summary_file.read_text()),
-                   recorded["disturbed"] if disturbed else recorded["controllers"],
-                   FittedModels.load(folder / "models"))
+    return folder, json.loads(summary_file.read_text())
 
 
 def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
