@@ -37,3 +37,57 @@ def test_outcome_initiation_and_the_variant_rows_reach_results_csv(quick_gear_ru
         table = list(csv.DictReader(f))
     assert [r["controller"] for r in table] == rows
     assert json.loads((out / "summary.json").read_text())["planner"]["epistemic"] == 0.5
+
+
+def test_gear_options_fall_back_to_their_own_sets():
+    """Where no option may start under its sets, a gear option may start under its own
+    set, as every task's option does: everywhere without hand-written conditions, its
+    registered conditions under ``rules``."""
+    import numpy as np
+
+    from dynoplan.envs.gear.controllers import INITIATION_SETS, option_fallback
+    from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
+    from dynoplan.envs.gear.state import STATE_DIM
+    from dynoplan.errors import DynoplanError
+    from dynoplan.options.initiation import Everywhere
+
+    states = np.random.default_rng(0).normal(0.0, 0.5, size=(500, STATE_DIM))
+    for name in gear_option_names():
+        own = gear_option(name).sets()[0].contains(states)
+        assert 0 < own.sum() < len(states) or isinstance(gear_option(name).sets()[0],
+                                                        Everywhere)
+        for sets in INITIATION_SETS:
+            fallback = option_fallback(name, sets)
+            if sets == "rules":
+                assert np.array_equal(fallback.contains(states), own)
+            else:
+                assert isinstance(fallback, Everywhere)
+    with pytest.raises(DynoplanError, match="unknown initiation sets"):
+        option_fallback("pick", "learnt")
+
+
+@pytest.mark.slow
+def test_dynoplan_starts_an_option_where_no_learned_region_holds(quick_gear_run: Path):
+    """A start state no region admits (the gear lying far from every demonstration) does
+    not leave DynoPlan holding for good: the options compete under their own sets."""
+
+    from dynoplan.envs.gear.controllers import gear_options
+    from dynoplan.envs.gear.env import GearAssemblyEnv
+    from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.options.catalog import policy_factories
+    from dynoplan.envs.gear.state import PlannerState
+    from dynoplan.options.option import admissible
+
+    models_dir = quick_gear_run / "models"
+    models = load_gear_models(models_dir)
+    env = GearAssemblyEnv()
+    try:
+        options = gear_options(env, models, policy_factories(models_dir), "learned")
+        obs, _ = env.reset(seed=0)
+        far = PlannerState()(obs[None])[0] + 10.0  # every coordinate 10 units away
+        assert models.regions is not None
+        assert not models.regions.contains_all(far[None]).any()
+        assert not any(o.may_run(far, False) for o in options)
+        assert admissible(options, far).all()
+    finally:
+        env.close()
