@@ -146,6 +146,10 @@ def pipeline(
         None, "--goal-off-decay",
         help="How that label falls with the distance r: gaussian, exp(-(r/R)^2); cauchy, "
              "1/(1+(r/R)^2) [gaussian]."),
+    goal_off_context: bool | None = typer.Option(
+        None, "--goal-off-context/--no-goal-off-context",
+        help="That distance leaves out the dimensions that stay the same along every "
+             "demonstration but differ between them (where the reset put a goal) [off]."),
     regions: bool | None = typer.Option(None, "--regions/--no-regions",
                                         help="Fit the safety regions (Eq. 5) and enforce "
                                         "them [on]."),

@@ -17,7 +17,7 @@ from dynoplan.models.goal_network import (
 from dynoplan.models.regions import constant_mask
 from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.fit_settings import FitSettings
-from dynoplan.types import FloatArray, IntArray
+from dynoplan.types import BoolArray, FloatArray, IntArray
 
 GoalModel = GoalNetwork | GoalOnFeatures
 """A goal heuristic as fitted: on the planner state, or on a named feature map of it."""
@@ -25,7 +25,7 @@ GoalModel = GoalNetwork | GoalOnFeatures
 
 def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups: IntArray,
                                off: FloatArray, radius: float,
-                               decay: str = "gaussian") -> FloatArray:
+                               decay: str = "gaussian", context: bool = False) -> FloatArray:
     """Progress labels ``(M,)`` for states ``off`` ``(M, d)`` that no demonstration visited:
     the progress of the nearest demonstration state, times ``exp(-(r / R)^2)`` (``decay``
     ``"gaussian"``) or ``1 / (1 + (r / R)^2)`` (``"cauchy"``), where ``r``
@@ -33,7 +33,9 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
     distance between consecutive demonstration states).
 
     Distances are measured with every dimension scaled by its spread over the
-    demonstration states (a dimension that never changes there is left out). A state on a
+    demonstration states (a dimension that never changes there is left out; with
+    ``context``, so is one that never changes along any demonstration,
+    :func:`context_mask`). A state on a
     demonstration keeps its progress; a state the demonstrations never came near is ranked
     below the demonstrated states it is near, so that the goal heuristic does not promise
     progress where the demonstrations never went (past a goal, off a path).
@@ -47,6 +49,8 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
 
     spread = states.std(axis=0)
     keep = ~constant_mask(states)
+    if context:
+        keep &= ~context_mask(states, groups)
     if not keep.any() or len(off) == 0:
         return np.zeros(len(off))
     z = states[:, keep] / spread[keep]
@@ -56,6 +60,19 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
     distance, nearest = cKDTree(z).query(off[:, keep] / spread[keep])
     ratio = (distance / (radius * step)) ** 2
     return progress[nearest] * (np.exp(-ratio) if decay == "gaussian" else 1.0 / (1.0 + ratio))
+
+
+def context_mask(states: FloatArray, groups: IntArray) -> BoolArray:
+    """``(d,)`` the dimensions of the demonstration states ``(N, d)`` that stay the same
+    along every demonstration (``groups`` ``(N,)``; one of a single state says nothing),
+    where a goal or an object was put at the reset; all ``False`` with fewer than two
+    demonstrations."""
+    ids = np.unique(groups)
+    rows = [states[groups == g] for g in ids]
+    rows = [r for r in rows if len(r) > 1]
+    if len(rows) < 2:
+        return np.zeros(states.shape[1], dtype=bool)
+    return np.all([constant_mask(r) for r in rows], axis=0)
 
 
 def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
@@ -85,7 +102,8 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
         x_off = off_states if features is None else features(off_states)
         labels = off_demonstration_progress(x, progress, groups, x_off,
                                             settings.goal_off_radius,
-                                            settings.goal_off_decay)
+                                            settings.goal_off_decay,
+                                            settings.goal_off_context)
         labels[_failed_ends(off)] = 0.0  # where an episode failed, no progress is left
         x_fit = np.concatenate([x, x_off])
         p_fit = np.concatenate([progress, labels])
@@ -126,5 +144,5 @@ def _batch_states(observations: np.ndarray, state_fn: ObservationFn) -> FloatArr
                      for o in observations])
 
 
-__all__ = ["GoalModel", "fit_goal", "fit_goal_network",
+__all__ = ["GoalModel", "context_mask", "fit_goal", "fit_goal_network",
            "off_demonstration_progress"]

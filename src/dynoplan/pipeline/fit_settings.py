@@ -52,6 +52,11 @@ class FitSettings:
         goal_off_decay: how the label falls with the distance ``r``: ``"gaussian"``,
             ``exp(-(r / R)^2)``; ``"cauchy"``, ``1 / (1 + (r / R)^2)``, whose tail still
             ranks far states by their distance.
+        goal_off_context: that distance leaves out the episode's context, the state
+            dimensions that stay the same along every demonstration but differ between
+            them (where a goal or an object was put at the reset): an exploration state
+            in another episode is then as near the demonstrations as its moving parts
+            are (``False``: every dimension that changes in the demonstrations counts).
         goal_features, region_features: names of the task's feature maps the goal
             heuristic and the regions read (``None``: the planner state itself).
         regions: fit the safety regions (Eq. 5) and intersect every option's initiation
@@ -107,6 +112,7 @@ class FitSettings:
     goal_off_demos: bool = True
     goal_off_radius: float = 5.0
     goal_off_decay: str = "gaussian"
+    goal_off_context: bool = False
     goal_features: str | None = None
     region_features: str | None = None
     regions: bool = True
