@@ -46,7 +46,7 @@ def test_a_state_of_another_episode_is_labelled_by_its_moving_parts():
 
 
 def test_the_setting_is_a_fit_key():
-    assert pipeline_settings({"fit.goal_off_context": True}).fit.goal_off_context
-    assert not pipeline_settings({}).fit.goal_off_context
+    assert pipeline_settings({}).fit.goal_off_context  # the default
+    assert not pipeline_settings({"fit.goal_off_context": False}).fit.goal_off_context
     with pytest.raises(DynoplanError):
         pipeline_settings({"fit.goal_off_context": "maybe"})

@@ -149,7 +149,7 @@ def pipeline(
     goal_off_context: bool | None = typer.Option(
         None, "--goal-off-context/--no-goal-off-context",
         help="That distance leaves out the dimensions that stay the same along every "
-             "demonstration but differ between them (where the reset put a goal) [off]."),
+             "demonstration but differ between them (where the reset put a goal) [on]."),
     regions: bool | None = typer.Option(None, "--regions/--no-regions",
                                         help="Fit the safety regions (Eq. 5) and enforce "
                                         "them [on]."),

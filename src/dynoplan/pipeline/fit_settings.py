@@ -57,6 +57,7 @@ class FitSettings:
             them (where a goal or an object was put at the reset): an exploration state
             in another episode is then as near the demonstrations as its moving parts
             are (``False``: every dimension that changes in the demonstrations counts).
+            On by default since the suite's fourteenth round (``docs/suite.md``).
         goal_features, region_features: names of the task's feature maps the goal
             heuristic and the regions read (``None``: the planner state itself).
         regions: fit the safety regions (Eq. 5) and intersect every option's initiation
@@ -112,7 +113,7 @@ class FitSettings:
     goal_off_demos: bool = True
     goal_off_radius: float = 5.0
     goal_off_decay: str = "gaussian"
-    goal_off_context: bool = False
+    goal_off_context: bool = True
     goal_features: str | None = None
     region_features: str | None = None
     regions: bool = True
