@@ -98,10 +98,11 @@ class Option:
         continuation: where a running option may go on (default: ``initiation``); the
             controller and the planner's rollouts stop the option when it leaves it.
         fallback: where the option may start when *no* option may run at the state
-            under its own sets (``None``: nowhere). For an initiation set that narrows a
-            safety region by a learned judgement (an initiation learned from outcomes),
-            the region: where the judgement rules out every option, the regions decide
-            rather than the robot holding still for good (:func:`admissible`).
+            under its own sets (``None``: nowhere). A fitted task gives every option
+            its own initiation set, without what was learned
+            (:meth:`~dynoplan.pipeline.fit.FittedModels.build`): where the learned sets
+            rule out every option, the options' own sets decide rather than the robot
+            holding still for good (:func:`admissible`).
 
     With ``start_where_done`` off, the option does not start where its termination is
     certain (:meth:`done_at`). A controller may tell the option that its last run ended
