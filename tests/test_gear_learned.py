@@ -5,10 +5,19 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
+from dynoplan.envs.gear.controllers import INITIATION_SETS, gear_options, option_fallback
+from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.learning.files import load_gear_models
+from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names, policy_factories
+from dynoplan.envs.gear.state import STATE_DIM, PlannerState
+from dynoplan.errors import DynoplanError
+from dynoplan.options.initiation import Everywhere
+from dynoplan.options.option import admissible
 
 
 @pytest.mark.slow
@@ -43,14 +52,6 @@ def test_gear_options_fall_back_to_their_own_sets():
     """Where no option may start under its sets, a gear option may start under its own
     set, as every task's option does: everywhere without hand-written conditions, its
     registered conditions under ``rules``."""
-    import numpy as np
-
-    from dynoplan.envs.gear.controllers import INITIATION_SETS, option_fallback
-    from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
-    from dynoplan.envs.gear.state import STATE_DIM
-    from dynoplan.errors import DynoplanError
-    from dynoplan.options.initiation import Everywhere
-
     states = np.random.default_rng(0).normal(0.0, 0.5, size=(500, STATE_DIM))
     for name in gear_option_names():
         own = gear_option(name).sets()[0].contains(states)
@@ -70,14 +71,6 @@ def test_gear_options_fall_back_to_their_own_sets():
 def test_dynoplan_starts_an_option_where_no_learned_region_holds(quick_gear_run: Path):
     """A start state no region admits (the gear lying far from every demonstration) does
     not leave DynoPlan holding for good: the options compete under their own sets."""
-
-    from dynoplan.envs.gear.controllers import gear_options
-    from dynoplan.envs.gear.env import GearAssemblyEnv
-    from dynoplan.envs.gear.learning.files import load_gear_models
-    from dynoplan.envs.gear.options.catalog import policy_factories
-    from dynoplan.envs.gear.state import PlannerState
-    from dynoplan.options.option import admissible
-
     models_dir = quick_gear_run / "models"
     models = load_gear_models(models_dir)
     env = GearAssemblyEnv()

@@ -218,9 +218,7 @@ def option_sets(name: str, models: FittedModels,
                 sets: str) -> tuple[Initiation, Initiation | None]:
     """Option ``name``'s initiation and continuation sets (``None``: the same as its
     initiation) under ``sets`` (one of :data:`INITIATION_SETS`)."""
-    if sets not in INITIATION_SETS:
-        raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
-                            f"{', '.join(INITIATION_SETS)}")
+    _check_sets(sets)
     if sets == "everywhere":
         return Everywhere(), None
     learned = models.regions
@@ -254,10 +252,15 @@ def option_fallback(name: str, sets: str) -> Initiation:
     ``docs/gear-options.md``, "The options' own sets as the fallback"): where the learned
     regions miss a start state, DynoPlan now starts the best option that gains rather
     than holding for good."""
+    _check_sets(sets)
+    return gear_option(name).sets()[0] if sets == "rules" else Everywhere()
+
+
+def _check_sets(sets: str) -> None:
+    """One error line for a name not in :data:`INITIATION_SETS`."""
     if sets not in INITIATION_SETS:
         raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
                             f"{', '.join(INITIATION_SETS)}")
-    return gear_option(name).sets()[0] if sets == "rules" else Everywhere()
 
 
 def gear_control(env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory]
