@@ -81,6 +81,9 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
     assert set(run["controllers"]) >= {"demonstrator", "dynoplan", "random"}
     # the cost of a task, on the clock and on the processor
     assert row["cpu_s"] > 0 and row["wall_s"] > 0
+    # the task's elapsed time spans its run, within the whole command's
+    assert 0 < row["elapsed_s"] <= result["elapsed_s"]
+    assert abs(row["elapsed_s"] - run["wall_s"]) < 1.0  # one seed, run alone
     assert "| minigrid-doorkey |" in (tmp_path / "suite.md").read_text()
     assert "CPU (s)" in (tmp_path / "suite.md").read_text()
     # DynoPlan again on the saved models, and with the goal fitted again as the run

@@ -18,9 +18,11 @@ Writes ``OUT/suite.json`` (every number) and ``OUT/suite.md``: per task, the
 demonstrator, DynoPlan, the best option alone and random choice on every seed, the
 composition ratio (DynoPlan's mean success over the demonstrator's), the decision latency
 (p50 over all DynoPlan decisions), decisions per episode, both rows under the disturbance,
-and the task's wall time and CPU time (each summed over its seeds; a seed runs in one
-process, so on a quiet machine with ``--jobs 1`` the two agree, and the CPU time stays
-what the task costs when other work shares the cores).
+the task's elapsed time (from the start of its first seed's run to the end of its last:
+what the task takes on the machine at ``--jobs``), and its wall time and CPU time (each
+summed over its seeds; a seed runs in one process, so on a quiet machine with ``--jobs 1``
+the two agree, and the CPU time stays what the task costs when other work shares the
+cores). ``suite.json`` also holds the whole command's elapsed time.
 """
 
 import argparse
@@ -68,13 +70,15 @@ def parse_sets(items: list[str], flag: str = "--set") -> dict[str, Any]:
 def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
             out: Path) -> dict[str, Any]:
     """One task on one seed: the pipeline's summary, the disturbed rows, the wall time
-    (``wall_s``) and this process's CPU time (``cpu_s``: what the run costs whatever else
-    shares the machine), as written to ``out/summary.json`` (and ``out/suite-run.json``)."""
+    (``wall_s``), this process's CPU time (``cpu_s``: what the run costs whatever else
+    shares the machine) and when the run started and ended (``span``: seconds since the
+    epoch), as written to ``out/suite-run.json``."""
     import torch
 
     torch.set_num_threads(1)
     task = entry.load()
     settings = pipeline_settings({**sets, "episodes": episodes, "seed": seed})
+    began = time.time()
     started, cpu_started = time.perf_counter(), time.process_time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DynoplanWarning)
@@ -92,7 +96,7 @@ def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
             state_scale=result.models.state_scale,
             fresh_env=lambda: task.make_env(disturbed=True))
     run = {"task": entry.name, "seed": seed, "wall_s": time.perf_counter() - started,
-           "cpu_s": time.process_time() - cpu_started,
+           "cpu_s": time.process_time() - cpu_started, "span": [began, time.time()],
            "controllers": result.summary["controllers"],
            "composition_ratio": result.summary["composition_ratio"],
            "disturbed": disturbed, "disturbance": task.module.DISTURBANCE,
@@ -132,6 +136,7 @@ def task_row(runs: list[dict[str, Any]]) -> dict[str, Any]:
                                          for r in runs])),
         "disturbed_demonstrator": rates(DEMONSTRATOR, "disturbed"),
         "disturbed_dynoplan": rates(DYNOPLAN, "disturbed"),
+        "elapsed_s": float(max(r["span"][1] for r in runs) - min(r["span"][0] for r in runs)),
         "wall_s": float(sum(r["wall_s"] for r in runs)),
         "cpu_s": float(sum(r["cpu_s"] for r in runs)),
         "dynoplan_option_share": [r["controllers"][DYNOPLAN]["option_share"] for r in runs],
@@ -149,13 +154,14 @@ def suite_table(rows: list[dict[str, Any]]) -> str:
                                             "random", "disturbed_demonstrator",
                                             "disturbed_dynoplan")},
           "best_option": _seeds(r["best_option"]) + f" ({r['best_option_names'][0]})",
-          "wall_s": f"{r['wall_s']:.0f}", "cpu_s": f"{r['cpu_s']:.0f}"} for r in rows],
+          "elapsed_s": f"{r['elapsed_s']:.0f}", "wall_s": f"{r['wall_s']:.0f}", "cpu_s": f"{r['cpu_s']:.0f}"} for r in rows],
         ["task", "demonstrator", "dynoplan", "composition_ratio", "best_option", "random",
          "disturbed_demonstrator", "disturbed_dynoplan", "latency_ms_p50",
-         "decisions_mean", "wall_s", "cpu_s"],
+         "decisions_mean", "elapsed_s", "wall_s", "cpu_s"],
         ["task", "demonstrator", "DynoPlan", "composition ratio", "best option alone",
          "random", "demonstrator, disturbed", "DynoPlan, disturbed",
-         "decision p50 (ms)", "decisions / episode", "wall (s)", "CPU (s)"])
+         "decision p50 (ms)", "decisions / episode", "elapsed (s)", "wall, seeds' sum (s)",
+         "CPU (s)"])
 
 
 def _commit() -> str | None:
@@ -191,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
                              "with 1")
     parser.add_argument("--out", type=Path, default=Path("results/suite"))
     args = parser.parse_args(argv)
+    began = time.perf_counter()
     try:
         entries = select(args.tasks)
         seeds = [int(s) for s in args.seeds.split(",")]
@@ -218,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.suite " + " ".join(sys.argv[1:] if argv is None else argv)
     write_json(out / "suite.json", {"command": command, "commit": _commit(), "settings": sets,
                                     "episodes": args.episodes, "seeds": seeds,
+                                    "jobs": args.jobs,
+                                    "elapsed_s": time.perf_counter() - began,
                                     "tasks": rows, "runs": runs})
     table = suite_table(rows) if rows else "no task ran\n"
     write_text(out / "suite.md", f"Produced by `{command}` at {_commit()}.\n\n{table}")
