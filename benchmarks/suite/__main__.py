@@ -154,7 +154,7 @@ def suite_table(rows: list[dict[str, Any]]) -> str:
                                             "random", "disturbed_demonstrator",
                                             "disturbed_dynoplan")},
           "best_option": _seeds(r["best_option"]) + f" ({r['best_option_names'][0]})",
-          "elapsed_s": f"{r['elapsed_s']:.0f}", "wall_s": f"{r['wall_s']:.0f}", "cpu_s": f"{r['cpu_s']:.0f}"} for r in rows],
+          **{k: f"{r[k]:.0f}" for k in ("elapsed_s", "wall_s", "cpu_s")}} for r in rows],
         ["task", "demonstrator", "dynoplan", "composition_ratio", "best_option", "random",
          "disturbed_demonstrator", "disturbed_dynoplan", "latency_ms_p50",
          "decisions_mean", "elapsed_s", "wall_s", "cpu_s"],
