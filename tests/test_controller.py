@@ -1,5 +1,7 @@
 """Controller: runs chosen options, stops them at region exits, holds still, margin rule."""
 
+from dataclasses import replace
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -333,6 +335,55 @@ def test_a_hold_that_changes_nothing_far_from_the_goal_is_not_held_for_good():
     moved = run(0.5)  # one hold changed nothing at G = 0.2 < 0.5: "up" starts
     assert moved.success and moved.no_admissible == 1
     assert [d.option for d in moved.decisions] == [None, "up"]
+
+
+def test_where_no_learned_choice_gains_an_option_under_its_own_set_that_gains_runs():
+    # "wait" may start everywhere under its learned set, but its model says it loses
+    # progress; "up" has no learned set (its own set, the fallback, holds everywhere)
+    # and its model says it gains: the learned sets alone never let the line reach 10
+    from dynoplan.planning import OptionPlanner
+
+    nowhere = InitiationFromCallable(lambda s: np.zeros(len(s), bool))
+    anywhere = InitiationFromCallable(lambda s: s[:, 0] < 100)
+    wait = Option("wait", FunctionPolicy(lambda o, r: np.array([0.0])), _Shift(-1.0),
+                  ConstantTermination(1.0), initiation=anywhere, fallback=anywhere)
+
+    def up(model):
+        return Option("up", FunctionPolicy(lambda o, r: np.array([1.0])), model,
+                      ConstantTermination(0.0), initiation=AllOf(anywhere, nowhere),
+                      fallback=anywhere)
+
+    def run(widen, model=_Shift(1.0)):
+        options = [wait, up(model)]
+        planner = OptionPlanner(options, _Progress(), horizon=3, samples=2,
+                                widen_without_gain=widen)
+        return planner, Controller(options, planner, max_decisions=30).run(
+            Line(), np.random.default_rng(0), seed=0)
+
+    planner, learned_only = run(False)
+    assert not learned_only.success
+    assert {d.option for d in learned_only.decisions} == {"wait"}
+    planner, widened = run(True)
+    plan = planner.choose(np.array([0.0]), np.random.default_rng(0))
+    assert plan.chosen_name == "up" and plan.widened is not None
+    assert plan.widened.tolist() == [False, True] and plan.admissible.all()
+    # "up" goes on under its own set: one decision from the start to the goal
+    assert widened.success and [d.option for d in widened.decisions] == ["up"]
+    assert widened.out_of_region_starts == 0
+    # an option no demonstration ran is not looked at
+    options = [wait, replace(up(_Shift(1.0)), demonstrated=False)]
+    plan = OptionPlanner(options, _Progress(), horizon=3, samples=2,
+                         widen_without_gain=True).choose(np.array([0.0]),
+                                                         np.random.default_rng(0))
+    assert plan.chosen_name == "wait" and plan.widened is None
+    # an option that does not gain either is scored, but the learned choice stays
+    planner, neither = run(True, _Shift(-2.0))
+    plan = planner.choose(np.array([0.0]), np.random.default_rng(0))
+    assert plan.chosen_name == "wait" and plan.widened is not None
+    assert not neither.success
+    # the rule belongs to the depth-1 planner
+    with pytest.raises(DynoplanError, match="depth-1 planner"):
+        ControllerSettings(depth=2, fallback_without_gain=True).validate()
 
 
 def test_an_option_that_ends_where_it_started_is_not_chosen_there_again():

@@ -98,6 +98,7 @@ def test_pipeline_learns_to_go_right_and_beats_going_left(result):
     assert res.models.regions is not None
     assert res.models.regions.option_names == ["right", "left"]
     assert res.models.report["regions"]["undemonstrated"] == {"left": "none"}
+    assert [o.demonstrated for o in res.options] == [True, False]
     assert res.summary["demonstrations"]["episodes"] == 4
     assert "| dynoplan | 1 |" in res.table
 

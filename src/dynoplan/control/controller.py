@@ -272,7 +272,8 @@ class Controller:
                     break
                 continue
             option = self.options[chosen]
-            outside = not bool(admissible(self.options, state, running)[chosen])
+            widened = plan.widened is not None and bool(plan.widened[chosen])
+            outside = not widened and not bool(admissible(self.options, state, running)[chosen])
             # started under its fallback set: it goes on while that set holds
             fell_back = not outside and not option.may_run(state, chosen == running)
             if chosen != running:

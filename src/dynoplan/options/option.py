@@ -136,6 +136,11 @@ class Option:
     episode in failure (``None``: it is not known to fail). A run that fails leaves no
     progress, so the planner weighs each rollout's goal score by ``1 - P(fail | s)`` at
     the state the option starts from."""
+    demonstrated: bool = True
+    """Whether the demonstrations ran the option (a fitted task's options say;
+    :meth:`~dynoplan.pipeline.fit.FittedModels.build`). A planner that looks beyond the
+    learned sets where none of their options gains (``widen_without_gain``) looks at
+    demonstrated options only: an option no demonstration used has shown no use there."""
 
     @property
     def planner_dynamics(self) -> DynamicsModel:

@@ -79,6 +79,13 @@ class ControllerSettings:
             DynoPlan starts an option under its own set only if it scores at least the
             goal heuristic at the present state, and holds otherwise; ``False``: it starts
             the best-scoring one.
+        fallback_without_gain: with ``fallback_own_sets``, where options may start under
+            their learned sets but DynoPlan predicts none of them to score the goal
+            heuristic at the present state, the demonstrated options whose own sets hold
+            there are scored too, and the best of them runs if it scores at least that and more
+            than the best learned choice (the planner's ``widen_without_gain``); it goes
+            on while its own set holds (depth 1 only). ``False``: the learned sets alone
+            decide there.
         stall_progress: where DynoPlan held, the hold changed nothing and it would hold
             again (``fallback_must_gain``) at a state whose goal heuristic is below this,
             it starts the best-scoring option instead (:class:`~dynoplan.control.Controller`;
@@ -117,6 +124,7 @@ class ControllerSettings:
     fallback_own_sets: bool = True
     fallback_goes_on: bool = False
     fallback_must_gain: bool = True
+    fallback_without_gain: bool = False
     stall_progress: float | None = 0.5
     score_failures: bool = True
 
@@ -126,6 +134,9 @@ class ControllerSettings:
                 f"horizon and samples must be >= 1, got {self.horizon} and {self.samples}")
         if not 1 <= self.depth <= DEPTH_MAX:
             raise DynoplanError(f"depth must be in [1, {DEPTH_MAX}], got {self.depth}")
+        if self.fallback_without_gain and self.depth != 1:
+            raise DynoplanError("fallback_without_gain is a rule of the depth-1 planner; "
+                                f"got depth {self.depth}")
         if self.oracle_horizon < 1 or self.oracle_samples < 1:
             raise DynoplanError(
                 f"oracle_horizon and oracle_samples must be >= 1, got {self.oracle_horizon} "

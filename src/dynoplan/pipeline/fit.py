@@ -214,6 +214,7 @@ class FittedModels:
         own sets hold compete (``ControllerSettings.fallback_own_sets``).
         """
         run, plan = [], []
+        undemonstrated = (self.report.get("regions") or {}).get("undemonstrated") or {}
         for spec in specs:
             if spec.name not in self.dynamics:
                 raise DynoplanError(f"no dynamics model for option '{spec.name}'")
@@ -232,7 +233,8 @@ class FittedModels:
                        and spec.name in self.failure.option_names else None)
             run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
                               continuation, fallback=spec.initiation,
-                              state_map=spec.state_map, failure=failure))
+                              state_map=spec.state_map, failure=failure,
+                              demonstrated=spec.name not in undemonstrated))
             # the planner's option shares where the controller's last run ended without
             # effect (Option.runs); an option model's one step ends the option anyway
             plan.append(replace(run[-1], termination=spec.termination

@@ -88,6 +88,10 @@ class Plan:
         gain_floor: where the best option was a fallback that did not score the goal
             heuristic at the present state (``fallback_must_gain``), that value ``G(s)``,
             and ``chosen`` is ``None``; else ``None``.
+        widened: ``(options,)``, the options admitted under their fallback sets because
+            no option admissible under its own sets scored the goal heuristic at the
+            present state (``widen_without_gain``; they are in ``admissible`` too);
+            ``None`` where the planner did not widen.
     """
 
     option_names: tuple[str, ...]
@@ -101,6 +105,7 @@ class Plan:
     unsafe_shares: FloatArray | None = None
     sequences: tuple[tuple[str, ...], ...] | None = None
     gain_floor: float | None = None
+    widened: BoolArray | None = None
 
     @property
     def chosen_name(self) -> str | None:
@@ -181,6 +186,29 @@ class BlockOrder:
         return out
 
 
+@dataclass(frozen=True)
+class _ScoreTable:
+    """One decision's per-option results as the planner fills them (NaN / 0 for an
+    option not scored): ``scores``, ``spreads``, ``disagreements`` ``(options,)``,
+    ``end_states`` ``(options, samples, state_dim)``, ``steps`` ``(options, samples)``,
+    ``shares`` ``(options,)`` (``None`` without a safety constraint)."""
+
+    scores: FloatArray
+    spreads: FloatArray
+    disagreements: FloatArray
+    end_states: FloatArray
+    steps: IntArray
+    shares: FloatArray | None
+
+    @classmethod
+    def empty(cls, options: int, samples: int, state_dim: int,
+              constrained: bool) -> "_ScoreTable":
+        return cls(np.full(options, np.nan), np.full(options, np.nan),
+                   np.full(options, np.nan), np.full((options, samples, state_dim), np.nan),
+                   np.zeros((options, samples), dtype=np.int64),
+                   np.full(options, np.nan) if constrained else None)
+
+
 class OptionPlanner:
     """Chooses the option whose imagined future the goal heuristic likes best (Eq. 1).
 
@@ -211,6 +239,14 @@ class OptionPlanner:
             fall back (:func:`admissible`), an option is chosen only if its score is at
             least the goal heuristic's mean at the present state; else none is (the
             controller holds): a fallback is a way on, not a way back.
+        widen_without_gain: where options may start under their own sets but the best
+            of them scores below the goal heuristic's mean at the present state (none
+            is predicted to gain), the demonstrated options (``Option.demonstrated``)
+            whose fallback set holds there are scored too, and the best of them is
+            chosen if it scores at least that mean and more than the best admissible
+            one: the learned sets say where each option ran in the demonstrations, and
+            a disturbance can leave the state where only another demonstrated option
+            gains.
         compact: advance only the rollouts still running, as rows, where the stacked
             dynamics and terminations can (``sample_rows`` and ``probability_rows``, see
             :meth:`rollout`): the same distribution of rollouts for a fraction of the
@@ -222,7 +258,8 @@ class OptionPlanner:
                  samples: int = 64, risk: float = 0.0, respect_regions: bool = True,
                  epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
                  risk_level: float = 0.05, end_inside: bool = False,
-                 fallback_must_gain: bool = False, compact: bool = False) -> None:
+                 fallback_must_gain: bool = False, compact: bool = False,
+                 widen_without_gain: bool = False) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -244,6 +281,7 @@ class OptionPlanner:
         self.end_inside = bool(end_inside)
         self.fallback_must_gain = bool(fallback_must_gain)
         self.compact = bool(compact)
+        self.widen_without_gain = bool(widen_without_gain)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
         self._terminations: dict[tuple[int, ...], StackedTermination] = {}
 
@@ -270,43 +308,69 @@ class OptionPlanner:
         s = np.asarray(state, dtype=np.float64).reshape(-1)
         n_opt, d = len(self.options), s.shape[0]
         may_run = self.admissible(s, running)
-        scores = np.full(n_opt, np.nan)
-        spreads = np.full(n_opt, np.nan)
-        disagreements = np.full(n_opt, np.nan)
-        end_states = np.full((n_opt, self.samples, d), np.nan)
-        steps = np.zeros((n_opt, self.samples), dtype=np.int64)
+        table = _ScoreTable.empty(n_opt, self.samples, d, self.constraint is not None)
         idx = tuple(int(i) for i in np.flatnonzero(may_run))
         chosen: int | None = None
         floor: float | None = None
-        shares = None if self.constraint is None else np.full(n_opt, np.nan)
+        widened: BoolArray | None = None
+        scores = table.scores
         if idx:
             if self.constraint is not None:
                 self.constraint.prepare(s)
-            roll = self.rollout(idx, s, rng)
-            g = self.goal.sample(roll.end_states.reshape(-1, d), rng).reshape(len(idx), -1)
-            g = np.where(roll.valid, g, 0.0)
-            if roll.survival is not None:  # a run that fails leaves no progress
-                g = g * roll.survival
-            mean, std = g.mean(axis=1), g.std(axis=1)
-            split = member_disagreements(g, roll.members)
-            scores[list(idx)] = mean - self.risk * std - self.epistemic * split
-            spreads[list(idx)] = std
-            disagreements[list(idx)] = split
-            end_states[list(idx)] = roll.end_states
-            steps[list(idx)] = roll.steps
-            if shares is not None and roll.unsafe is not None:
-                shares[list(idx)] = roll.unsafe.mean(axis=1)
-                scores[list(idx)] = np.where(shares[list(idx)] > self.risk_level, -np.inf,
-                                             scores[list(idx)])
+            self._score(idx, s, rng, table)
             best = int(np.argmax(scores[list(idx)]))
-            unsafe_everywhere = shares is not None and scores[idx[best]] == -np.inf
+            unsafe_everywhere = table.shares is not None and scores[idx[best]] == -np.inf
             chosen = None if unsafe_everywhere else idx[best]
-            if chosen is not None and self.fallback_must_gain and self._falls_back(s, running):
+            falls_back = self._falls_back(s, running)
+            if chosen is not None and self.fallback_must_gain and falls_back:
                 here = float(self.goal.mean_std(s[None])[0][0])
                 if scores[chosen] < here:
                     chosen, floor = None, here
-        return Plan(self.option_names, may_run, scores, spreads, end_states, steps, chosen,
-                    disagreements, shares, gain_floor=floor)
+            elif chosen is not None and self.widen_without_gain and not falls_back:
+                here = float(self.goal.mean_std(s[None])[0][0])
+                widened = self._widen(s, may_run) if scores[chosen] < here else None
+                if widened is not None:
+                    extra = tuple(int(i) for i in np.flatnonzero(widened))
+                    self._score(extra, s, rng, table)
+                    may_run = may_run | widened
+                    best_extra = extra[int(np.argmax(scores[list(extra)]))]
+                    if scores[best_extra] >= here and scores[best_extra] > scores[chosen]:
+                        chosen = best_extra
+        return Plan(self.option_names, may_run, scores, table.spreads, table.end_states,
+                    table.steps, chosen, table.disagreements, table.shares, gain_floor=floor,
+                    widened=widened)
+
+    def _score(self, idx: tuple[int, ...], state: FloatArray, rng: Generator,
+               table: "_ScoreTable") -> None:
+        """Roll the options ``idx`` forward from ``state`` (``(state_dim,)``) and write
+        their scores, spreads, disagreements, end states, steps and (with a constraint)
+        unsafe shares into their rows of ``table``."""
+        roll = self.rollout(idx, state, rng)
+        g = self.goal.sample(roll.end_states.reshape(-1, state.shape[0]), rng).reshape(
+            len(idx), -1)
+        g = np.where(roll.valid, g, 0.0)
+        if roll.survival is not None:  # a run that fails leaves no progress
+            g = g * roll.survival
+        mean, std = g.mean(axis=1), g.std(axis=1)
+        split = member_disagreements(g, roll.members)
+        rows = list(idx)
+        table.scores[rows] = mean - self.risk * std - self.epistemic * split
+        table.spreads[rows] = std
+        table.disagreements[rows] = split
+        table.end_states[rows] = roll.end_states
+        table.steps[rows] = roll.steps
+        if table.shares is not None and roll.unsafe is not None:
+            table.shares[rows] = roll.unsafe.mean(axis=1)
+            table.scores[rows] = np.where(table.shares[rows] > self.risk_level, -np.inf,
+                                          table.scores[rows])
+
+    def _widen(self, state: FloatArray, may_run: BoolArray) -> BoolArray | None:
+        """``(options,)``: the demonstrated options not admissible at ``state``
+        (``may_run``) whose fallback set holds there; ``None`` where no such option is
+        left."""
+        extra = np.array([not may_run[k] and o.demonstrated and o.may_fall_back(state)
+                          for k, o in enumerate(self.options)], dtype=bool)
+        return extra if extra.any() else None
 
     def _falls_back(self, state: FloatArray, running: int | None) -> bool:
         """Whether no option may run at ``state`` under its own sets (the admissible ones
