@@ -273,6 +273,10 @@ def pipeline(
         None, "--fallback-must-gain/--no-fallback-must-gain",
         help="DynoPlan starts an option under its own set only where it scores at least "
              "the goal heuristic at the present state, and holds otherwise [on]."),
+    fallback_without_gain: bool | None = typer.Option(
+        None, "--fallback-without-gain/--no-fallback-without-gain",
+        help="Where the learned sets admit options but none is predicted to gain, the "
+             "demonstrated options whose own sets hold are scored too (depth 1) [off]."),
     stall_progress: float | None = typer.Option(
         None, "--stall-progress", **_bounds("control.stall_progress"),
         help="Where a hold changed nothing and DynoPlan would hold again at a state whose "
