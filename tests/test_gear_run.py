@@ -31,7 +31,7 @@ from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
 from dynoplan.options import AllOf, ConstantTermination, FunctionPolicy, Option
 from dynoplan.options.initiation import Everywhere, InitiationFromCallable
-from dynoplan.pipeline.evaluate import EpisodeRecord
+from dynoplan.pipeline.evaluate import EpisodeRecord, summarize
 
 REQUIRED = ("controller", "success_rate", "contacts", "min_human_distance",
             "out_of_region_starts", "switches", "decision_ms_p50", "decision_ms_p99")
@@ -223,6 +223,10 @@ def test_failed_episodes_are_counted_by_how_they_ended():
     assert ("| dynoplan_safe | 7 | held 2, dropped 1, insert 1, never started 1, pick 1, "
             "ran 1 |") in failure_table([row])
     assert summarise("x", episodes[:1])["failures"] == {}
+    # the columns every task has come from the one summary of episodes
+    every = summarize(episodes)
+    assert (row["success_rate"], row["holds"], row["switches"]) == (
+        every["success_rate"], every["no_admissible"], every["switches"]) == (0.125, 2134, 0)
 
 
 @pytest.mark.parametrize("args", [["--episodes", "0"], ["--improve", "-1"],

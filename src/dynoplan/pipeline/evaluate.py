@@ -428,8 +428,10 @@ def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
     """Success rate, time to success, return and decision statistics of some episodes.
 
     ``steps_to_success_*`` are over successful episodes only (``None`` if there are
-    none); latencies are per decision, in milliseconds; ``option_share`` is the fraction
-    of all environment steps each option ran (options that never ran are left out).
+    none); ``switches`` and ``no_admissible`` (holds) are totals over the episodes;
+    latencies are per decision, in milliseconds; ``option_share`` is the fraction of all
+    environment steps each option ran (options that never ran are left out). A task's
+    own table adds its columns to these (the gear's ``results.csv``).
     """
     if not records:
         raise DynoplanError("no episodes to summarise")
@@ -449,10 +451,12 @@ def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
         "env_steps_mean": float(np.mean([r.env_steps for r in records])),
         "decisions_mean": float(np.mean([r.planning_steps for r in records])),
         "switches_mean": float(np.mean([r.switches for r in records])),
+        "switches": int(sum(r.switches for r in records)),
         "out_of_region_starts": int(sum(r.out_of_region_starts for r in records)),
         "no_admissible": int(sum(r.no_admissible for r in records)),
         "latency_ms_p50": quantile_or_none(latencies, 0.5),
         "latency_ms_p95": quantile_or_none(latencies, 0.95),
+        "latency_ms_p99": quantile_or_none(latencies, 0.99),
         "option_share": {name: steps / total for name, steps in sorted(ran.items())},
     }
 

@@ -29,7 +29,7 @@ import numpy as np
 from dynoplan.envs.gear.env import CONTROL_DT, MAX_EPISODE_STEPS
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY
 from dynoplan.io import write_csv, write_json
-from dynoplan.pipeline.evaluate import EpisodeRecord, quantile_or_none
+from dynoplan.pipeline.evaluate import EpisodeRecord, summarize
 from dynoplan.pipeline.improve import learning_curve_text
 from dynoplan.reports.tables import markdown_table
 
@@ -72,14 +72,16 @@ def failure_kind(record: EpisodeRecord) -> str:
 
 def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
     """One row of ``results.csv`` (see :data:`RESULT_COLUMNS`) plus per-mode success and
-    the failed episodes by :func:`failure_kind` (``failures``: kind -> count)."""
-    ms = [m for e in episodes for m in e.decision_ms]
+    the failed episodes by :func:`failure_kind` (``failures``: kind -> count): every
+    task's summary (:func:`~dynoplan.pipeline.evaluate.summarize`) in the gear's
+    columns, with the gear's time to success, contacts and distances."""
+    every = summarize(episodes)
     ok = [e for e in episodes if e.success]
     contacts = [int(e.task_metrics["contacts"]) for e in episodes]
     row: dict[str, Any] = {
         "controller": name,
-        "episodes": len(episodes),
-        "success_rate": float(np.mean([e.success for e in episodes])) if episodes else 0.0,
+        "episodes": every["episodes"],
+        "success_rate": every["success_rate"],
         "time_to_success_s": float(np.median([seconds(e) for e in ok])) if ok else None,
         "contacts": int(sum(contacts)),
         "episodes_with_contact": int(sum(c > 0 for c in contacts)),
@@ -88,11 +90,11 @@ def summarise(name: str, episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
                        "protective_stops")},
         "min_human_distance": float(min(e.task_metrics["min_human_distance"]
                                         for e in episodes)),
-        "out_of_region_starts": int(sum(e.out_of_region_starts for e in episodes)),
-        "switches": int(sum(e.switches for e in episodes)),
-        "holds": int(sum(e.no_admissible for e in episodes)),
-        "decision_ms_p50": quantile_or_none(ms, 0.5),
-        "decision_ms_p99": quantile_or_none(ms, 0.99),
+        "out_of_region_starts": every["out_of_region_starts"],
+        "switches": every["switches"],
+        "holds": every["no_admissible"],
+        "decision_ms_p50": every["latency_ms_p50"],
+        "decision_ms_p99": every["latency_ms_p99"],
     }
     by_mode = {}
     for mode in sorted({human_mode(e) for e in episodes}):
