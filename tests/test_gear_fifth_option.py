@@ -21,7 +21,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from dynoplan.envs.gear.controllers import GEAR_CONTROL, preconditions
+from dynoplan.envs.gear.controllers import GEAR_CONTROL, own_sets
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.options import (
     GearOption,
@@ -63,7 +63,7 @@ def test_a_registered_option_comes_last_with_the_next_label(lift: ModuleType) ->
     s[:, STATE_SLICES["gripper"]] = 0.0  # closed
     s[:, STATE_SLICES["gear_pos"].stop - 1] = [0.9, 0.9, 0.72]  # lifted, lifted, on the table
     s[:, STATE_SLICES["tool_pos"].stop - 1] = [0.95, lift.LIFT_Z, 0.75]
-    initiation, continuation = preconditions("lift", None)
+    initiation, continuation = own_sets("lift", "rules")
     assert initiation.contains(s).tolist() == [True, False, False]
     assert continuation is None
     env = GearAssemblyEnv()

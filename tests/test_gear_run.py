@@ -1,5 +1,5 @@
-"""The gear assembly end to end (``dynoplan gear run --quick``), the controllers' option
-preconditions, the margin rule and the termination rate of the controller."""
+"""The gear assembly end to end (``dynoplan gear run --quick``), the options' own sets,
+the margin rule and the termination rate of the controller."""
 
 import csv
 import json
@@ -19,7 +19,7 @@ from dynoplan.envs.gear.controllers import (
     VARIANTS,
     holding_gear,
     not_carried,
-    preconditions,
+    own_sets,
 )
 from dynoplan.envs.gear.env import CONTROL_DT, HOME_Q, RIGHT_HOLD
 from dynoplan.envs.gear.evaluation import video_episode
@@ -256,8 +256,7 @@ def test_near_the_goal_the_hand_decides_between_insert_and_the_cautious_move():
     s[3, STATE_SLICES["gear_pos"]] += [0.0, 0.2, 0.0]  # 20 cm from the goal, hand far
     s[4, STATE_SLICES["gear_pos"]] += [0.0, 0.0, -0.07]  # on its way down the peg
     s[5, STATE_SLICES["gear_pos"]] += [0.0, 0.0, 0.07]  # above the corridor
-    sets = {name: preconditions(name, Everywhere()) for name in ("fast_move", "cautious_move",
-                                                                  "insert")}
+    sets = {name: own_sets(name, "rules") for name in ("fast_move", "cautious_move", "insert")}
     start = {name: sets[name][0].contains(s).tolist() for name in sets}
     go_on = {name: (sets[name][1] or sets[name][0]).contains(s).tolist() for name in sets}
     assert start["insert"] == [True, False, False, True, True, True]

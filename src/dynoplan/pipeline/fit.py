@@ -177,32 +177,35 @@ class FittedModels:
             return InRegion(learned, name)
         return None
 
-    def _own_and_region(self, spec: OptionSpec) -> Initiation:
-        region = self.region(spec.name)
-        if region is None:
-            return spec.initiation
-        return region if isinstance(spec.initiation, Everywhere) else AllOf(spec.initiation,
-                                                                              region)
+    def sets(self, name: str, own: Initiation, own_continuation: Initiation | None = None
+             ) -> tuple[Initiation, Initiation | None]:
+        """Option ``name``'s initiation and continuation sets (``None``: the same as the
+        initiation) from its own sets ``own`` and ``own_continuation`` (``None``: ``own``).
+
+        The initiation set is ``own`` intersected with the option's region when it has
+        one, and with its set learned from outcomes when it has one. The continuation set
+        is its own continuation set intersected with its region: the set learned from
+        outcomes says where to *start*, and a running option goes on while it is in its
+        own set and region."""
+        region = self.region(name)
+        base = own if region is None else region if isinstance(own, Everywhere) \
+            else AllOf(own, region)
+        outcome = self.outcome(name)
+        initiation = base if outcome is None else outcome if isinstance(base, Everywhere) \
+            else AllOf(base, outcome)
+        if own_continuation is None:
+            return initiation, None if outcome is None else base
+        return initiation, own_continuation if region is None else AllOf(own_continuation,
+                                                                        region)
 
     def initiation(self, spec: OptionSpec) -> Initiation:
-        """The option's own initiation set intersected with its region when it has one,
-        and with its set learned from outcomes when it has one."""
-        base = self._own_and_region(spec)
-        outcome = self.outcome(spec.name)
-        if outcome is None:
-            return base
-        return outcome if isinstance(base, Everywhere) else AllOf(base, outcome)
+        """The option's initiation set from its own (:meth:`sets`)."""
+        return self.sets(spec.name, spec.initiation, spec.continuation)[0]
 
     def continuation(self, spec: OptionSpec) -> Initiation | None:
-        """The option's own continuation set intersected with its region (``None``: the
-        same as :meth:`initiation`). The set learned from outcomes says where to *start*:
-        a running option goes on while it is in its own set and region."""
-        region = self.region(spec.name)
-        if spec.continuation is None:
-            return self._own_and_region(spec) if self.outcome(spec.name) is not None else None
-        if region is None:
-            return spec.continuation
-        return AllOf(spec.continuation, region)
+        """The option's continuation set from its own (:meth:`sets`; ``None``: the same
+        as :meth:`initiation`)."""
+        return self.sets(spec.name, spec.initiation, spec.continuation)[1]
 
     def build(self, specs: Sequence[OptionSpec]) -> tuple[list[Option], list[Option]]:
         """The options the controller runs and the same options as the planner sees them.
@@ -218,7 +221,8 @@ class FittedModels:
         for spec in specs:
             if spec.name not in self.dynamics:
                 raise DynoplanError(f"no dynamics model for option '{spec.name}'")
-            initiation, continuation = self.initiation(spec), self.continuation(spec)
+            initiation, continuation = self.sets(spec.name, spec.initiation,
+                                                 spec.continuation)
             model = self.dynamics[spec.name]
             own = self.option_state_dims.get(spec.name)
             mapped = None if spec.state_map is None else spec.state_map.option_dim

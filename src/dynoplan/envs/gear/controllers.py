@@ -38,7 +38,7 @@ puts them together.
 """
 
 from collections.abc import Mapping, Sequence
-from dataclasses import fields
+from dataclasses import fields, replace
 from typing import Any
 
 import numpy as np
@@ -65,7 +65,7 @@ from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion, Nowhere
+from dynoplan.options.initiation import Everywhere, Initiation, Nowhere
 from dynoplan.options.option import Option
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import ControllerVariant, TaskControl
@@ -182,18 +182,6 @@ TUNED_CHANGES: dict[str, Any] = {
 """:data:`GEAR_TUNED` as changes of :data:`GEAR_CONTROL` (``dataclasses.replace``)."""
 
 
-def preconditions(name: str, region: Initiation | None) -> tuple[Initiation, Initiation | None]:
-    """Option ``name``'s initiation and continuation sets (``None``: the same as its
-    initiation): its registered conditions intersected with its learned ``region``
-    (``None``: the demonstrations do not show it, so it has none)."""
-    spec_initiation, spec_continuation = gear_option(name).sets()
-    if region is None:
-        return spec_initiation, spec_continuation
-    initiation = region if isinstance(spec_initiation, Everywhere) else AllOf(region,
-                                                                              spec_initiation)
-    return initiation, None if spec_continuation is None else AllOf(region, spec_continuation)
-
-
 def gear_options(env: GearAssemblyEnv, models: FittedModels,
                  factories: Mapping[str, GearPolicyFactory], sets: str = "rules"
                  ) -> list[Option]:
@@ -217,43 +205,44 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
 def option_sets(name: str, models: FittedModels,
                 sets: str) -> tuple[Initiation, Initiation | None]:
     """Option ``name``'s initiation and continuation sets (``None``: the same as its
-    initiation) under ``sets`` (one of :data:`INITIATION_SETS`)."""
-    _check_sets(sets)
+    initiation) under ``sets`` (one of :data:`INITIATION_SETS`): its own sets
+    (:func:`own_sets`) with what was learned, by every task's rule
+    (:meth:`~dynoplan.pipeline.fit.FittedModels.sets`); ``rules`` and ``regions`` leave
+    out the initiation learned from outcomes. Under ``learned`` an option without a
+    region (the demonstrations do not show it) starts only where its outcomes say, and
+    nowhere without them (the generic pipeline gives such an option a region that holds
+    nowhere, ``region_undemonstrated="none"``)."""
+    own, own_continuation = own_sets(name, sets)
     if sets == "everywhere":
-        return Everywhere(), None
-    learned = models.regions
-    if learned is None:
+        return own, own_continuation
+    if models.regions is None:
         raise DynoplanError("the gear's options need the learned safety regions")
-    region = InRegion(learned, name) if name in learned.option_names else None
-    if sets == "rules":
-        return preconditions(name, region)
-    if sets == "regions":  # not demonstrated: no region, admissible everywhere
-        return (Everywhere() if region is None else region), None
-    outcomes = models.learned_initiation
-    from_outcomes: Initiation | None = (
-        InRegion(outcomes, name)
-        if outcomes is not None and name in outcomes.option_names else None)
-    if region is None:  # not demonstrated
-        return (Nowhere() if from_outcomes is None else from_outcomes), None
-    if from_outcomes is None:
-        return region, None
-    return AllOf(region, from_outcomes), region  # start where both say; go on in the region
+    if sets == "learned" and models.region(name) is None and models.outcome(name) is None:
+        return Nowhere(), None
+    fitted = models if sets == "learned" else replace(models, learned_initiation=None)
+    return fitted.sets(name, own, own_continuation)
+
+
+def own_sets(name: str, sets: str) -> tuple[Initiation, Initiation | None]:
+    """Option ``name``'s own initiation and continuation sets under ``sets`` (one of
+    :data:`INITIATION_SETS`), without anything learned: its hand-written conditions (its
+    registry record) under ``rules``; everywhere under the other sets, which use no
+    hand-written condition."""
+    _check_sets(sets)
+    return gear_option(name).sets() if sets == "rules" else (Everywhere(), None)
 
 
 def option_fallback(name: str, sets: str) -> Initiation:
     """Where option ``name`` may start when no option may under ``sets``
-    (:attr:`~dynoplan.options.option.Option.fallback`): its own set, what ``sets`` gives it
-    without anything learned, as every task's option falls back to its own set
-    (:meth:`~dynoplan.pipeline.fit.FittedModels.build`, ``fallback_own_sets``). Under
-    ``rules`` that is its hand-written conditions (its registry record); under the other
-    sets, which use no hand-written condition, it is everywhere.
+    (:attr:`~dynoplan.options.option.Option.fallback`): its own set (:func:`own_sets`), as
+    every task's option falls back to its own set
+    (:meth:`~dynoplan.pipeline.fit.FittedModels.build`, ``fallback_own_sets``).
 
     Measured on the models of ``gear run --seed 0, 1, 2`` at 0328aa7 (100 episodes each,
     ``docs/gear-options.md``, "The options' own sets as the fallback"): where the learned
     regions miss a start state, DynoPlan now starts the best option that gains rather
     than holding for good."""
-    _check_sets(sets)
-    return gear_option(name).sets()[0] if sets == "rules" else Everywhere()
+    return own_sets(name, sets)[0]
 
 
 def _check_sets(sets: str) -> None:
@@ -373,6 +362,6 @@ __all__ = [
     "not_carried",
     "option_fallback",
     "option_sets",
-    "preconditions",
+    "own_sets",
 ]
 
