@@ -142,6 +142,11 @@ def pipeline(
         help="Distance from the demonstrations, in demonstration steps, at which an "
              "exploration state's label falls to exp(-1) of its nearest demonstration "
              "state's [5]."),
+    goal_off_unit: str | None = typer.Option(
+        None, "--goal-off-unit",
+        help="How those demonstration steps are measured: path, the median distance "
+             "between consecutive demonstration states; displacement, between states "
+             "that many steps apart [path]."),
     goal_off_decay: str | None = typer.Option(
         None, "--goal-off-decay",
         help="How that label falls with the distance r: gaussian, exp(-(r/R)^2); cauchy, "

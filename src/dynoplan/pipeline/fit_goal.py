@@ -25,12 +25,16 @@ GoalModel = GoalNetwork | GoalOnFeatures
 
 def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups: IntArray,
                                off: FloatArray, radius: float,
-                               decay: str = "gaussian", context: bool = False) -> FloatArray:
+                               decay: str = "gaussian", context: bool = False,
+                               unit: str = "path") -> FloatArray:
     """Progress labels ``(M,)`` for states ``off`` ``(M, d)`` that no demonstration visited:
     the progress of the nearest demonstration state, times ``exp(-(r / R)^2)`` (``decay``
     ``"gaussian"``) or ``1 / (1 + (r / R)^2)`` (``"cauchy"``), where ``r``
-    is the distance to it and ``R`` is ``radius`` demonstration steps (a step: the median
-    distance between consecutive demonstration states).
+    is the distance to it and ``R`` is ``radius`` demonstration steps: ``radius`` times
+    the median distance between consecutive demonstration states (``unit`` ``"path"``),
+    or the median distance between demonstration states ``radius`` steps apart
+    (``"displacement"``; rounded to whole steps, at least one, and scaled back to
+    ``radius``).
 
     Distances are measured with every dimension scaled by its spread over the
     demonstration states (a dimension that never changes there is left out; with
@@ -54,11 +58,12 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
     if not keep.any() or len(off) == 0:
         return np.zeros(len(off))
     z = states[:, keep] / spread[keep]
-    same = groups[1:] == groups[:-1]
-    steps = np.linalg.norm(np.diff(z, axis=0), axis=1)[same]
+    apart = 1 if unit == "path" else max(1, round(radius))
+    same = groups[apart:] == groups[:-apart]
+    steps = np.linalg.norm(z[apart:] - z[:-apart], axis=1)[same]
     step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
     distance, nearest = cKDTree(z).query(off[:, keep] / spread[keep])
-    ratio = (distance / (radius * step)) ** 2
+    ratio = (distance / (radius / apart * step)) ** 2
     return progress[nearest] * (np.exp(-ratio) if decay == "gaussian" else 1.0 / (1.0 + ratio))
 
 
@@ -103,7 +108,8 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
         labels = off_demonstration_progress(x, progress, groups, x_off,
                                             settings.goal_off_radius,
                                             settings.goal_off_decay,
-                                            settings.goal_off_context)
+                                            settings.goal_off_context,
+                                            settings.goal_off_unit)
         labels[_failed_ends(off)] = 0.0  # where an episode failed, no progress is left
         x_fit = np.concatenate([x, x_off])
         p_fit = np.concatenate([progress, labels])

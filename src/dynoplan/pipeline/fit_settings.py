@@ -10,6 +10,8 @@ from dynoplan.errors import DynoplanError
 
 OFF_DECAYS = ("gaussian", "cauchy")
 """The shapes of :attr:`FitSettings.goal_off_decay`."""
+OFF_UNITS = ("path", "displacement")
+"""How :attr:`FitSettings.goal_off_radius` is measured (:attr:`FitSettings.goal_off_unit`)."""
 
 
 @dataclass(frozen=True)
@@ -49,6 +51,11 @@ class FitSettings:
         goal_off_radius: how far from the demonstrations, in steps of a demonstration,
             an off-demonstration state's progress label falls to ``exp(-1)`` of its
             nearest demonstration state's (``goal_off_demos``).
+        goal_off_unit: how ``goal_off_radius`` demonstration steps are measured:
+            ``"path"``, that many times the median distance between consecutive
+            demonstration states; ``"displacement"``, the median distance between
+            demonstration states that many steps apart, which a state that jitters
+            from step to step (bang-bang control, a discrete action) does not inflate.
         goal_off_decay: how the label falls with the distance ``r``: ``"gaussian"``,
             ``exp(-(r / R)^2)``; ``"cauchy"``, ``1 / (1 + (r / R)^2)``, whose tail still
             ranks far states by their distance.
@@ -112,6 +119,7 @@ class FitSettings:
     goal_ranking: float = 0.0
     goal_off_demos: bool = True
     goal_off_radius: float = 5.0
+    goal_off_unit: str = "path"
     goal_off_decay: str = "gaussian"
     goal_off_context: bool = True
     goal_features: str | None = None
@@ -155,6 +163,9 @@ class FitSettings:
             raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
         if not self.goal_ranking >= 0.0:
             raise DynoplanError(f"goal_ranking must be >= 0, got {self.goal_ranking}")
+        if self.goal_off_unit not in OFF_UNITS:
+            raise DynoplanError(f"goal_off_unit must be one of {', '.join(OFF_UNITS)}, "
+                                f"got {self.goal_off_unit!r}")
         if self.goal_off_decay not in OFF_DECAYS:
             raise DynoplanError(f"goal_off_decay must be one of {', '.join(OFF_DECAYS)}, "
                                 f"got {self.goal_off_decay!r}")
