@@ -26,9 +26,9 @@ import numpy as np
 
 from dynoplan.envs.gear.controllers import CONTROLLERS, GEAR_CONTROL
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY
+from dynoplan.envs.gear.metrics import seconds
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.pipeline_task import GearTask
-from dynoplan.envs.gear.reports.results import seconds
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.pipeline.collect import OptionRunsJob, build_option_runs, option_run
 from dynoplan.pipeline.evaluate import ControllerJob

@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from dynoplan.envs.gear.controllers import GEAR_CONTROL, TUNED_CHANGES
     from dynoplan.envs.gear.evaluation import evaluation_seeds
-    from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.models_folder import load_gear_models
     from dynoplan.envs.gear.pipeline_task import GearTask
     from dynoplan.envs.gear.reports.results import summarise
     from dynoplan.errors import DynoplanError

@@ -32,7 +32,7 @@ import torch
 
 from dynoplan.envs.gear.controllers import GEAR_CONTROL, gear_oracle
 from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.learning.files import load_gear_models
+from dynoplan.envs.gear.models_folder import load_gear_models
 from dynoplan.envs.gear.options.catalog import policy_factories
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.pipeline.evaluate import ControllerRunner

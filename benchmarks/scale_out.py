@@ -39,8 +39,8 @@ import numpy as np
 
 from dynoplan.envs.gear.controllers import GEAR_CONTROL
 from dynoplan.envs.gear.evaluation import EVAL_SEED_OFFSET
+from dynoplan.envs.gear.metrics import seconds
 from dynoplan.envs.gear.pipeline_task import GearTask
-from dynoplan.envs.gear.reports.results import seconds
 from dynoplan.io import write_json
 from dynoplan.parallel import SERIAL, Workers, imap_unordered, ray_session
 from dynoplan.pipeline.evaluate import ControllerJob

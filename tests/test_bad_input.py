@@ -189,8 +189,8 @@ def test_sweep_config_out_of_bounds_is_one_line(tmp_path, monkeypatch, capsys, b
 def gear_models(tmp_path_factory) -> Path:
     """A tiny but valid gear models folder (untrained widths of 4; loads, never runs)."""
     from dynoplan.envs.gear.features import feature_map
-    from dynoplan.envs.gear.learning.files import gear_models, load_gear_models
     from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
+    from dynoplan.envs.gear.models_folder import gear_models, load_gear_models
     from dynoplan.envs.gear.options.catalog import gear_option_names
     from dynoplan.envs.gear.state import STATE_DIM
     from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
@@ -426,8 +426,8 @@ def test_dataset_with_zero_episodes_is_one_line(tmp_path, monkeypatch, capsys, n
 def test_failed_training_keeps_the_previous_models(tmp_path, monkeypatch, gear_models,
                                                    failure):
     import dynoplan.envs.gear.learning.training as gear_models_module
-    from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
+    from dynoplan.envs.gear.models_folder import load_gear_models
     from dynoplan.envs.gear.stages import learned_models
 
     folder = tmp_path / "models"

@@ -121,9 +121,9 @@ def test_the_command_line_runs_an_option_named_in_the_environment(tmp_path: Path
 def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear_run: Path,
                                                     tmp_path: Path) -> None:
     from dynoplan.data import read_dataset
-    from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
+    from dynoplan.envs.gear.models_folder import load_gear_models
     from dynoplan.envs.gear.pipeline_stages import run_settings
     from dynoplan.envs.gear.reports.figures import make_gear_figures
     from dynoplan.envs.gear.stages import learned_initiation

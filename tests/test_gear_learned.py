@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from dynoplan.cli.main import app
 from dynoplan.envs.gear.controllers import INITIATION_SETS, gear_options, option_fallback
 from dynoplan.envs.gear.env import GearAssemblyEnv
-from dynoplan.envs.gear.learning.files import load_gear_models
+from dynoplan.envs.gear.models_folder import load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names, policy_factories
 from dynoplan.envs.gear.state import STATE_DIM, PlannerState
 from dynoplan.errors import DynoplanError

@@ -12,8 +12,8 @@ import pytest
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.features import FEATURE_MAPS, PEG_OBJECTS
-from dynoplan.envs.gear.learning.files import gear_models, load_gear_models
 from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
+from dynoplan.envs.gear.models_folder import gear_models, load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.peg_pose import PEG_TASK_NAME, PEG_WORKSPACE, GearPegPoseEnv
 from dynoplan.envs.gear.state import STATE_DIM, PlannerState

@@ -340,8 +340,8 @@ def test_start_states_labelled_by_the_operator_reach_the_pick_region(quick_gear_
     import shutil
 
     from dynoplan.data import read_dataset
-    from dynoplan.envs.gear.learning.files import load_gear_models
     from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
+    from dynoplan.envs.gear.models_folder import load_gear_models
     from dynoplan.envs.gear.stages import STARTS_DIR, learned_models, start_states
     from dynoplan.envs.gear.state import PlannerState
 

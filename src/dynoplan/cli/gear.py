@@ -614,8 +614,8 @@ def episode(
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
+    from dynoplan.envs.gear.metrics import seconds
     from dynoplan.envs.gear.reports.episode import episode_summary, inspect_episode, save_video
-    from dynoplan.envs.gear.reports.results import seconds
     from dynoplan.io import staged_folder, write_csv, write_json
     from dynoplan.reports.video import video_clip
 

@@ -39,7 +39,7 @@ def run_gear_evaluation(models: Path, out: Path, controllers: Sequence[str], epi
             ``flat_ppo`` without ``flat_folder``.
     """
     from dynoplan.envs.gear.flat_policy import read_flat_policy
-    from dynoplan.envs.gear.learning.files import load_gear_models
+    from dynoplan.envs.gear.models_folder import load_gear_models
 
     known = (*VARIANTS, FLAT_POLICY)
     unknown = [c for c in controllers if c not in known]

@@ -15,9 +15,9 @@ from typing import Any
 
 from dynoplan.envs.gear.controllers import CONTROLLERS, TUNED_CHANGES
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY
+from dynoplan.envs.gear.metrics import human_mode, seconds
 from dynoplan.envs.gear.options.catalog import CAUTIOUS_MOVE
 from dynoplan.envs.gear.pipeline_task import GearTask
-from dynoplan.envs.gear.reports.results import human_mode, seconds
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import ControllerJob, EpisodeRecord
 from dynoplan.seeding import EpisodeSeed, episode_seeds

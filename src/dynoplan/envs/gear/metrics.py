@@ -1,6 +1,7 @@
 """The gear's own measurements of an episode: the human's behaviour, robot-human contacts
 (moving or at rest), protective-separation violations, protective stops and the smallest
-robot-human distance."""
+robot-human distance; and what an episode's record says in the gear's terms (its
+simulated duration, the human's behaviour)."""
 
 from typing import Any
 
@@ -8,7 +9,8 @@ import gymnasium as gym
 import numpy as np
 
 from dynoplan.control.controller import EpisodeTrace
-from dynoplan.envs.gear.env import GearAssemblyEnv
+from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
+from dynoplan.pipeline.evaluate import EpisodeRecord
 from dynoplan.safety import AT_REST_SPEED, protective_separation
 from dynoplan.types import FloatArray
 
@@ -59,4 +61,15 @@ def episode_metrics(env: gym.Env[Any, Any], trace: EpisodeTrace) -> dict[str, An
     return gear_metrics(gear_env, trace.infos, held=held)
 
 
-__all__ = ["episode_metrics", "gear_metrics"]
+
+def seconds(record: EpisodeRecord) -> float:
+    """The episode's simulated duration (s)."""
+    return record.env_steps * CONTROL_DT
+
+
+def human_mode(record: EpisodeRecord) -> str:
+    """The human's behaviour in the episode (``away``, ``cross``, ``block``)."""
+    return str(record.task_metrics["human_mode"])
+
+
+__all__ = ["episode_metrics", "gear_metrics", "human_mode", "seconds"]

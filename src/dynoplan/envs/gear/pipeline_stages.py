@@ -38,7 +38,6 @@ from dynoplan.envs.gear.evaluation import (
     fault_rows,
     video_episode,
 )
-from dynoplan.envs.gear.learning.files import METRICS_FILE, load_gear_models
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
     DEFAULT_SETTINGS,
@@ -46,6 +45,7 @@ from dynoplan.envs.gear.learning.settings import (
     QUICK_SETTINGS,
     GearMetricsSettings,
 )
+from dynoplan.envs.gear.models_folder import METRICS_FILE, load_gear_models
 from dynoplan.envs.gear.reports.results import results_rows, summarise, write_results
 from dynoplan.envs.gear.stages import FIGURE_POINTS, QUICK_FIGURE_POINTS
 from dynoplan.errors import DynoplanError

@@ -26,8 +26,8 @@ from dynoplan.envs.gear.controllers import VARIANTS, StopWhereItIs
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY, FlatPolicy, FlatPolicyRunner
 from dynoplan.envs.gear.human import BEHAVIOURS
-from dynoplan.envs.gear.learning.files import TASK_NAME
 from dynoplan.envs.gear.metrics import episode_metrics
+from dynoplan.envs.gear.models_folder import TASK_NAME
 from dynoplan.envs.gear.peg_pose import PEG_TASK_NAME, GearPegPoseEnv, PegFrame, PegWorkspace
 from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
 from dynoplan.envs.gear.state import DECISION_STEPS
@@ -130,7 +130,7 @@ class GearTask:
         import torch
 
         from dynoplan.envs.gear.controllers import gear_control, gear_options
-        from dynoplan.envs.gear.learning.files import load_gear_models
+        from dynoplan.envs.gear.models_folder import load_gear_models
         from dynoplan.envs.gear.options.catalog import policy_factories
         from dynoplan.envs.gear.options.motion import reseed_ompl
 

@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, Any
 from dynoplan.data import read_dataset
 from dynoplan.data.dataset import check_dataset_target
 from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
-from dynoplan.envs.gear.learning.files import HELDOUT_DIR
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
     DEFAULT_SETTINGS,
     GearMetricsSettings,
 )
+from dynoplan.envs.gear.models_folder import HELDOUT_DIR
 from dynoplan.envs.gear.options.catalog import network_files
 from dynoplan.errors import DynoplanError
 from dynoplan.io import staged_folder, write_json

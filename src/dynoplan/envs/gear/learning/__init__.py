@@ -5,6 +5,8 @@ on held-out trials (``metrics.json``).
   :class:`~.settings.GearMetricsSettings`;
 - :mod:`.data`: datasets read, checked, cut into arrays and split;
 - :mod:`.training`: :func:`~.training.train_gear_models`;
-- :mod:`.metrics`: far-away states for the regions' report;
-- :mod:`.files`: the models folder's manifest and :func:`~.files.load_gear_models`.
+- :mod:`.metrics`: far-away states for the regions' report.
+
+The models folder they write is :mod:`dynoplan.envs.gear.models_folder`'s (read by the
+controllers too, which sit above this package: its stages run the gear's Task).
 """

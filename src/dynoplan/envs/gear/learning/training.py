@@ -41,8 +41,8 @@ is the held-out measurement of ``metrics.json``. The rest lives in :mod:`.settin
 :class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
 :class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
 (datasets to arrays), :mod:`.metrics` (far-away states) and :mod:`.files`
-(:func:`~dynoplan.envs.gear.learning.files.gear_models` and
-:func:`~dynoplan.envs.gear.learning.files.load_gear_models`).
+(:func:`~dynoplan.envs.gear.models_folder.gear_models` and
+:func:`~dynoplan.envs.gear.models_folder.load_gear_models`).
 """
 
 import time
@@ -64,7 +64,6 @@ from dynoplan.envs.gear.learning.data import (
     read_demos,
     read_labelled,
 )
-from dynoplan.envs.gear.learning.files import METRICS_FILE, gear_models
 from dynoplan.envs.gear.learning.metrics import far_states
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
@@ -73,6 +72,7 @@ from dynoplan.envs.gear.learning.settings import (
     QUICK_SETTINGS,
     GearMetricsSettings,
 )
+from dynoplan.envs.gear.models_folder import METRICS_FILE, gear_models
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
 from dynoplan.errors import DynoplanError

@@ -20,8 +20,8 @@ from dynoplan.control.controller import EpisodeTrace
 from dynoplan.envs.gear.controllers import GEAR_CONTROL, VARIANTS
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.evaluation import evaluation_seeds
+from dynoplan.envs.gear.metrics import human_mode
 from dynoplan.envs.gear.pipeline_task import GearTask
-from dynoplan.envs.gear.reports.results import human_mode
 from dynoplan.envs.gear.state import STATE_SLICES, tool_human_distance
 from dynoplan.errors import DynoplanError
 from dynoplan.io import write_with

@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 from dynoplan.data import Dataset, read_dataset
 from dynoplan.envs.gear.env import CONTROL_DT
 from dynoplan.envs.gear.learning.data import CAUTIOUS, demo_arrays
-from dynoplan.envs.gear.learning.files import HELDOUT_DIR, load_gear_models
+from dynoplan.envs.gear.models_folder import HELDOUT_DIR, load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
 from dynoplan.envs.gear.state import PlannerState
 from dynoplan.errors import DynoplanError

@@ -26,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from dynoplan.envs.gear.env import CONTROL_DT, MAX_EPISODE_STEPS
+from dynoplan.envs.gear.env import MAX_EPISODE_STEPS
 from dynoplan.envs.gear.flat_policy import FLAT_POLICY
+from dynoplan.envs.gear.metrics import human_mode, seconds
 from dynoplan.io import write_csv, write_json
 from dynoplan.pipeline.evaluate import EpisodeRecord, summarize
 from dynoplan.pipeline.improve import learning_curve_text
@@ -40,16 +41,6 @@ RESULT_COLUMNS = (
     "decision_ms_p50", "decision_ms_p99",
 )
 """Columns of ``results.csv``, in order."""
-
-
-def seconds(record: EpisodeRecord) -> float:
-    """The episode's simulated duration (s)."""
-    return record.env_steps * CONTROL_DT
-
-
-def human_mode(record: EpisodeRecord) -> str:
-    """The human's behaviour in the episode (``away``, ``cross``, ``block``)."""
-    return str(record.task_metrics["human_mode"])
 
 
 def failure_kind(record: EpisodeRecord) -> str:
@@ -220,5 +211,5 @@ def _mode_cell(entry: dict[str, Any] | None) -> str:
 
 
 __all__ = ["FAILURE_NOTE", "RESULT_COLUMNS", "behaviour_table", "evaluation_markdown",
-           "failure_kind", "failure_table", "human_mode",
-           "results_markdown", "results_rows", "seconds", "summarise", "write_results"]
+           "failure_kind", "failure_table", "results_markdown", "results_rows", "summarise",
+           "write_results"]
