@@ -321,7 +321,9 @@ class OptionPlanner:
             best = int(np.argmax(scores[list(idx)]))
             unsafe_everywhere = table.shares is not None and scores[idx[best]] == -np.inf
             chosen = None if unsafe_everywhere else idx[best]
-            falls_back = self._falls_back(s, running)
+            falls_back = chosen is not None and (self.fallback_must_gain
+                                                 or self.widen_without_gain) \
+                and self._falls_back(s, running)  # only where a rule needs it
             if chosen is not None and self.fallback_must_gain and falls_back:
                 here = float(self.goal.mean_std(s[None])[0][0])
                 if scores[chosen] < here:
