@@ -64,6 +64,7 @@ SETTING_BOUNDS: dict[str, tuple[float, float]] = {
     "fit.outcome_min_gain": (-math.inf, math.inf),
     "fit.dynamics_max_updates": (1, 10**9), "fit.dynamics_min_updates": (1, 10**9),
     "fit.goal_ranking": (0.0, math.inf), "fit.goal_off_radius": (0.01, 1e6),
+    "fit.goal_off_around": (0, 100),
     "fit.region_cv_coverage": (0.0, 1.0),
     "control.horizon": (1, HORIZON_MAX), "control.samples": (1, SAMPLES_MAX),
     "control.depth": (1, DEPTH_MAX),

@@ -147,6 +147,11 @@ def pipeline(
         help="How those demonstration steps are measured: path, the median distance "
              "between consecutive demonstration states; displacement, between states "
              "that many steps apart [path]."),
+    goal_off_around: int | None = typer.Option(
+        None, "--goal-off-around", **_bounds("fit.goal_off_around"),
+        help="Copies of every demonstration state moved by noise of one label radius, "
+             "fitted with their labels: the goal falls away from the demonstrations in "
+             "every direction [0]."),
     goal_off_decay: str | None = typer.Option(
         None, "--goal-off-decay",
         help="How that label falls with the distance r: gaussian, exp(-(r/R)^2); cauchy, "

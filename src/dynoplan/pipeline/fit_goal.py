@@ -51,20 +51,51 @@ def off_demonstration_progress(states: FloatArray, progress: FloatArray, groups:
     """
     from scipy.spatial import cKDTree
 
+    keep, spread, reach = label_space(states, groups, radius, context, unit)
+    if not keep.any() or len(off) == 0:
+        return np.zeros(len(off))
+    z = states[:, keep] / spread[keep]
+    distance, nearest = cKDTree(z).query(off[:, keep] / spread[keep])
+    ratio = (distance / reach) ** 2
+    return progress[nearest] * (np.exp(-ratio) if decay == "gaussian" else 1.0 / (1.0 + ratio))
+
+
+def label_space(states: FloatArray, groups: IntArray, radius: float, context: bool = False,
+                unit: str = "path") -> tuple[BoolArray, FloatArray, float]:
+    """Where :func:`off_demonstration_progress` measures distances, for the demonstration
+    states ``(N, d)`` (``groups`` ``(N,)``): the dimensions it keeps ``(d,)``, every
+    dimension's spread ``(d,)`` (distances are in spreads) and ``R``, the distance at
+    which a label falls to ``exp(-1)`` (``radius`` demonstration steps, as ``unit``
+    measures them)."""
     spread = states.std(axis=0)
     keep = ~constant_mask(states)
     if context:
         keep &= ~context_mask(states, groups)
-    if not keep.any() or len(off) == 0:
-        return np.zeros(len(off))
+    if not keep.any():
+        return keep, spread, 1.0
     z = states[:, keep] / spread[keep]
     apart = 1 if unit == "path" else max(1, round(radius))
     same = groups[apart:] == groups[:-apart]
     steps = np.linalg.norm(z[apart:] - z[:-apart], axis=1)[same]
     step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
-    distance, nearest = cKDTree(z).query(off[:, keep] / spread[keep])
-    ratio = (distance / (radius / apart * step)) ** 2
-    return progress[nearest] * (np.exp(-ratio) if decay == "gaussian" else 1.0 / (1.0 + ratio))
+    return keep, spread, radius / apart * step
+
+
+def states_around(states: FloatArray, groups: IntArray, copies: int, radius: float,
+                  rng: np.random.Generator, context: bool = False,
+                  unit: str = "path") -> FloatArray:
+    """``(copies * N, d)`` states around the demonstration states ``(N, d)``: each copied
+    ``copies`` times and moved by Gaussian noise of one label radius ``R``
+    (:func:`label_space`) in the dimensions the labels measure (the others stay as
+    shown). Labelled by :func:`off_demonstration_progress`, they tell the goal heuristic
+    that progress falls away from the demonstrations in every direction, also where no
+    exploration run went (past the goal, off the path)."""
+    keep, spread, reach = label_space(states, groups, radius, context, unit)
+    out = np.repeat(states, copies, axis=0)
+    if keep.any() and len(out):
+        noise = rng.standard_normal((len(out), int(keep.sum())))
+        out[:, keep] += noise * (reach / np.sqrt(keep.sum())) * spread[keep]
+    return out
 
 
 def context_mask(states: FloatArray, groups: IntArray) -> BoolArray:
@@ -103,8 +134,13 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
     x_fit, p_fit, g_fit = x, progress, groups
     off_states = (np.concatenate([_batch_states(e.observations, state_fn) for e in off])
                   if settings.goal_off_demos and off else np.zeros((0, states.shape[1])))
-    if len(off_states):
+    if len(off_states) or settings.goal_off_around:
         x_off = off_states if features is None else features(off_states)
+        if settings.goal_off_around:  # after the exploration states: their rows stay
+            x_off = np.concatenate([x_off, states_around(
+                x, groups, settings.goal_off_around, settings.goal_off_radius,
+                np.random.default_rng([seed, 11]), settings.goal_off_context,
+                settings.goal_off_unit)])
         labels = off_demonstration_progress(x, progress, groups, x_off,
                                             settings.goal_off_radius,
                                             settings.goal_off_decay,
@@ -118,7 +154,7 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
     network, trained = fit_goal_network(x_fit, p_fit, g_fit, settings, seed)
     if training is not None:
         training.append(trained)
-    report = {"states": len(states), "off_demo_states": len(off_states),
+    report = {"states": len(states), "off_demo_states": len(x_fit) - len(x),
               **evaluate_goal(network, x, progress)}
     return (network if features is None else GoalOnFeatures(network, features)), report
 

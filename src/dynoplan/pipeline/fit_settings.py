@@ -56,6 +56,11 @@ class FitSettings:
             demonstration states; ``"displacement"``, the median distance between
             demonstration states that many steps apart, which a state that jitters
             from step to step (bang-bang control, a discrete action) does not inflate.
+        goal_off_around: copies of every demonstration state, each moved by Gaussian
+            noise of one label radius (:func:`~dynoplan.pipeline.fit_goal.states_around`),
+            fitted as off-demonstration states with their labels: the goal heuristic
+            then falls away from the demonstrations in every direction, also where no
+            exploration run went (0, the default: none; a named variant of the suite).
         goal_off_decay: how the label falls with the distance ``r``: ``"gaussian"``,
             ``exp(-(r / R)^2)``; ``"cauchy"``, ``1 / (1 + (r / R)^2)``, whose tail still
             ranks far states by their distance.
@@ -120,6 +125,7 @@ class FitSettings:
     goal_off_demos: bool = True
     goal_off_radius: float = 5.0
     goal_off_unit: str = "path"
+    goal_off_around: int = 0
     goal_off_decay: str = "gaussian"
     goal_off_context: bool = True
     goal_features: str | None = None
@@ -163,6 +169,8 @@ class FitSettings:
             raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
         if not self.goal_ranking >= 0.0:
             raise DynoplanError(f"goal_ranking must be >= 0, got {self.goal_ranking}")
+        if self.goal_off_around < 0:
+            raise DynoplanError(f"goal_off_around must be >= 0, got {self.goal_off_around}")
         if self.goal_off_unit not in OFF_UNITS:
             raise DynoplanError(f"goal_off_unit must be one of {', '.join(OFF_UNITS)}, "
                                 f"got {self.goal_off_unit!r}")
