@@ -6,7 +6,7 @@ import pytest
 
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.config import pipeline_settings
-from dynoplan.pipeline.fit_goal import off_demonstration_progress
+from dynoplan.pipeline.fit_goal import off_demonstration_progress, states_around
 
 
 def _jittering_demonstrations() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -57,3 +57,50 @@ def test_the_unit_is_a_fit_key():
         == "displacement"
     with pytest.raises(DynoplanError, match="goal_off_unit must be one of"):
         pipeline_settings({"fit.goal_off_unit": "miles"})
+
+
+def test_states_around_the_demonstrations_fall_away_from_them():
+    states, progress, groups = _jittering_demonstrations()
+    states = np.concatenate([states, np.full((len(states), 1), 7.0)], axis=1)  # constant
+    around = states_around(states, groups, 4, 5.0, np.random.default_rng(0),
+                           unit="displacement")
+    assert around.shape == (4 * len(states), 3)
+    assert np.all(around[:, 2] == 7.0)  # a dimension the labels leave out stays as shown
+    assert np.array_equal(around, states_around(states, groups, 4, 5.0,
+                                                np.random.default_rng(0),
+                                                unit="displacement"))  # seeded
+    # some land past the end of the cart's travel, where no demonstration went, and
+    # their labels fall with the distance from it
+    past = around[around[:, 0] > 1.2]
+    assert len(past) > 0
+    labels = off_demonstration_progress(states, progress, groups, past, radius=5.0,
+                                        unit="displacement")
+    assert labels.max() < 0.9
+    far = past[:, 0] > np.median(past[:, 0])
+    assert labels[far].mean() < labels[~far].mean()
+
+
+def test_the_goal_heuristic_fitted_with_states_around_falls_past_the_goal():
+    from dynoplan.data import Episode
+    from dynoplan.pipeline.fit_goal import fit_goal
+
+    def demo(start: float) -> Episode:  # a cart from start to 1, then 5 steps at rest
+        x = np.concatenate([np.linspace(start, 1.0, 21), np.ones(5)])
+        t = len(x) - 1
+        return Episode(observations=x[:, None], actions=np.zeros((t, 1)),
+                       rewards=np.zeros(t), terminations=np.zeros(t, bool),
+                       truncations=np.zeros(t, bool),
+                       infos={"option": np.zeros(t, np.int64),
+                              "progress": np.arange(1, t + 1) / t})
+
+    demos = [demo(s) for s in (0.0, 0.05, 0.1, 0.15)]
+    past = np.array([[1.0], [1.5], [2.0]])
+    read = {}
+    for around in (0, 4):
+        fit = pipeline_settings({"fit.goal_off_around": around, "fit.goal_epochs": 150,
+                                 "fit.goal_off_unit": "displacement"}).fit
+        goal, report = fit_goal(demos, fit, seed=0)
+        assert report["off_demo_states"] == around * report["states"]  # no exploration
+        read[around] = goal.mean_std(past)[0]
+    assert read[0][2] > 0.8  # nothing says that 2.0 is not the goal
+    assert read[4][0] > 0.8 and read[4][2] < 0.5  # the mark, and well past it
