@@ -8,7 +8,8 @@ Usage (from the repository root)::
 
 For one task and seed of the suite run ``RUN`` (the ``--out`` of :mod:`benchmarks.suite`)
 this loads ``RUN/<task>/seed<s>/models``, builds DynoPlan as the evaluation does (with
-``--set control.*`` settings as :mod:`benchmarks.suite.rerun` takes them) and runs it on
+``--set control.*`` settings as :mod:`benchmarks.suite.rerun` takes them, and with the
+goal heuristic fitted again for ``--set fit.goal_*`` as it fits it) and runs it on
 the run's own seeded evaluation episodes (``--disturbed``: under the task's
 disturbance). It prints one line per episode: its index, whether it succeeded, its
 steps and the options it ran, each with its number of steps (``hold``: no option ran).
@@ -25,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.suite.__main__ import parse_sets
-from benchmarks.suite.rerun import load_run_seed
+from benchmarks.suite.rerun import GOAL_KEYS, load_run_seed, refit_goal
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.config import pipeline_settings
@@ -73,19 +74,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--decisions", default="", metavar="I,J",
                         help="episodes (indices) whose every decision is printed")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a controller setting (control.*)")
+                        help="a controller setting (control.*), or a goal setting "
+                             "(fit.goal_*: the goal heuristic is fitted again)")
     parser.add_argument("--disturbed", action="store_true",
                         help="under the task's disturbance")
     args = parser.parse_args(argv)
     try:
         sets = parse_sets(args.set)
-        if any(not k.startswith("control.") for k in sets):
-            raise DynoplanError("--set takes controller settings (control.*) only")
+        if any(not k.startswith(("control.", GOAL_KEYS)) for k in sets):
+            raise DynoplanError("--set takes controller settings (control.*) and goal "
+                                "settings (fit.goal_*) only")
+        goal_sets = {k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}
+        settings = pipeline_settings({k: v for k, v in sets.items() if k not in goal_sets})
         wanted = {int(i) for i in args.decisions.split(",") if i.strip()}
         loaded = load_run_seed(args.run, args.task, args.seed, args.disturbed)
         task, summary, rows, fitted = loaded.task, loaded.summary, loaded.rows, loaded.fitted
+        if goal_sets:  # the goal heuristic fitted again, as the rerun fits it
+            fitted = refit_goal(fitted, loaded.folder, summary, goal_sets, 0)
         options, planner_options = fitted.build(task.module.make_options())
-        settings = pipeline_settings(sets)
         env = task.make_env(disturbed=args.disturbed)
         controller = make_controller(DYNOPLAN, options, fitted.goal,
                                      planning_settings(settings.control, fitted),
