@@ -101,6 +101,12 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
     rate = run["controllers"]["dynoplan"]["success_rate"]
     assert lines[-1] == f"DynoPlan: {round(3 * rate)} of 3 (the run's: {rate:.2f})"
     assert lines[0].startswith("  step    0  G ")  # episode 0's first decision
+    # with the goal fitted again as the run fitted it: the run's own success again
+    assert trace.main([str(tmp_path), "minigrid-doorkey", "0", "--set",
+                       "fit.goal_epochs=30"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == lines[-1]
+    assert trace.main([str(tmp_path), "minigrid-doorkey", "0", "--set", "fit.stride=2"]) == 2
+    assert "fit.goal_*" in capsys.readouterr().err
     assert sum(line[0].isdigit() for line in lines) == 3  # one line per episode
     # how far the regions reach: on fresh demonstrations, without and with start states
     assert regions.main([str(tmp_path), "minigrid-doorkey", "0", "--fresh", "2",
