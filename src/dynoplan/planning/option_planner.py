@@ -321,14 +321,14 @@ class OptionPlanner:
             best = int(np.argmax(scores[list(idx)]))
             unsafe_everywhere = table.shares is not None and scores[idx[best]] == -np.inf
             chosen = None if unsafe_everywhere else idx[best]
-            falls_back = chosen is not None and (self.fallback_must_gain
-                                                 or self.widen_without_gain) \
-                and self._falls_back(s, running)  # only where a rule needs it
-            if chosen is not None and self.fallback_must_gain and falls_back:
-                here = float(self.goal.mean_std(s[None])[0][0])
-                if scores[chosen] < here:
-                    chosen, floor = None, here
-            elif chosen is not None and self.widen_without_gain and not falls_back:
+            gain_rules = chosen is not None and (self.fallback_must_gain
+                                                 or self.widen_without_gain)
+            if gain_rules and self._falls_back(s, running):  # asked only where a rule needs it
+                if self.fallback_must_gain:
+                    here = float(self.goal.mean_std(s[None])[0][0])
+                    if scores[chosen] < here:
+                        chosen, floor = None, here
+            elif gain_rules and self.widen_without_gain:
                 here = float(self.goal.mean_std(s[None])[0][0])
                 widened = self._widen(s, may_run) if scores[chosen] < here else None
                 if widened is not None:

@@ -228,7 +228,9 @@ def own_sets(name: str, sets: str) -> tuple[Initiation, Initiation | None]:
     :data:`INITIATION_SETS`), without anything learned: its hand-written conditions (its
     registry record) under ``rules``; everywhere under the other sets, which use no
     hand-written condition."""
-    _check_sets(sets)
+    if sets not in INITIATION_SETS:
+        raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
+                            f"{', '.join(INITIATION_SETS)}")
     return gear_option(name).sets() if sets == "rules" else (Everywhere(), None)
 
 
@@ -243,13 +245,6 @@ def option_fallback(name: str, sets: str) -> Initiation:
     regions miss a start state, DynoPlan now starts the best option that gains rather
     than holding for good."""
     return own_sets(name, sets)[0]
-
-
-def _check_sets(sets: str) -> None:
-    """One error line for a name not in :data:`INITIATION_SETS`."""
-    if sets not in INITIATION_SETS:
-        raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
-                            f"{', '.join(INITIATION_SETS)}")
 
 
 def gear_control(env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory]
