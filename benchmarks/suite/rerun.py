@@ -48,6 +48,21 @@ GOAL_KEYS = "fit.goal_"
 """The prefix of the fit settings :func:`refit_goal` fits the goal heuristic again with."""
 
 
+def split_sets(sets: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``--set`` pairs as ``(goal, control)``: the ``fit.goal_*`` keys (:func:`refit_goal`
+    fits the goal again with them) and the ``control.*`` keys.
+
+    Raises:
+        DynoplanError: another key, which would need every model fitted again."""
+    refit = [k for k in sets if not k.startswith(("control.", GOAL_KEYS))]
+    if refit:
+        raise DynoplanError(f"--set {refit[0]}: only control.* and fit.goal_* settings can "
+                            "change without fitting everything again (run python -m "
+                            "benchmarks.suite)")
+    goal = {k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}
+    return goal, {k: v for k, v in sets.items() if k not in goal}
+
+
 def refit_goal(fitted: FittedModels, folder: Path, summary: dict[str, Any],
                goal_sets: dict[str, Any], goal_seed: int) -> FittedModels:
     """``fitted`` with its goal heuristic fitted again on ``folder``'s demonstrations and
@@ -131,8 +146,7 @@ def rerun_one(run: Path, task_name: str, seed: int, sets: dict[str, Any],
     loaded = load_run_seed(run, task_name, seed, disturbed)
     task, folder, summary, rows, fitted = (loaded.task, loaded.folder, loaded.summary,
                                            loaded.rows, loaded.fitted)
-    goal_sets = {k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}
-    control = {k: v for k, v in sets.items() if k not in goal_sets}
+    goal_sets, control = split_sets(sets)
     settings = pipeline_settings({**control, "episodes": int(rows[DYNOPLAN]["episodes"])})
     if goal_seed or goal_sets:
         fitted = refit_goal(fitted, folder, summary, goal_sets, goal_seed)
@@ -168,12 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         sets = parse_sets(args.set)
-        fitted_keys = [k for k in sets
-                       if not k.startswith("control.") and not k.startswith(GOAL_KEYS)]
-        if fitted_keys:
-            raise DynoplanError(f"--set {fitted_keys[0]}: only control.* and fit.goal_* "
-                                "settings can change without fitting everything again (run "
-                                "python -m benchmarks.suite)")
+        split_sets(sets)  # a key that needs a new fit, before any work
         if args.goal_seed < 0:
             raise DynoplanError(f"--goal-seed must be >= 0, got {args.goal_seed}")
         pipeline_settings(sets)  # a mistake before any work

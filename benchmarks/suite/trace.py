@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.suite.__main__ import parse_sets
-from benchmarks.suite.rerun import GOAL_KEYS, load_run_seed, refit_goal
+from benchmarks.suite.rerun import load_run_seed, refit_goal, split_sets
 from dynoplan.control.controller import EpisodeTrace
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.config import pipeline_settings
@@ -80,12 +80,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="under the task's disturbance")
     args = parser.parse_args(argv)
     try:
-        sets = parse_sets(args.set)
-        if any(not k.startswith(("control.", GOAL_KEYS)) for k in sets):
-            raise DynoplanError("--set takes controller settings (control.*) and goal "
-                                "settings (fit.goal_*) only")
-        goal_sets = {k: v for k, v in sets.items() if k.startswith(GOAL_KEYS)}
-        settings = pipeline_settings({k: v for k, v in sets.items() if k not in goal_sets})
+        goal_sets, control = split_sets(parse_sets(args.set))
+        settings = pipeline_settings(control)
         wanted = {int(i) for i in args.decisions.split(",") if i.strip()}
         loaded = load_run_seed(args.run, args.task, args.seed, args.disturbed)
         task, summary, rows, fitted = loaded.task, loaded.summary, loaded.rows, loaded.fitted
