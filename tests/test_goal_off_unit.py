@@ -104,3 +104,15 @@ def test_the_goal_heuristic_fitted_with_states_around_falls_past_the_goal():
         read[around] = goal.mean_std(past)[0]
     assert read[0][2] > 0.8  # nothing says that 2.0 is not the goal
     assert read[4][0] > 0.8 and read[4][2] < 0.5  # the mark, and well past it
+    # without the exploration states, an exploration episode that failed changes nothing
+    # (its last row is no row of the states around the demonstrations)
+    failed = Episode(observations=np.array([[0.3], [0.2], [0.1], [0.0]]),
+                     actions=np.zeros((3, 1)), rewards=np.zeros(3),
+                     terminations=np.array([False, False, True]), truncations=np.zeros(3, bool),
+                     infos={"option": np.zeros(3, np.int64),
+                            "failure": np.array([False, False, True])})
+    fit = pipeline_settings({"fit.goal_off_around": 4, "fit.goal_epochs": 150,
+                             "fit.goal_off_demos": False}).fit
+    alone = fit_goal(demos, fit, seed=0)[0].mean_std(past)[0]
+    beside = fit_goal(demos, fit, seed=0, off=[failed])[0].mean_std(past)[0]
+    assert np.array_equal(alone, beside)

@@ -146,7 +146,8 @@ def fit_goal(demos: Sequence[Episode], settings: FitSettings, seed: int,
                                             settings.goal_off_decay,
                                             settings.goal_off_context,
                                             settings.goal_off_unit)
-        labels[_failed_ends(off)] = 0.0  # where an episode failed, no progress is left
+        if len(off_states):  # where an episode failed, no progress is left
+            labels[_failed_ends(off)] = 0.0
         x_fit = np.concatenate([x, x_off])
         p_fit = np.concatenate([progress, labels])
         # one group per off state: the ranking loss pairs states of one demonstration only
