@@ -6,20 +6,24 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dynoplan.control.controller import Decision, EpisodeTrace
+from dynoplan.control.choosers import Exploring, RandomChoice
+from dynoplan.control.controller import Controller, Decision, EpisodeTrace
 from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, PROGRESS_KEY
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline import run_pipeline
+from dynoplan.pipeline.evaluate import ControllerRunner
 from dynoplan.pipeline.fit_data import option_end_pairs
 from dynoplan.pipeline.improve import (
     HOLD,
     ImprovementSettings,
     OwnEpisode,
+    OwnEpisodeRunner,
     StepRecorder,
     improvement_rounds,
     own_episode,
     step_labels,
 )
+from dynoplan.planning import Plan
 from test_pipeline import SMALL, line_env, line_options
 
 PAPER = replace(SMALL, improve=0)
@@ -207,3 +211,64 @@ def test_without_rounds_the_first_models_are_kept_and_nothing_runs():
                                        lambda m, s: pytest.fail("no episode runs"),
                                        lambda r, own: pytest.fail("no refit"), lambda _: None)
     assert models == "first" and curve == []
+
+
+class _Fixed:
+    """A chooser that always chooses option 0 where ``admissible`` says what may run."""
+
+    option_names = ("a", "b", "c")
+
+    def __init__(self, admissible):
+        self.admissible = np.asarray(admissible, dtype=bool)
+
+    def choose(self, state, rng, running=None):
+        n = len(self.option_names)
+        chosen = 0 if self.admissible[0] else None
+        return Plan(self.option_names, self.admissible, np.zeros(n), np.zeros(n),
+                    np.zeros((n, 1, 1)), np.zeros((n, 1), dtype=np.int64), chosen)
+
+
+def test_exploring_chooses_uniformly_among_the_admissible_options_at_its_rate():
+    rng = np.random.default_rng(0)
+    chosen = [Exploring(_Fixed([True, False, True]), 0.5).choose(np.zeros(1), rng).chosen
+              for _ in range(4000)]
+    counts = np.bincount(chosen, minlength=3)
+    assert counts[1] == 0  # never an option that may not run
+    # half the decisions explore, half of those pick option 2: about a quarter
+    assert 0.22 < counts[2] / 4000 < 0.28
+    # nothing admissible: it holds, as the chooser does
+    assert Exploring(_Fixed([False, False, False]), 1.0).choose(np.zeros(1), rng).chosen is None
+
+
+def test_exploring_at_zero_is_the_chooser_itself_and_draws_nothing():
+    a, b = np.random.default_rng(5), np.random.default_rng(5)
+    plan = Exploring(_Fixed([True, True, True]), 0.0).choose(np.zeros(1), a)
+    assert plan.chosen == 0
+    assert a.random() == b.random()  # the stream is where it was
+    with pytest.raises(DynoplanError, match=r"in \[0, 1\]"):
+        Exploring(_Fixed([True, True, True]), 1.5)
+    with pytest.raises(DynoplanError, match=r"improve_explore must be in \[0, 1\]"):
+        replace(SMALL, improve_explore=-0.1).validate()
+
+
+def test_the_improvement_rounds_explore_and_leave_the_evaluated_controller_alone():
+    no_regions = replace(SMALL.fit, regions=False)  # both options may run everywhere
+    runs = {}
+    for explore in (0.0, 1.0):
+        settings = replace(SMALL, improve_episodes=3, improve_keep="last",
+                           improve_explore=explore, fit=no_regions)
+        res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                           settings=settings)
+        runs[explore] = res
+    # exploring, DynoPlan's own episodes hold other runs: other data, other successes
+    explored, greedy = runs[1.0].models.report["dynamics"], runs[0.0].models.report["dynamics"]
+    assert [explored[o]["transitions"] for o in ("right", "left")] != \
+        [greedy[o]["transitions"] for o in ("right", "left")]
+    assert runs[1.0].summary["seeds"] == runs[0.0].summary["seeds"]
+    # the runner explores on a copy: the controller it was given keeps its own chooser
+    options = runs[0.0].options
+    controller = Controller(options, RandomChoice(options))
+    chooser = controller.chooser
+    runner = OwnEpisodeRunner(ControllerRunner(line_env(), controller), explore=0.5)
+    assert controller.chooser is chooser
+    assert isinstance(runner.runner.controller.chooser, Exploring)

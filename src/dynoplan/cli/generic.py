@@ -95,6 +95,10 @@ def pipeline(
         help="Models the evaluation uses after the improvement rounds: last (the last "
              "refit's) or best (those whose own episodes succeeded most often; one more "
              "batch measures the last refit) [best]."),
+    improve_explore: float | None = typer.Option(
+        None, "--improve-explore", **_bounds("improve_explore"),
+        help="In the improvement rounds' own episodes, the probability at each decision of "
+             "a random admissible option instead of DynoPlan's choice [0]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),

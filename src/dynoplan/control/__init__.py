@@ -1,7 +1,13 @@
 """The controller that chooses, runs, monitors and re-chooses options."""
 
 from dynoplan.control.batched import BatchChooser, run_batched
-from dynoplan.control.choosers import FixedChoice, OptionChooser, RandomChoice, ScriptedSequence
+from dynoplan.control.choosers import (
+    Exploring,
+    FixedChoice,
+    OptionChooser,
+    RandomChoice,
+    ScriptedSequence,
+)
 from dynoplan.control.controller import Controller, Decision, EpisodeTrace
 
 __all__ = [
@@ -9,6 +15,7 @@ __all__ = [
     "Controller",
     "Decision",
     "EpisodeTrace",
+    "Exploring",
     "FixedChoice",
     "OptionChooser",
     "RandomChoice",

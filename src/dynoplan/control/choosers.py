@@ -8,6 +8,7 @@ to plan again) by its continuation set, the others by their initiation sets
 """
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
@@ -94,3 +95,41 @@ class ScriptedSequence(_Baseline):
         chosen = self.sequence[min(self._step, len(self.sequence) - 1)]
         self._step += 1
         return self._plan(state, self._admissible(state, running), chosen)
+
+
+class Exploring:
+    """Another chooser's choice, except that at each decision, with probability
+    ``epsilon``, a uniformly random admissible option is chosen instead (epsilon-greedy
+    over options): the improvement rounds' own episodes
+    (:mod:`~dynoplan.pipeline.improve`) then also hold runs of the options the chooser
+    would not try where its models misjudge them. The draw is made only where an option
+    is admissible and ``epsilon`` is above 0, from the decision's ``rng``, after the
+    chooser's own draws (with ``epsilon`` 0 the choices and the stream are the chooser's).
+
+    Args:
+        chooser: the chooser explored around.
+        epsilon: the probability, in ``[0, 1]``.
+    """
+
+    def __init__(self, chooser: OptionChooser, epsilon: float) -> None:
+        if not 0.0 <= epsilon <= 1.0:
+            raise DynoplanError(f"the exploration probability must be in [0, 1], got {epsilon}")
+        self.chooser = chooser
+        self.epsilon = float(epsilon)
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        return tuple(self.chooser.option_names)
+
+    def reset(self) -> None:
+        """Resets the chooser explored around, where it has a per-episode state."""
+        reset = getattr(self.chooser, "reset", None)
+        if callable(reset):
+            reset()
+
+    def choose(self, state: FloatArray, rng: Generator, running: int | None = None) -> Plan:
+        plan = self.chooser.choose(state, rng, running)
+        idx = np.flatnonzero(plan.admissible)
+        if idx.size and self.epsilon > 0.0 and rng.random() < self.epsilon:
+            return replace(plan, chosen=int(rng.choice(idx)))
+        return plan

@@ -299,7 +299,8 @@ class GenericStages:
         fit_demos, fit_transitions = list(self.demos), list(self.transitions)
 
         def play(models: FittedModels, seeds: Sequence[EpisodeSeed]) -> list[OwnEpisode]:
-            return own_episodes(self.environment, self._dynoplan(models), seeds)
+            return own_episodes(self.environment, self._dynoplan(models), seeds,
+                                improvement.explore)
 
         def refit(_: int, own: list[OwnEpisode]) -> FittedModels:
             fit_demos.extend(e.demonstration for e in own if e.demonstration is not None)

@@ -21,6 +21,7 @@ its own episodes (here, or on workers through :class:`OwnEpisodesJob`) and how i
 refits on them.
 """
 
+import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from itertools import pairwise
@@ -29,6 +30,7 @@ from typing import Any, TypeVar
 import gymnasium as gym
 import numpy as np
 
+from dynoplan.control.choosers import Exploring
 from dynoplan.control.controller import Controller, EpisodeTrace
 from dynoplan.data.episodes import (
     FAILURE_KEY,
@@ -150,12 +152,19 @@ def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Seque
 class OwnEpisodeRunner:
     """A :class:`~dynoplan.pipeline.evaluate.ControllerRunner` whose episodes are recorded
     step by step and returned cut for the fit (:func:`own_episode`), the steps labelled by
-    their option's index in ``option_names`` (default: the controller's options)."""
+    their option's index in ``option_names`` (default: the controller's options); with
+    ``explore`` above 0, its controller explores around its chooser
+    (:class:`~dynoplan.control.choosers.Exploring`; a copy of the controller: the runner
+    given is not changed)."""
 
     def __init__(self, runner: ControllerRunner,
-                 option_names: Sequence[str] | None = None) -> None:
+                 option_names: Sequence[str] | None = None, explore: float = 0.0) -> None:
         self.recorder = StepRecorder(runner.env)
-        self.runner = replace(runner, env=self.recorder)
+        controller = runner.controller
+        if explore > 0.0:
+            controller = copy.copy(controller)
+            controller.chooser = Exploring(controller.chooser, explore)
+        self.runner = replace(runner, env=self.recorder, controller=controller)
         self.names = list(option_names if option_names is not None
                           else [o.name for o in runner.controller.options])
 
@@ -174,20 +183,21 @@ class OwnEpisodesJob:
 
     job: EpisodeJob
     option_names: tuple[str, ...]
+    explore: float = 0.0
 
     def build(self) -> OwnEpisodeRunner:
         runner = self.job.build()
         if not isinstance(runner, ControllerRunner):
             raise DynoplanError("improvement rounds record a planning controller's episodes; "
                                 f"{type(runner).__name__} is not one")
-        return OwnEpisodeRunner(runner, self.option_names)
+        return OwnEpisodeRunner(runner, self.option_names, self.explore)
 
 
 def own_episodes(env: gym.Env[Any, Any], controller: Controller,
-                 seeds: Sequence[EpisodeSeed]) -> list[OwnEpisode]:
+                 seeds: Sequence[EpisodeSeed], explore: float = 0.0) -> list[OwnEpisode]:
     """The controller's episodes on ``seeds`` here, one after another
-    (:class:`OwnEpisodeRunner`)."""
-    runner = OwnEpisodeRunner(ControllerRunner(env, controller))
+    (:class:`OwnEpisodeRunner`, exploring with probability ``explore``)."""
+    runner = OwnEpisodeRunner(ControllerRunner(env, controller), explore=explore)
     return [runner.episode(seed) for seed in seeds]
 
 
@@ -213,12 +223,18 @@ class ImprovementSettings:
             measures the last refit's; the earliest on a tie), as DAgger returns the best
             of its policies on validation (Ross, Gordon and Bagnell 2011). A refit that
             made DynoPlan worse is not kept.
+        explore: in every batch of own episodes (the check of the last refit too, so that
+            the batches compare models under one controller), the probability at each
+            decision of a uniformly random admissible option instead of DynoPlan's
+            choice (:class:`~dynoplan.control.choosers.Exploring`; 0, the default: none;
+            a named variant of the composition suite). The evaluation never explores.
     """
 
     rounds: int = 1
     episodes: int = 30
     regions: bool = True
     keep: str = "best"
+    explore: float = 0.0
 
     def validate(self) -> None:
         if self.rounds < 0:
@@ -228,6 +244,8 @@ class ImprovementSettings:
         if self.keep not in IMPROVE_KEEP:
             raise DynoplanError(f"improve_keep must be one of {', '.join(IMPROVE_KEEP)}, got "
                                 f"'{self.keep}'")
+        if not 0.0 <= self.explore <= 1.0:
+            raise DynoplanError(f"improve_explore must be in [0, 1], got {self.explore}")
 
     @property
     def batches(self) -> int:

@@ -74,7 +74,8 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
     names = tuple(gear_option_names())
 
     def play(models: Path, seeds: Sequence[EpisodeSeed]) -> list[OwnEpisode]:
-        job = OwnEpisodesJob(ControllerJob(GearTask(), models, "dynoplan", planner), names)
+        job = OwnEpisodesJob(ControllerJob(GearTask(), models, "dynoplan", planner), names,
+                             settings.explore)
         own: list[OwnEpisode] = evaluate_many([(job, seeds)], workers, "own episodes",
                                               progress)[0]
         return own
