@@ -30,14 +30,19 @@ PAPER = replace(SMALL, improve=0)
 """The paper's pipeline: no improvement rounds."""
 
 
+_PLAN = Plan(("a",), np.ones(1, dtype=bool), np.zeros(1), np.zeros(1), np.zeros((1, 1, 1)),
+             np.zeros((1, 1), dtype=np.int64), 0)
+"""A decision's plan (what was chosen does not matter to the cutting)."""
+
+
 def _trace(steps, success):
     """A trace of decisions ``(option or None, steps[, stop reason])`` run one after the
     other (an option's run ends ``terminated`` unless a reason is given)."""
     trace, at = EpisodeTrace(success=success), 0
     for k, (option, n, *why) in enumerate(steps):
         reason = why[0] if why else "terminated" if option else "hold"
-        trace.decisions.append(Decision(k, at, np.zeros(1), None, option, n,  # type: ignore[arg-type]
-                                        reason, np.zeros(1), 0.0))
+        trace.decisions.append(Decision(k, at, np.zeros(1), _PLAN, option, n, reason,
+                                        np.zeros(1), 0.0))
         at += n
     trace.env_steps = at
     return trace
@@ -81,6 +86,13 @@ def test_a_success_without_holds_becomes_a_demonstration_and_one_with_holds_does
     held = own_episode(_recorder(4), _trace([("right", 3), (None, 1)], True), names, 0)
     assert held.demonstration is None
     assert [len(p) for p in held.pieces] == [3]
+    # a success in which a choice was an exploring chooser's random one: runs, no
+    # demonstration
+    trace = _trace([("right", 3), ("left", 1)], True)
+    trace.decisions[1] = replace(trace.decisions[1],
+                                 plan=replace(trace.decisions[1].plan, explored=True))
+    explored = own_episode(_recorder(4), trace, names, 0)
+    assert explored.demonstration is None and [len(p) for p in explored.pieces] == [4]
 
 
 def test_a_run_cut_short_by_a_replan_teaches_the_option_models_no_end():
@@ -189,7 +201,8 @@ def test_the_rounds_keep_the_models_the_settings_say(keep, rates, kept):
     seeds = list(range(settings.batches * settings.episodes))
     played: list[tuple[int, list[int]]] = []
 
-    def play(models, batch):
+    def play(models, batch, explore):
+        assert explore == 0.0
         played.append((models, list(batch)))
         rate = rates[models]
         return _fake_own([1, 1] if rate == 1.0 else [1, 0] if rate == 0.5 else [0, 0])
@@ -208,7 +221,7 @@ def test_the_rounds_keep_the_models_the_settings_say(keep, rates, kept):
 
 def test_without_rounds_the_first_models_are_kept_and_nothing_runs():
     models, curve = improvement_rounds("first", ImprovementSettings(rounds=0), [],
-                                       lambda m, s: pytest.fail("no episode runs"),
+                                       lambda m, s, e: pytest.fail("no episode runs"),
                                        lambda r, own: pytest.fail("no refit"), lambda _: None)
     assert models == "first" and curve == []
 
@@ -260,10 +273,15 @@ def test_the_improvement_rounds_explore_and_leave_the_evaluated_controller_alone
         res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
                            settings=settings)
         runs[explore] = res
-    # exploring, DynoPlan's own episodes hold other runs: other data, other successes
+    # exploring, the round also ran 3 episodes of random choices: more option runs for
+    # the refit, none of them a demonstration; the success is the greedy episodes'
     explored, greedy = runs[1.0].models.report["dynamics"], runs[0.0].models.report["dynamics"]
-    assert [explored[o]["transitions"] for o in ("right", "left")] != \
-        [greedy[o]["transitions"] for o in ("right", "left")]
+    assert sum(explored[o]["transitions"] for o in ("right", "left")) > \
+        sum(greedy[o]["transitions"] for o in ("right", "left"))
+    curve, plain = runs[1.0].summary["improvement"], runs[0.0].summary["improvement"]
+    assert curve[0]["explored_episodes"] == 3 and "explored_episodes" not in plain[0]
+    assert curve[0]["success_rate"] == plain[0]["success_rate"]
+    assert curve[0]["demonstrations_added"] == plain[0]["demonstrations_added"]
     assert runs[1.0].summary["seeds"] == runs[0.0].summary["seeds"]
     # the runner explores on a copy: the controller it was given keeps its own chooser
     options = runs[0.0].options
@@ -272,3 +290,18 @@ def test_the_improvement_rounds_explore_and_leave_the_evaluated_controller_alone
     runner = OwnEpisodeRunner(ControllerRunner(line_env(), controller), explore=0.5)
     assert controller.chooser is chooser
     assert isinstance(runner.runner.controller.chooser, Exploring)
+
+
+def test_a_round_explores_after_measuring_its_models_on_seeds_of_its_own():
+    settings = ImprovementSettings(rounds=2, episodes=2, keep="best", explore=0.3)
+    assert settings.seeds == (3 + 2) * 2  # three measured batches, two exploring ones
+    seeds = list(range(settings.seeds))
+    played: list[tuple[int, list[int], float]] = []
+
+    def play(models, batch, explore):
+        played.append((models, list(batch), explore))
+        return _fake_own([1, 0])
+
+    improvement_rounds(0, settings, seeds, play, lambda r, own: r + 1, lambda _: None)
+    assert played == [(0, [0, 1], 0.0), (0, [6, 7], 0.3), (1, [2, 3], 0.0), (1, [8, 9], 0.3),
+                      (2, [4, 5], 0.0)]

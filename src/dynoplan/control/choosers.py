@@ -131,5 +131,5 @@ class Exploring:
         plan = self.chooser.choose(state, rng, running)
         idx = np.flatnonzero(plan.admissible)
         if idx.size and self.epsilon > 0.0 and rng.random() < self.epsilon:
-            return replace(plan, chosen=int(rng.choice(idx)))
+            return replace(plan, chosen=int(rng.choice(idx)), explored=True)
         return plan

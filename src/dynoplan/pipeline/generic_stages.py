@@ -298,9 +298,9 @@ class GenericStages:
         improvement = settings.improvement
         fit_demos, fit_transitions = list(self.demos), list(self.transitions)
 
-        def play(models: FittedModels, seeds: Sequence[EpisodeSeed]) -> list[OwnEpisode]:
-            return own_episodes(self.environment, self._dynoplan(models), seeds,
-                                improvement.explore)
+        def play(models: FittedModels, seeds: Sequence[EpisodeSeed],
+                 explore: float) -> list[OwnEpisode]:
+            return own_episodes(self.environment, self._dynoplan(models), seeds, explore)
 
         def refit(_: int, own: list[OwnEpisode]) -> FittedModels:
             fit_demos.extend(e.demonstration for e in own if e.demonstration is not None)
@@ -311,7 +311,7 @@ class GenericStages:
                               region_demos=fit_demos if improvement.regions else self.demos,
                               region_starts=self._region_starts())
 
-        seeds = (episode_seeds(self.seeds["improve"], improvement.batches * improvement.episodes)
+        seeds = (episode_seeds(self.seeds["improve"], improvement.seeds)
                  if improvement.rounds else [])
         models, self.curve = improvement_rounds(models, improvement, seeds, play, refit,
                                                 run.clock.switch)

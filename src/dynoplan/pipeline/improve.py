@@ -12,7 +12,9 @@ fitted again on everything:
 - the last state of an episode that did not succeed (failed, ran out of time or of
   decisions) is labelled a failure (``infos["failure"]``, progress 0 for the goal);
 - an episode that succeeded without holding becomes a demonstration (its progress
-  ``t / T``; the regions and the goal are fitted on it as on the demonstrator's).
+  ``t / T``; the regions and the goal are fitted on it as on the demonstrator's), unless
+  a choice in it was an exploring chooser's random one (``improve_explore``): its
+  detours are not what the progress labels say they are.
 
 The share of each round's episodes that succeeded is the learning curve
 (``summary.json``'s ``improvement``). :func:`improvement_rounds` is the one loop of every
@@ -140,7 +142,8 @@ def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Seque
                                INTERRUPTED_KEY: cut[start:end]},
                               env_seed))
     demonstration = None
-    if trace.success and ran.all() and len(labels):
+    explored = any(d.plan.explored for d in trace.decisions)
+    if trace.success and ran.all() and len(labels) and not explored:
         t = len(labels)
         demonstration = Episode(observations, actions, rewards, terms, truncs,
                                 {OPTION_KEY: labels, INTERRUPTED_KEY: cut,
@@ -223,11 +226,13 @@ class ImprovementSettings:
             measures the last refit's; the earliest on a tie), as DAgger returns the best
             of its policies on validation (Ross, Gordon and Bagnell 2011). A refit that
             made DynoPlan worse is not kept.
-        explore: in every batch of own episodes (the check of the last refit too, so that
-            the batches compare models under one controller), the probability at each
-            decision of a uniformly random admissible option instead of DynoPlan's
-            choice (:class:`~dynoplan.control.choosers.Exploring`; 0, the default: none;
-            a named variant of the composition suite). The evaluation never explores.
+        explore: above 0, each round also runs ``episodes`` exploring episodes on the
+            round's models, in which at each decision, with this probability, a uniformly
+            random admissible option runs instead of DynoPlan's choice
+            (:class:`~dynoplan.control.choosers.Exploring`); the refit learns from them
+            too (not as demonstrations), while the success of a round's models is
+            measured on its episodes without exploration, as the evaluation runs (0, the
+            default: none; a named variant of the composition suite).
     """
 
     rounds: int = 1
@@ -253,42 +258,59 @@ class ImprovementSettings:
         the best models are kept."""
         return self.rounds + int(self.rounds > 0 and self.keep == "best")
 
+    @property
+    def seeds(self) -> int:
+        """Episode seeds the rounds use: ``episodes`` per batch, then, exploring,
+        ``episodes`` per round."""
+        return (self.batches + (self.rounds if self.explore > 0.0 else 0)) * self.episodes
+
 
 Models = TypeVar("Models")
 
 
 def improvement_rounds(models: Models, settings: ImprovementSettings,
                        seeds: Sequence[EpisodeSeed],
-                       play: Callable[[Models, Sequence[EpisodeSeed]], list[OwnEpisode]],
+                       play: Callable[[Models, Sequence[EpisodeSeed], float],
+                                      list[OwnEpisode]],
                        refit: Callable[[int, list[OwnEpisode]], Models],
                        say: Callable[[str], None]) -> tuple[Models, list[dict[str, Any]]]:
-    """``settings.rounds`` rounds from ``models``: ``play(models, seeds)`` runs DynoPlan on
-    the models of the round on its ``settings.episodes`` of ``seeds`` (``settings.batches
-    * settings.episodes`` of them, a stream no other stage uses), then ``refit(round,
-    own)`` fits again on everything so far and this round's own episodes (the task keeps
-    what it has added); ``say`` is told of each round as it starts.
+    """``settings.rounds`` rounds from ``models``: ``play(models, seeds, explore)`` runs
+    DynoPlan on the models of the round on its ``settings.episodes`` of ``seeds``
+    (``settings.seeds`` of them, a stream no other stage uses; ``explore``: the
+    probability of a random choice at a decision, 0 for the episodes that measure the
+    models, ``settings.explore`` for a round's exploring episodes, which come after every
+    batch's seeds), then ``refit(round, own)`` fits again on everything so far and this
+    round's own episodes (the task keeps what it has added); ``say`` is told of each round
+    as it starts.
 
     Returns:
         The models ``settings.keep`` says and the learning curve: per batch ``round``,
-        ``episodes``, ``success_rate`` and ``demonstrations_added``, with ``check`` on the
-        batch that only measures the last refit, and ``kept`` on every entry when the
-        best models are kept.
+        ``episodes``, ``success_rate`` (of the episodes without exploration) and
+        ``demonstrations_added``, with ``explored_episodes`` where the round explored,
+        ``check`` on the batch that only measures the last refit, and ``kept`` on every
+        entry when the best models are kept.
     """
     n = settings.episodes
+    measured = settings.batches * n  # the exploring episodes' seeds come after these
     curve: list[dict[str, Any]] = []
     candidates: list[tuple[float, Models]] = []
     for r in range(settings.batches):
         last = r == settings.rounds  # the extra batch that measures the last refit
         say("improvement check" if last else f"improvement round {r + 1}")
-        own = play(models, seeds[r * n:(r + 1) * n])
+        own = play(models, seeds[r * n:(r + 1) * n], 0.0)
         success = float(np.mean([e.success for e in own]))
         candidates.append((success, models))
         if last:
             curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                           "demonstrations_added": 0, "check": True})
             break
+        if settings.explore > 0.0:
+            explored = play(models, seeds[measured + r * n:measured + (r + 1) * n],
+                            settings.explore)
+            own = own + explored
         curve.append({"round": r + 1, "episodes": n, "success_rate": success,
-                      "demonstrations_added": sum(e.demonstration is not None for e in own)})
+                      "demonstrations_added": sum(e.demonstration is not None for e in own),
+                      **({"explored_episodes": n} if settings.explore > 0.0 else {})})
         models = refit(r, own)
     if settings.batches > settings.rounds:  # the first of the models that succeeded most
         kept = max(range(len(candidates)), key=lambda i: (candidates[i][0], -i))

@@ -92,6 +92,8 @@ class Plan:
             no option admissible under its own sets scored the goal heuristic at the
             present state (``widen_without_gain``; they are in ``admissible`` too);
             ``None`` where the planner did not widen.
+        explored: ``chosen`` was drawn at random by an exploring chooser
+            (:class:`~dynoplan.control.choosers.Exploring`), not the chooser's own choice.
     """
 
     option_names: tuple[str, ...]
@@ -106,6 +108,7 @@ class Plan:
     sequences: tuple[tuple[str, ...], ...] | None = None
     gain_floor: float | None = None
     widened: BoolArray | None = None
+    explored: bool = False
 
     @property
     def chosen_name(self) -> str | None:

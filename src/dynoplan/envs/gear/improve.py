@@ -73,9 +73,9 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
     runs = [_with_infos(e, ("option",)) for e in runs_set]
     names = tuple(gear_option_names())
 
-    def play(models: Path, seeds: Sequence[EpisodeSeed]) -> list[OwnEpisode]:
+    def play(models: Path, seeds: Sequence[EpisodeSeed], explore: float) -> list[OwnEpisode]:
         job = OwnEpisodesJob(ControllerJob(GearTask(), models, "dynoplan", planner), names,
-                             settings.explore)
+                             explore)
         own: list[OwnEpisode] = evaluate_many([(job, seeds)], workers, "own episodes",
                                               progress)[0]
         return own
@@ -100,8 +100,7 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
         return models
 
     kept, curve = improvement_rounds(first, settings,
-                                     improvement_seeds(seed, settings.batches
-                                                       * settings.episodes),
+                                     improvement_seeds(seed, settings.seeds),
                                      play, refit, say)
     if kept != first:
         shutil.copytree(kept, first, dirs_exist_ok=True)
