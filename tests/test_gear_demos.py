@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dynoplan.data import read_dataset
-from dynoplan.envs.gear.learning.demos import record_demos
+from dynoplan.envs.gear.demonstrations import record_demos
 from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.errors import DynoplanError
 

@@ -122,8 +122,8 @@ def test_the_fifth_option_flows_through_every_stage(lift: ModuleType, quick_gear
                                                     tmp_path: Path) -> None:
     from dynoplan.data import read_dataset
     from dynoplan.envs.gear.learning.training import train_gear_models
-    from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
     from dynoplan.envs.gear.models_folder import load_gear_models
+    from dynoplan.envs.gear.option_runs import collect_gear_transitions
     from dynoplan.envs.gear.pipeline_stages import run_settings
     from dynoplan.envs.gear.reports.figures import make_gear_figures
     from dynoplan.envs.gear.stages import learned_initiation

@@ -14,7 +14,7 @@ from dynoplan.data import read_dataset
 from dynoplan.envs.gear.controllers import HoldStill
 from dynoplan.envs.gear.env import HOME_Q, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.faults import GraspSlip, ObservationNoise
-from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
+from dynoplan.envs.gear.option_runs import collect_gear_transitions
 from dynoplan.envs.gear.options.base import GearOptionPolicy
 from dynoplan.envs.gear.options.catalog import reach_start
 from dynoplan.envs.gear.options.starts import shifted_schedule

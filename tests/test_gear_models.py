@@ -15,9 +15,9 @@ import pytest
 
 from dynoplan.data import Episode, read_dataset
 from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.demonstrations import record_demos
 from dynoplan.envs.gear.features import RELATIVE, TASK
 from dynoplan.envs.gear.learning.data import write_demonstration_transitions
-from dynoplan.envs.gear.learning.demos import record_demos
 from dynoplan.envs.gear.learning.settings import QUICK_METRICS, QUICK_SETTINGS
 from dynoplan.envs.gear.learning.training import train_gear_models
 from dynoplan.envs.gear.models_folder import HELDOUT_DIR, METRICS_FILE, load_gear_models

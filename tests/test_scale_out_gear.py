@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
 from dynoplan.envs.gear.controllers import GEAR_CONTROL
-from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
+from dynoplan.envs.gear.option_runs import collect_gear_transitions
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.pipeline.evaluate import ControllerJob
@@ -121,7 +121,7 @@ def test_sweep_command_on_two_workers_then_resumed(ray_runtime, quick_gear_run,
 
 def test_demonstrations_are_the_same_dataset_on_two_workers(ray_runtime, quick_gear_run,
                                                             tmp_path: Path):
-    from dynoplan.envs.gear.learning.demos import record_demos
+    from dynoplan.envs.gear.demonstrations import record_demos
 
     models = quick_gear_run / "models"
     one = record_demos(3, 5, tmp_path / "one", False, demonstrator="options", models=models)

@@ -9,7 +9,7 @@ operator. Here it is solved through the library's task-fit path
 :class:`~dynoplan.envs.gear.pipeline_task.GearTask` with ``peg``):
 
 1. ``demos/``: the task's own demonstrations, the first task's operator chaining the
-   options in the new environment (:func:`~dynoplan.envs.gear.learning.demos.record_demos`);
+   options in the new environment (:func:`~dynoplan.envs.gear.demonstrations.record_demos`);
 2. ``shared/``: the first task's options folder (``--options-models``, a ``gear run``
    folder), its dynamics unchanged, only the task's goal heuristic (on the features
    ``peg_objects``) and regions fitted from those demonstrations; DynoPlan on
@@ -144,9 +144,9 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
         rows: tuple[str, ...] = ROWS, quick: bool = False, workers: Workers = SERIAL,
         command: str = "", progress: bool = True) -> dict[str, Any]:
     """Every stage (module docstring) into ``out``; the content of ``results.json``."""
-    from dynoplan.envs.gear.learning.demos import record_demos
+    from dynoplan.envs.gear.demonstrations import record_demos
     from dynoplan.envs.gear.learning.training import train_gear_models
-    from dynoplan.envs.gear.learning.transitions import collect_gear_transitions
+    from dynoplan.envs.gear.option_runs import collect_gear_transitions
 
     unknown = [r for r in rows if r not in (*ROWS, REFERENCE)]
     if unknown or not rows:

@@ -9,7 +9,11 @@ its actions with options.
 - :func:`record_expert_episodes`: per-episode arrays (observations, actions, option
   labels, progress, ...) ready to be written as a dataset;
 - :func:`run_expert`: many seeded episodes, ``summary.json`` (success, contacts, speed);
-- :func:`render_scene`: ``scene.png`` and ``episode.mp4`` of one seeded episode.
+- :func:`render_scene`: ``scene.png`` and ``episode.mp4`` of one seeded episode;
+- :func:`record_demos`: seeded demonstrations (the human schedule drawn per episode:
+  away, crossing or blocking) written with option labels and progress as a
+  Minari-layout dataset (``docs/dataset-format.md``), what ``gear run`` and ``gear
+  demos`` record (:func:`dynoplan.envs.gear.stages.demonstrations`).
 """
 
 import platform
@@ -25,9 +29,12 @@ import numpy as np
 import numpy.typing as npt
 
 from dynoplan.adapters.spec import OptionSpec
+from dynoplan.data import DatasetMetadata, Episode, write_dataset
+from dynoplan.envs import GEAR_ASSEMBLY_ID, GEAR_PEG_POSE_ID
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.expert import GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
+from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.peg_pose import GearPegPoseEnv, PegWorkspace
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json, write_with
@@ -43,7 +50,7 @@ from dynoplan.reports.video import write_mp4
 from dynoplan.seeding import episode_seeds as derive_episode_seeds
 from dynoplan.types import Generator
 
-Episode = dict[str, Any]
+RawEpisode = dict[str, Any]
 """One episode: ``observations`` (T+1, 50), ``actions`` (T, 13), ``rewards`` (T,),
 ``terminations`` (T,), ``truncations`` (T,), ``infos`` (dict of (T,) arrays: ``option``,
 ``progress``, ``stage``, ``min_human_distance``, ``success``, ``human_contacts``,
@@ -125,7 +132,7 @@ def make_demonstrator(kind: str, env: GearAssemblyEnv, models: Path | None = Non
 def run_expert_episode(env: GearAssemblyEnv, demonstrator: Demonstrator, seed: int,
                        human_mode: str | None = None,
                        frames: list[npt.NDArray[np.uint8]] | None = None,
-                       specs: Sequence[OptionSpec] = ()) -> Episode:
+                       specs: Sequence[OptionSpec] = ()) -> RawEpisode:
     """One episode of ``demonstrator`` (running the options ``specs``; see
     :func:`make_demonstrator`) in ``env`` from ``env.reset(seed=seed)`` with the human
     mode ``human_mode`` (None: the seed's own), recorded by the pipeline's recorder
@@ -235,7 +242,7 @@ def build_demonstrator(job: DemoJob) -> DemoWorker:
     return DemoWorker(job, env, *make_demonstrator(job.kind, env, job.models))
 
 
-def demonstrated_episode(worker: DemoWorker, item: tuple[int, str | None]) -> Episode:
+def demonstrated_episode(worker: DemoWorker, item: tuple[int, str | None]) -> RawEpisode:
     """The episode of env seed ``item[0]`` with the human mode ``item[1]`` (None: the
     seed's own). It depends on them alone (the options draw from ``default_rng(seed)``,
     and the operator's planners are reseeded from it first:
@@ -254,8 +261,8 @@ def record_expert_episodes(n: int, seed: int, progress: bool = False,
                            human_mode: str | None = None, demonstrator: str = "expert",
                            models: Path | None = None,
                            workers: Workers = SERIAL,
-                           peg: PegWorkspace | None = None) -> list[Episode]:
-    """``n`` demonstrated episodes with seeds derived from ``seed`` (see :data:`Episode`);
+                           peg: PegWorkspace | None = None) -> list[RawEpisode]:
+    """``n`` demonstrated episodes with seeds derived from ``seed`` (see :data:`RawEpisode`);
     ``demonstrator`` is one of :data:`DEMONSTRATORS`; ``peg``: in the downstream task's
     environment (:class:`DemoJob`). The episodes run on ``workers``;
     each depends on its own seed and mode alone (:func:`demonstrated_episode`), so the
@@ -274,7 +281,7 @@ def record_expert_episodes(n: int, seed: int, progress: bool = False,
 
 
 def _successful_episodes(job: DemoJob, n: int, seed: int, human_mode: str | None,
-                         progress: bool, workers: Workers) -> list[Episode]:
+                         progress: bool, workers: Workers) -> list[RawEpisode]:
     """``n`` successful episodes (a demonstration shows the task done). Demonstration
     ``j`` has the human mode ``human_mode``, or without one ``DEMO_MODE_CYCLE[j % 3]``,
     so that ten demonstrations show every situation (block 4, cross 3, away 3). The
@@ -286,7 +293,7 @@ def _successful_episodes(job: DemoJob, n: int, seed: int, human_mode: str | None
     seeds = episode_seeds(seed, 3 * n)
     modes = [human_mode or DEMO_MODE_CYCLE[j % len(DEMO_MODE_CYCLE)] for j in range(n)]
 
-    def run(pairs: list[tuple[int, int]]) -> list[Episode]:
+    def run(pairs: list[tuple[int, int]]) -> list[RawEpisode]:
         return parallel_map(build_demonstrator, demonstrated_episode, job,
                             [(seeds[i], modes[j]) for j, i in pairs], workers,
                             f"gear demos (options, {len(pairs)} tries)", progress)
@@ -300,7 +307,7 @@ def _successful_episodes(job: DemoJob, n: int, seed: int, human_mode: str | None
     return done
 
 
-def summarise(episodes: list[Episode], seed: int, wall_seconds: float) -> dict[str, Any]:
+def summarise(episodes: list[RawEpisode], seed: int, wall_seconds: float) -> dict[str, Any]:
     """Success, safety and speed over ``episodes`` (the ``summary.json`` content)."""
     n = len(episodes)
     success = [bool(ep["infos"]["success"][-1]) for ep in episodes]
@@ -390,3 +397,70 @@ def render_scene(out: Path, seed: int = 0, video: bool = True, human_mode: str |
     finally:
         env.close()
     return written
+
+
+DATASET_ID = "dynoplan/gear-assembly/expert-v0"
+"""Dataset id of demonstrations by either demonstrator (``metadata.extra`` names it)."""
+
+
+def to_dataset_episode(raw: dict[str, Any]) -> Episode:
+    """The expert's per-episode arrays as a validated :class:`~dynoplan.data.Episode`."""
+    return Episode(
+        observations=raw["observations"],
+        actions=raw["actions"],
+        rewards=raw["rewards"],
+        terminations=raw["terminations"],
+        truncations=raw["truncations"],
+        infos=dict(raw["infos"]),
+        seed=int(raw["seed"]),
+    )
+
+
+def record_demos(n: int, seed: int, out: Path, progress: bool = True,
+                 human_mode: str | None = None, demonstrator: str = "expert",
+                 models: Path | None = None, workers: Workers = SERIAL,
+                 peg: PegWorkspace | None = None) -> dict[str, Any]:
+    """Record ``n`` demonstrations into the dataset folder ``out``; return a summary.
+
+    ``demonstrator``: ``expert`` (the scripted expert) or ``options`` (an operator
+    chaining the option policies, whose networks are read from ``models``). ``peg``: in
+    the downstream task's environment (``dynoplan/GearPegPose-v0`` on that workspace,
+    :mod:`~dynoplan.envs.gear.peg_pose`). The episodes run on ``workers``; the dataset is
+    the same on one worker or many."""
+    ensure_writable_dir(out.parent if out.parent != Path("") else Path("."))
+    raw = record_expert_episodes(n, seed, progress=progress, human_mode=human_mode,
+                                 demonstrator=demonstrator, models=models, workers=workers,
+                                 peg=peg)
+    episodes = [to_dataset_episode(r) for r in raw]
+    modes = [str(r["human_mode"]) for r in raw]
+    env_id = GEAR_ASSEMBLY_ID if peg is None else GEAR_PEG_POSE_ID
+    env = gym.make(env_id)
+    try:
+        spec = env.spec.to_json() if env.spec is not None else None
+        obs_space, act_space = env.observation_space, env.action_space
+        assert isinstance(obs_space, gym.spaces.Box) and isinstance(act_space, gym.spaces.Box)
+        metadata = DatasetMetadata(
+            dataset_id=DATASET_ID,
+            env_id=env_id,
+            env_spec=spec,
+            option_names=list(gear_option_names()),
+            seed=seed,
+            extra={"human_modes": modes, "demonstrator": demonstrator,
+                   "state": "observations[:, 0:12] (arm joint angles)",
+                   "progress": "progress[t] = (t + 1) / T describes observations[t + 1]"},
+            observation_space=obs_space,
+            action_space=act_space,
+        )
+    finally:
+        env.close()
+    write_dataset(out, episodes, metadata)
+    successes = [bool(np.asarray(r["infos"]["success"])[-1]) for r in raw]
+    return {
+        "dataset": str(out),
+        "episodes": n,
+        "steps": int(sum(len(e) for e in episodes)),
+        "success_rate": float(np.mean(successes)),
+        "human_modes": dict(Counter(modes)),
+        "option_steps": {gear_option_names()[k]: int(v) for k, v in sorted(Counter(
+            int(o) for e in episodes for o in e.infos["option"]).items())},
+    }

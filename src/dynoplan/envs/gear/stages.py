@@ -77,9 +77,8 @@ def demonstrations(n: int, seed: int, out: Path, models: Path, heldout: bool = F
     """Stage ``demos``: ``n`` demonstrations by ``demonstrator`` into the dataset folder
     ``out`` from ``seed`` (``heldout``: from ``seed + HELDOUT_SEED_OFFSET``), the
     operator's networks from ``models`` (:func:`option_networks` first); the summary of
-    :func:`~dynoplan.envs.gear.learning.demos.record_demos`."""
-    from dynoplan.envs.gear.demonstrations import check_request
-    from dynoplan.envs.gear.learning.demos import record_demos
+    :func:`~dynoplan.envs.gear.demonstrations.record_demos`."""
+    from dynoplan.envs.gear.demonstrations import check_request, record_demos
 
     check_request(n, human_mode, demonstrator, count_flag="--n")  # before any training
     check_dataset_target(out)
@@ -137,7 +136,7 @@ def option_transitions(models: Path, runs: int, seed: int, out: Path, max_decisi
     """Stage ``collect``: ``runs`` runs of every option of at most ``max_decisions``
     decisions into the dataset folder ``out``, the networks from ``models``
     (:func:`option_networks` first); the collection's summary."""
-    from dynoplan.envs.gear.learning.transitions import check_collection, collect_gear_transitions
+    from dynoplan.envs.gear.option_runs import check_collection, collect_gear_transitions
 
     check_collection(runs, max_decisions)
     check_dataset_target(out)

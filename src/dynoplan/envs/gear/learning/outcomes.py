@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
-from dynoplan.envs.gear.learning.transitions import write_runs
+from dynoplan.envs.gear.option_runs import write_runs
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import DECISION_STEPS, PlannerState
