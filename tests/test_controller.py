@@ -386,6 +386,40 @@ def test_where_no_learned_choice_gains_an_option_under_its_own_set_that_gains_ru
         ControllerSettings(depth=2, fallback_without_gain=True).validate()
 
 
+def test_where_no_option_gains_the_option_the_regions_make_likeliest_runs():
+    # both options may start everywhere; the models of both say they lose progress, and
+    # "down"'s less; the regions make "up" the demonstrations' choice on the line
+    from dynoplan.planning import OptionPlanner
+
+    anywhere = InitiationFromCallable(lambda s: s[:, 0] < 100)
+
+    def option(name, step, model, log_l):
+        return Option(name, FunctionPolicy(lambda o, r: np.array([step])), model,
+                      ConstantTermination(0.0), initiation=anywhere,
+                      likelihood=None if log_l is None
+                      else (lambda states: np.full(len(states), log_l)))
+
+    def run(rule, up_log_l=-1.0):
+        options = [option("down", -1.0, _Shift(-1.0), -5.0),
+                   option("up", 1.0, _Shift(-2.0), up_log_l)]
+        planner = OptionPlanner(options, _Progress(), horizon=3, samples=2,
+                                regions_without_gain=rule)
+        return planner, Controller(options, planner, max_decisions=30).run(
+            Line(), np.random.default_rng(0), seed=0)
+
+    planner, scores_only = run(False)
+    assert not scores_only.success and {d.option for d in scores_only.decisions} == {"down"}
+    planner, followed = run(True)
+    plan = planner.choose(np.array([0.0]), np.random.default_rng(0))
+    assert plan.chosen_name == "up" and plan.scores[1] < plan.scores[0]
+    assert followed.success and {d.option for d in followed.decisions} == {"up"}
+    # an option without a region is left to the scores
+    planner, _ = run(True, up_log_l=None)
+    assert planner.choose(np.array([0.0]), np.random.default_rng(0)).chosen_name == "down"
+    with pytest.raises(DynoplanError, match="depth-1 planner"):
+        ControllerSettings(depth=2, regions_without_gain=True).validate()
+
+
 def test_an_option_that_ends_where_it_started_is_not_chosen_there_again():
     # "stay" ends at once without moving, but its model promises +5 a step: Eq. 1 prefers
     # it to "up", whose learned initiation rules it out (only its fallback region holds)

@@ -291,6 +291,11 @@ def pipeline(
         None, "--fallback-without-gain/--no-fallback-without-gain",
         help="Where the learned sets admit options but none is predicted to gain, the "
              "demonstrated options whose own sets hold are scored too (depth 1) [off]."),
+    regions_without_gain: bool | None = typer.Option(
+        None, "--regions-without-gain/--no-regions-without-gain",
+        help="Where the learned sets admit options but none is predicted to gain, the "
+             "admissible option whose learned region holds the state most likely runs "
+             "(depth 1) [off]."),
     stall_progress: float | None = typer.Option(
         None, "--stall-progress", **_bounds("control.stall_progress"),
         help="Where a hold changed nothing and DynoPlan would hold again at a state whose "

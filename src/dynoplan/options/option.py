@@ -25,7 +25,7 @@ from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.options.initiation import Everywhere, Initiation
 from dynoplan.options.state_map import StateMap, planner_dynamics
 from dynoplan.options.termination import ConstantTermination, Termination
-from dynoplan.types import BoolArray, Generator
+from dynoplan.types import BoolArray, FloatArray, Generator
 
 
 class OptionPolicy:
@@ -141,6 +141,13 @@ class Option:
     :meth:`~dynoplan.pipeline.fit.FittedModels.build`). A planner that looks beyond the
     learned sets where none of their options gains (``widen_without_gain``) looks at
     demonstrated options only: an option no demonstration used has shown no use there."""
+    likelihood: Callable[[FloatArray], FloatArray] | None = field(default=None,
+                                                                    compare=False)
+    """``log L(s | w)`` of Eq. 5 at planner states, ``(batch, state_dim) -> (batch,)``: how
+    likely the demonstrations make it that the option runs at each state (its learned
+    region's density; a fitted task's options with a region have it,
+    :meth:`~dynoplan.pipeline.fit.FittedModels.build`; ``None``: no region). A planner
+    with ``regions_without_gain`` follows it where no option gains."""
 
     @property
     def planner_dynamics(self) -> DynamicsModel:

@@ -288,7 +288,9 @@ def make_controller(kind: str | ControllerVariant, options: Sequence[Option],
             raise DynoplanError("a safe controller needs the task's safety constraint")
         # depth 1 is OptionPlanner itself (the same decisions to the bit)
         planner = partial(OptionPlanner, widen_without_gain=settings.fallback_own_sets
-                          and settings.fallback_without_gain) if settings.depth == 1 \
+                          and settings.fallback_without_gain,
+                          regions_without_gain=settings.regions_without_gain) \
+            if settings.depth == 1 \
             else partial(SequencePlanner, depth=settings.depth)
         chooser = planner(with_dynamics_noise(planner_options or options,
                                               settings.dynamics_noise), goal,

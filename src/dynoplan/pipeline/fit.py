@@ -26,6 +26,7 @@ import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -235,10 +236,14 @@ class FittedModels:
                        else ", and it has no state map"))
             failure = (RunFailure(self.failure, spec.name) if self.failure is not None
                        and spec.name in self.failure.option_names else None)
+            likelihood = (partial(self.regions.log_likelihood, option=spec.name)
+                          if self.regions is not None and self.region(spec.name) is not None
+                          else None)
             run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
                               continuation, fallback=spec.initiation,
                               state_map=spec.state_map, failure=failure,
-                              demonstrated=spec.name not in undemonstrated))
+                              demonstrated=spec.name not in undemonstrated,
+                              likelihood=likelihood))
             # the planner's option shares where the controller's last run ended without
             # effect (Option.runs); an option model's one step ends the option anyway
             plan.append(replace(run[-1], termination=spec.termination

@@ -250,6 +250,12 @@ class OptionPlanner:
             one: the learned sets say where each option ran in the demonstrations, and
             a disturbance can leave the state where only another demonstrated option
             gains.
+        regions_without_gain: where no admissible option is predicted to gain (as
+            above, after ``widen_without_gain``), the admissible option whose region
+            gives the state the highest likelihood (``Option.likelihood``: the
+            demonstrations' choice there) is chosen instead of the best-scoring one;
+            options without a region are left to the scores (with fewer than two
+            regions among the admissible options, nothing changes).
         compact: advance only the rollouts still running, as rows, where the stacked
             dynamics and terminations can (``sample_rows`` and ``probability_rows``, see
             :meth:`rollout`): the same distribution of rollouts for a fraction of the
@@ -262,7 +268,7 @@ class OptionPlanner:
                  epistemic: float = 0.0, constraint: SafetyConstraint | None = None,
                  risk_level: float = 0.05, end_inside: bool = False,
                  fallback_must_gain: bool = False, compact: bool = False,
-                 widen_without_gain: bool = False) -> None:
+                 widen_without_gain: bool = False, regions_without_gain: bool = False) -> None:
         if not options:
             raise DynoplanError("the planner needs at least one option")
         names = [o.name for o in options]
@@ -285,6 +291,7 @@ class OptionPlanner:
         self.fallback_must_gain = bool(fallback_must_gain)
         self.compact = bool(compact)
         self.widen_without_gain = bool(widen_without_gain)
+        self.regions_without_gain = bool(regions_without_gain)
         self._stacks: dict[tuple[int, ...], tuple[StackedDynamics, StackedTermination]] = {}
         self._terminations: dict[tuple[int, ...], StackedTermination] = {}
 
@@ -325,15 +332,19 @@ class OptionPlanner:
             unsafe_everywhere = table.shares is not None and scores[idx[best]] == -np.inf
             chosen = None if unsafe_everywhere else idx[best]
             gain_rules = chosen is not None and (self.fallback_must_gain
-                                                 or self.widen_without_gain)
+                                                 or self.widen_without_gain
+                                                 or self.regions_without_gain)
             if gain_rules and self._falls_back(s, running):  # asked only where a rule needs it
                 if self.fallback_must_gain:
                     here = float(self.goal.mean_std(s[None])[0][0])
                     if scores[chosen] < here:
                         chosen, floor = None, here
-            elif gain_rules and self.widen_without_gain:
+            elif gain_rules and (self.widen_without_gain or self.regions_without_gain):
+                assert chosen is not None
                 here = float(self.goal.mean_std(s[None])[0][0])
-                widened = self._widen(s, may_run) if scores[chosen] < here else None
+                no_gain = scores[chosen] < here
+                widened = self._widen(s, may_run) if no_gain and self.widen_without_gain \
+                    else None
                 if widened is not None:
                     extra = tuple(int(i) for i in np.flatnonzero(widened))
                     self._score(extra, s, rng, table)
@@ -341,6 +352,8 @@ class OptionPlanner:
                     best_extra = extra[int(np.argmax(scores[list(extra)]))]
                     if scores[best_extra] >= here and scores[best_extra] > scores[chosen]:
                         chosen = best_extra
+                if no_gain and self.regions_without_gain and scores[chosen] < here:
+                    chosen = self._most_likely(s, idx, chosen)
         return Plan(self.option_names, may_run, scores, table.spreads, table.end_states,
                     table.steps, chosen, table.disagreements, table.shares, gain_floor=floor,
                     widened=widened)
@@ -368,6 +381,20 @@ class OptionPlanner:
             table.shares[rows] = roll.unsafe.mean(axis=1)
             table.scores[rows] = np.where(table.shares[rows] > self.risk_level, -np.inf,
                                           table.scores[rows])
+
+    def _most_likely(self, state: FloatArray, idx: tuple[int, ...], chosen: int) -> int:
+        """Of the options ``idx`` (admissible at ``state``, ``(state_dim,)``), the one whose
+        region gives ``state`` the highest likelihood (``Option.likelihood``); ``chosen``
+        where fewer than two of them have a region."""
+        known = [k for k in idx if self.options[k].likelihood is not None]
+        if len(known) < 2:
+            return chosen
+        log_l = []
+        for k in known:
+            likelihood = self.options[k].likelihood
+            assert likelihood is not None
+            log_l.append(float(likelihood(state[None])[0]))
+        return known[int(np.argmax(log_l))]
 
     def _widen(self, state: FloatArray, may_run: BoolArray) -> BoolArray | None:
         """``(options,)``: the demonstrated options not admissible at ``state``
