@@ -99,6 +99,12 @@ def test_pipeline_learns_to_go_right_and_beats_going_left(result):
     assert res.models.regions.option_names == ["right", "left"]
     assert res.models.report["regions"]["undemonstrated"] == {"left": "none"}
     assert [o.demonstrated for o in res.options] == [True, False]
+    # each option with a region carries its likelihood (regions_without_gain reads it)
+    states = np.array([[0.0], [3.0]])
+    for option in res.options:
+        assert option.likelihood is not None
+        np.testing.assert_array_equal(option.likelihood(states),
+                                      res.models.regions.log_likelihood(states, option.name))
     assert res.summary["demonstrations"]["episodes"] == 4
     assert "| dynoplan | 1 |" in res.table
 

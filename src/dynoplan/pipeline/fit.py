@@ -178,6 +178,19 @@ class FittedModels:
             return InRegion(learned, name)
         return None
 
+    def likelihood(self, name: str) -> Callable[[FloatArray], FloatArray] | None:
+        """Option ``name``'s ``log L(s | w)`` at planner states (its region's,
+        :attr:`~dynoplan.options.option.Option.likelihood`), or ``None`` (no region, or
+        regions unused)."""
+        if self.regions is None or self.region(name) is None:
+            return None
+        return partial(self.regions.log_likelihood, option=name)
+
+    def demonstrated(self, name: str) -> bool:
+        """Whether the demonstrations ran option ``name`` (the regions' report lists the
+        options they did not run; :attr:`~dynoplan.options.option.Option.demonstrated`)."""
+        return name not in ((self.report.get("regions") or {}).get("undemonstrated") or {})
+
     def sets(self, name: str, own: Initiation, own_continuation: Initiation | None = None
              ) -> tuple[Initiation, Initiation | None]:
         """Option ``name``'s initiation and continuation sets (``None``: the same as the
@@ -218,7 +231,6 @@ class FittedModels:
         own sets hold compete (``ControllerSettings.fallback_own_sets``).
         """
         run, plan = [], []
-        undemonstrated = (self.report.get("regions") or {}).get("undemonstrated") or {}
         for spec in specs:
             if spec.name not in self.dynamics:
                 raise DynoplanError(f"no dynamics model for option '{spec.name}'")
@@ -236,14 +248,11 @@ class FittedModels:
                        else ", and it has no state map"))
             failure = (RunFailure(self.failure, spec.name) if self.failure is not None
                        and spec.name in self.failure.option_names else None)
-            likelihood = (partial(self.regions.log_likelihood, option=spec.name)
-                          if self.regions is not None and self.region(spec.name) is not None
-                          else None)
             run.append(Option(spec.name, spec.policy, model, spec.termination, initiation,
                               continuation, fallback=spec.initiation,
                               state_map=spec.state_map, failure=failure,
-                              demonstrated=spec.name not in undemonstrated,
-                              likelihood=likelihood))
+                              demonstrated=self.demonstrated(spec.name),
+                              likelihood=self.likelihood(spec.name)))
             # the planner's option shares where the controller's last run ended without
             # effect (Option.runs); an option model's one step ends the option anyway
             plan.append(replace(run[-1], termination=spec.termination

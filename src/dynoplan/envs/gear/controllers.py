@@ -187,7 +187,9 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
                  ) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``, each
     with its own termination ``beta_w`` and its initiation, continuation and fallback sets
-    under ``sets`` (one of :data:`INITIATION_SETS`)."""
+    under ``sets`` (one of :data:`INITIATION_SETS`), and what every task's fitted options
+    carry (:meth:`~dynoplan.pipeline.fit.FittedModels.build`): whether the demonstrations
+    ran it and its region's likelihood (none under ``everywhere``, which uses no region)."""
     missing = [n for n in models.option_names if n not in factories]
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
@@ -198,7 +200,10 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
         initiation, continuation = option_sets(name, models, sets)
         options.append(Option(name, policy, dynamics, termination=policy.termination(),
                               initiation=initiation, continuation=continuation,
-                              fallback=option_fallback(name, sets)))
+                              fallback=option_fallback(name, sets),
+                              demonstrated=models.demonstrated(name),
+                              likelihood=None if sets == "everywhere"
+                              else models.likelihood(name)))
     return options
 
 
