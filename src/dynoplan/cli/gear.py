@@ -57,6 +57,13 @@ def _end_inside_option() -> Any:
                         "(scored where the dynamics had data).")
 
 
+def _regions_without_gain_option() -> Any:
+    return typer.Option(False, "--regions-without-gain", help="Where the learned sets admit "
+                        "options but none is predicted to gain, the admissible option whose "
+                        "learned region holds the state most likely runs (depth 1; the "
+                        "library's control.regions_without_gain).")
+
+
 def _repeat_option() -> Any:
     return typer.Option(False, "--repeat-no-effect", help="Let an option that ended where "
                         "it started (within 1 % of each coordinate's spread) start there "
@@ -532,6 +539,7 @@ def evaluate(
     depth: int | None = _depth_option(),
     epistemic: float | None = _epistemic_option(),
     end_inside: bool = _end_inside_option(),
+    regions_without_gain: bool = _regions_without_gain_option(),
     repeat_no_effect: bool = _repeat_option(),
     flat: Path | None = typer.Option(None, callback=folder,
                                      help="The flat policy's folder for flat_ppo "
@@ -549,7 +557,7 @@ def evaluate(
 
     pool = parse_workers(workers, ray_address)
     planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect,
-                                depth)
+                                depth, regions_without_gain)
     task = _gear_task(human, shield)
     names = tuple(c.strip() for c in controllers.split(",") if c.strip())
     with staged_folder(out) as folder:
@@ -564,7 +572,8 @@ def evaluate(
 
 def _planner_settings(horizon: int | None, samples: int | None, epistemic: float | None,
                       end_inside: bool, repeat_no_effect: bool = False,
-                      depth: int | None = None) -> "ControllerSettings":
+                      depth: int | None = None,
+                      regions_without_gain: bool = False) -> "ControllerSettings":
     """The gear's default controller settings with what the command line changed."""
     from dataclasses import replace
 
@@ -581,6 +590,8 @@ def _planner_settings(horizon: int | None, samples: int | None, epistemic: float
         planner = replace(planner, depth=depth)
     if end_inside:
         planner = replace(planner, end_inside=True)
+    if regions_without_gain:
+        planner = replace(planner, regions_without_gain=True)
     if repeat_no_effect:
         planner = replace(planner, no_effect_tolerance=None, no_effect_share=None)
     return planner
@@ -606,6 +617,7 @@ def episode(
     depth: int | None = _depth_option(),
     epistemic: float | None = _epistemic_option(),
     end_inside: bool = _end_inside_option(),
+    regions_without_gain: bool = _regions_without_gain_option(),
     repeat_no_effect: bool = _repeat_option(),
     human: str | None = _human_option(),
     shield: bool = _shield_option(),
@@ -622,7 +634,7 @@ def episode(
     torch.set_num_threads(1)
     frames: list[Any] | None = [] if video else None  # the replay renders itself
     planner = _planner_settings(horizon, samples, epistemic, end_inside, repeat_no_effect,
-                                depth)
+                                depth, regions_without_gain)
     task = _gear_task(human, shield)
     metrics, rows, schedule = inspect_episode(models, controller, index, seed, planner,
                                               frames=frames, task=task)
