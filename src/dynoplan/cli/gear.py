@@ -462,6 +462,11 @@ def run(
         None, "--region-starts", **setting_bounds("region_starts"),
         help="Start states labelled by the operator's first choice, which the regions fit "
              "too (0: none) [0]."),
+    improve_explore: float | None = typer.Option(
+        None, "--improve-explore", **setting_bounds("improve_explore"),
+        help="In the improvement round's own episodes, the probability at each decision of "
+             "a random admissible option (the pipeline's improve_explore) [0]."),
+    regions_without_gain: bool = _regions_without_gain_option(),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
@@ -486,13 +491,19 @@ def run(
     ablation = sizes.ablation_episodes if ablation_episodes is None else ablation_episodes
     if n < 1 or oracle < 0:
         raise DynoplanError("--episodes must be >= 1 and --oracle-episodes >= 0")
+    planner = replace(sizes.planner, regions_without_gain=True) if regions_without_gain \
+        else sizes.planner
+    improvement = replace(settings.improvement,
+                          rounds=settings.improvement.rounds if improve is None else improve)
+    if improve_explore is not None:
+        improvement = replace(improvement, explore=improve_explore)
     settings = replace(settings, evaluation=replace(
-        sizes, episodes=n, oracle_episodes=min(oracle, n), ablation_episodes=min(ablation, n)),
+        sizes, episodes=n, oracle_episodes=min(oracle, n), ablation_episodes=min(ablation, n),
+        planner=planner),
         faults=replace(settings.faults, episodes=min(settings.faults.episodes, n)),
         video=not no_video,
         region_starts=settings.region_starts if region_starts is None else region_starts,
-        improvement=replace(settings.improvement,
-                            rounds=settings.improvement.rounds if improve is None else improve))
+        improvement=improvement)
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
                                 log=(lambda _: None) if quiet else typer.echo, workers=pool)
     _echo_results(summary["results"])
