@@ -142,8 +142,8 @@ def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Seque
                                INTERRUPTED_KEY: cut[start:end]},
                               env_seed))
     demonstration = None
-    explored = any(d.plan.explored for d in trace.decisions)
-    if trace.success and ran.all() and len(labels) and not explored:
+    if trace.success and ran.all() and len(labels) \
+            and not any(d.plan.explored for d in trace.decisions):
         t = len(labels)
         demonstration = Episode(observations, actions, rewards, terms, truncs,
                                 {OPTION_KEY: labels, INTERRUPTED_KEY: cut,
@@ -304,13 +304,12 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
             curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                           "demonstrations_added": 0, "check": True})
             break
-        if settings.explore > 0.0:
-            explored = play(models, seeds[measured + r * n:measured + (r + 1) * n],
-                            settings.explore)
-            own = own + explored
+        explored = [] if settings.explore == 0.0 else play(
+            models, seeds[measured + r * n:measured + (r + 1) * n], settings.explore)
+        own = own + explored
         curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                       "demonstrations_added": sum(e.demonstration is not None for e in own),
-                      **({"explored_episodes": n} if settings.explore > 0.0 else {})})
+                      **({"explored_episodes": len(explored)} if explored else {})})
         models = refit(r, own)
     if settings.batches > settings.rounds:  # the first of the models that succeeded most
         kept = max(range(len(candidates)), key=lambda i: (candidates[i][0], -i))

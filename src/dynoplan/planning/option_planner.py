@@ -342,9 +342,8 @@ class OptionPlanner:
             elif gain_rules and (self.widen_without_gain or self.regions_without_gain):
                 assert chosen is not None
                 here = float(self.goal.mean_std(s[None])[0][0])
-                no_gain = scores[chosen] < here
-                widened = self._widen(s, may_run) if no_gain and self.widen_without_gain \
-                    else None
+                widened = self._widen(s, may_run) \
+                    if self.widen_without_gain and scores[chosen] < here else None
                 if widened is not None:
                     extra = tuple(int(i) for i in np.flatnonzero(widened))
                     self._score(extra, s, rng, table)
@@ -352,7 +351,7 @@ class OptionPlanner:
                     best_extra = extra[int(np.argmax(scores[list(extra)]))]
                     if scores[best_extra] >= here and scores[best_extra] > scores[chosen]:
                         chosen = best_extra
-                if no_gain and self.regions_without_gain and scores[chosen] < here:
+                if self.regions_without_gain and scores[chosen] < here:  # still no gain
                     chosen = self._most_likely(s, idx, chosen)
         return Plan(self.option_names, may_run, scores, table.spreads, table.end_states,
                     table.steps, chosen, table.disagreements, table.shares, gain_floor=floor,
@@ -386,15 +385,11 @@ class OptionPlanner:
         """Of the options ``idx`` (admissible at ``state``, ``(state_dim,)``), the one whose
         region gives ``state`` the highest likelihood (``Option.likelihood``); ``chosen``
         where fewer than two of them have a region."""
-        known = [k for k in idx if self.options[k].likelihood is not None]
+        known = [(k, f) for k in idx if (f := self.options[k].likelihood) is not None]
         if len(known) < 2:
             return chosen
-        log_l = []
-        for k in known:
-            likelihood = self.options[k].likelihood
-            assert likelihood is not None
-            log_l.append(float(likelihood(state[None])[0]))
-        return known[int(np.argmax(log_l))]
+        log_l = [float(f(state[None])[0]) for _, f in known]
+        return known[int(np.argmax(log_l))][0]
 
     def _widen(self, state: FloatArray, may_run: BoolArray) -> BoolArray | None:
         """``(options,)``: the demonstrated options not admissible at ``state``
