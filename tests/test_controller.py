@@ -416,8 +416,11 @@ def test_where_no_option_gains_the_option_the_regions_make_likeliest_runs():
     # an option without a region is left to the scores
     planner, _ = run(True, up_log_l=None)
     assert planner.choose(np.array([0.0]), np.random.default_rng(0)).chosen_name == "down"
+    # the default, and the sequence planner has no such rule: depth 2 stays valid with it
+    assert ControllerSettings().regions_without_gain
+    ControllerSettings(depth=2).validate()
     with pytest.raises(DynoplanError, match="depth-1 planner"):
-        ControllerSettings(depth=2, regions_without_gain=True).validate()
+        ControllerSettings(depth=2, fallback_without_gain=True).validate()
 
 
 def test_an_option_that_ends_where_it_started_is_not_chosen_there_again():

@@ -197,7 +197,7 @@ def test_the_rounds_keep_the_models_the_settings_say(keep, rates, kept):
     """Any task's models (here: their round number) go through the one loop: each batch
     runs on the models of its round, a refit follows every round, and the models kept
     are the best batch's (the earliest of equals) or the last refit's."""
-    settings = ImprovementSettings(rounds=2, episodes=2, keep=keep)
+    settings = ImprovementSettings(rounds=2, episodes=2, keep=keep, explore=0.0)
     seeds = list(range(settings.batches * settings.episodes))
     played: list[tuple[int, list[int]]] = []
 

@@ -58,10 +58,11 @@ def _end_inside_option() -> Any:
 
 
 def _regions_without_gain_option() -> Any:
-    return typer.Option(False, "--regions-without-gain", help="Where the learned sets admit "
-                        "options but none is predicted to gain, the admissible option whose "
-                        "learned region holds the state most likely runs (depth 1; the "
-                        "library's control.regions_without_gain).")
+    return typer.Option(True, "--regions-without-gain/--no-regions-without-gain",
+                        help="Where the learned sets admit options but none is predicted to "
+                        "gain, the admissible option whose learned region holds the state "
+                        "most likely runs (depth 1; the library's "
+                        "control.regions_without_gain).")
 
 
 def _repeat_option() -> Any:
@@ -465,7 +466,7 @@ def run(
     improve_explore: float | None = typer.Option(
         None, "--improve-explore", **setting_bounds("improve_explore"),
         help="In the improvement round's own episodes, the probability at each decision of "
-             "a random admissible option (the pipeline's improve_explore) [0]."),
+             "a random admissible option (the pipeline's improve_explore) [0.2]."),
     regions_without_gain: bool = _regions_without_gain_option(),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
@@ -491,8 +492,7 @@ def run(
     ablation = sizes.ablation_episodes if ablation_episodes is None else ablation_episodes
     if n < 1 or oracle < 0:
         raise DynoplanError("--episodes must be >= 1 and --oracle-episodes >= 0")
-    planner = replace(sizes.planner, regions_without_gain=True) if regions_without_gain \
-        else sizes.planner
+    planner = replace(sizes.planner, regions_without_gain=regions_without_gain)
     improvement = replace(settings.improvement,
                           rounds=settings.improvement.rounds if improve is None else improve)
     if improve_explore is not None:
@@ -584,7 +584,7 @@ def evaluate(
 def _planner_settings(horizon: int | None, samples: int | None, epistemic: float | None,
                       end_inside: bool, repeat_no_effect: bool = False,
                       depth: int | None = None,
-                      regions_without_gain: bool = False) -> "ControllerSettings":
+                      regions_without_gain: bool = True) -> "ControllerSettings":
     """The gear's default controller settings with what the command line changed."""
     from dataclasses import replace
 
@@ -601,8 +601,7 @@ def _planner_settings(horizon: int | None, samples: int | None, epistemic: float
         planner = replace(planner, depth=depth)
     if end_inside:
         planner = replace(planner, end_inside=True)
-    if regions_without_gain:
-        planner = replace(planner, regions_without_gain=True)
+    planner = replace(planner, regions_without_gain=regions_without_gain)
     if repeat_no_effect:
         planner = replace(planner, no_effect_tolerance=None, no_effect_share=None)
     return planner

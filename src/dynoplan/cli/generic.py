@@ -98,7 +98,7 @@ def pipeline(
     improve_explore: float | None = typer.Option(
         None, "--improve-explore", **_bounds("improve_explore"),
         help="In the improvement rounds' own episodes, the probability at each decision of "
-             "a random admissible option instead of DynoPlan's choice [0]."),
+             "a random admissible option instead of DynoPlan's choice [0.2]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),
@@ -295,7 +295,7 @@ def pipeline(
         None, "--regions-without-gain/--no-regions-without-gain",
         help="Where the learned sets admit options but none is predicted to gain, the "
              "admissible option whose learned region holds the state most likely runs "
-             "(depth 1) [off]."),
+             "(depth 1) [on]."),
     stall_progress: float | None = typer.Option(
         None, "--stall-progress", **_bounds("control.stall_progress"),
         help="Where a hold changed nothing and DynoPlan would hold again at a state whose "

@@ -90,8 +90,9 @@ class ControllerSettings:
             DynoPlan predicts none of them to score the goal heuristic at the present
             state, the admissible option whose Eq. 5 region gives the state the highest
             likelihood (the demonstrations' choice there, ``Option.likelihood``) runs
-            instead of the best-scoring one (the planner's ``regions_without_gain``; depth
-            1 only). ``False``: the best-scoring one runs.
+            instead of the best-scoring one (the planner's ``regions_without_gain``; the
+            default since the eighteenth round of the composition suite; the sequence
+            planner, depth > 1, has no such rule). ``False``: the best-scoring one runs.
         stall_progress: where DynoPlan held, the hold changed nothing and it would hold
             again (``fallback_must_gain``) at a state whose goal heuristic is below this,
             it starts the best-scoring option instead (:class:`~dynoplan.control.Controller`;
@@ -131,7 +132,7 @@ class ControllerSettings:
     fallback_goes_on: bool = False
     fallback_must_gain: bool = True
     fallback_without_gain: bool = False
-    regions_without_gain: bool = False
+    regions_without_gain: bool = True
     stall_progress: float | None = 0.5
     score_failures: bool = True
 
@@ -141,10 +142,9 @@ class ControllerSettings:
                 f"horizon and samples must be >= 1, got {self.horizon} and {self.samples}")
         if not 1 <= self.depth <= DEPTH_MAX:
             raise DynoplanError(f"depth must be in [1, {DEPTH_MAX}], got {self.depth}")
-        for rule in ("fallback_without_gain", "regions_without_gain"):
-            if getattr(self, rule) and self.depth != 1:
-                raise DynoplanError(f"{rule} is a rule of the depth-1 planner; "
-                                    f"got depth {self.depth}")
+        if self.fallback_without_gain and self.depth != 1:
+            raise DynoplanError("fallback_without_gain is a rule of the depth-1 planner; "
+                                f"got depth {self.depth}")
         if self.oracle_horizon < 1 or self.oracle_samples < 1:
             raise DynoplanError(
                 f"oracle_horizon and oracle_samples must be >= 1, got {self.oracle_horizon} "
