@@ -8,7 +8,13 @@ import pytest
 
 from dynoplan.control.choosers import Exploring, RandomChoice
 from dynoplan.control.controller import Controller, Decision, EpisodeTrace
-from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, PROGRESS_KEY
+from dynoplan.data.episodes import (
+    FAILURE_KEY,
+    INTERRUPTED_KEY,
+    OPTION_KEY,
+    PROGRESS_KEY,
+    Episode,
+)
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline import run_pipeline
 from dynoplan.pipeline.evaluate import ControllerRunner
@@ -305,3 +311,46 @@ def test_a_round_explores_after_measuring_its_models_on_seeds_of_its_own():
     improvement_rounds(0, settings, seeds, play, lambda r, own: r + 1, lambda _: None)
     assert played == [(0, [0, 1], 0.0), (0, [6, 7], 0.3), (1, [2, 3], 0.0), (1, [8, 9], 0.3),
                       (2, [4, 5], 0.0)]
+
+
+def test_the_demonstrator_is_asked_where_a_round_failed_and_its_episodes_are_demonstrations():
+    settings = ImprovementSettings(rounds=2, episodes=3, keep="last", explore=0.0, demos=1)
+    seeds = list(range(settings.seeds))
+    asked: list[list[int]] = []
+    refits: list[list[OwnEpisode]] = []
+    shown = Episode(np.zeros((3, 1)), np.zeros((2, 1)), np.zeros(2), np.zeros(2, bool),
+                    np.zeros(2, bool), {PROGRESS_KEY: np.array([0.5, 1.0])}, 7)
+
+    def demonstrate(starts):
+        asked.append(list(starts))
+        return [shown]
+
+    def refit(r, own):
+        refits.append(own)
+        return r + 1
+
+    _, curve = improvement_rounds(0, settings, seeds, lambda m, b, e: _fake_own([1, 0, 0]),
+                                  refit, lambda _: None, demonstrate)
+    # the first failed start of each round's batch, one each (demos=1)
+    assert asked == [[1], [4]]
+    assert [own[-1].demonstration for own in refits] == [shown, shown]
+    assert [c["demonstrator_episodes"] for c in curve] == [1, 1]
+    with pytest.raises(DynoplanError, match="has none"):
+        improvement_rounds(0, settings, seeds, lambda m, b, e: _fake_own([0, 0, 0]),
+                           refit, lambda _: None)
+    with pytest.raises(DynoplanError, match="improve_demos must be >= 0"):
+        replace(settings, demos=-1).validate()
+
+
+def test_demonstrations_at_the_given_starts_keep_the_successes_with_their_seeds():
+    from dynoplan.adapters import as_spec
+    from dynoplan.pipeline.collect import demonstrations_at
+    from dynoplan.seeding import episode_seeds
+
+    starts = episode_seeds(5, 3)
+    specs = [as_spec(o) for o in line_options()]
+    shown = demonstrations_at(line_env(), specs, lambda obs: "right", starts)
+    assert [e.seed for e in shown] == [s.env_seed for s in starts]
+    assert all(e.infos[PROGRESS_KEY][-1] == 1.0 for e in shown)
+    # a demonstrator that never reaches the goal shows nothing
+    assert demonstrations_at(line_env(), specs, lambda obs: "left", starts) == []

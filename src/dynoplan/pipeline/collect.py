@@ -39,7 +39,7 @@ from dynoplan.options.option import Option, OptionPolicy
 from dynoplan.options.termination import ConstantTermination
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.progress import track
-from dynoplan.seeding import episode_seeds
+from dynoplan.seeding import EpisodeSeed, episode_seeds
 from dynoplan.types import FloatArray, Generator
 
 ObservationFn = Callable[[Any], FloatArray]
@@ -480,12 +480,8 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
                                   enabled=progress)]
 
     found, tried = successful_attempts(episodes, attempts, run, lambda r: r.success)
-    kept: list[Episode] = []
-    for _, recording in sorted((f for f in found if f is not None), key=lambda f: f[0]):
-        episode = recording.episode
-        t = len(episode)
-        episode.infos[PROGRESS_KEY] = np.arange(1, t + 1, dtype=np.float64) / t
-        kept.append(episode)
+    kept = [with_progress(recording.episode)
+            for _, recording in sorted((f for f in found if f is not None), key=lambda f: f[0])]
     if len(kept) < episodes:
         raise DynoplanError(
             f"only {len(kept)} of {tried} demonstrations reached the goal; {episodes} were "
@@ -493,6 +489,27 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
             "at the last step, else terminated; a task that never terminates needs a success "
             "function, --success MODULE:FUNCTION)")
     return kept
+
+
+def with_progress(episode: Episode) -> Episode:
+    """``episode`` (a successful demonstration) with its progress labels:
+    ``infos["progress"]`` after step ``t`` of ``T`` steps is ``(t + 1) / T``."""
+    t = len(episode)
+    episode.infos[PROGRESS_KEY] = np.arange(1, t + 1, dtype=np.float64) / t
+    return episode
+
+
+def demonstrations_at(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], demonstrator: Any,
+                      seeds: Sequence[EpisodeSeed],
+                      max_steps: int | None = None) -> list[Episode]:
+    """The demonstrator's episodes from the starts of ``seeds`` (each episode's
+    ``env_seed`` and ``rng``), its successes only, in order, with progress labels
+    (:func:`with_progress`): demonstrations where a learner asks for them (the
+    improvement rounds' ``improve_demos``) rather than where a seed stream falls."""
+    demo = demonstrator_from(demonstrator)
+    return [with_progress(r.episode) for r in
+            (record_episode(env, specs, demo, s.env_seed, s.rng(), max_steps) for s in seeds)
+            if r.success]
 
 
 def collect_transitions(env: gym.Env[Any, Any], specs: Sequence[OptionSpec], episodes: int,

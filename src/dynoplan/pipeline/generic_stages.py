@@ -27,6 +27,7 @@ from dynoplan.pipeline.admissibility import admissibility, admissibility_table, 
 from dynoplan.pipeline.collect import (
     ObservationFn,
     collect_transitions,
+    demonstrations_at,
     make_env,
     probe_options,
     record_demonstrations,
@@ -311,10 +312,14 @@ class GenericStages:
                               region_demos=fit_demos if improvement.regions else self.demos,
                               region_starts=self._region_starts())
 
+        def demonstrate(seeds: Sequence[EpisodeSeed]) -> list[Episode]:
+            return demonstrations_at(self.environment, self.specs, self.demonstrator, seeds)
+
         seeds = (episode_seeds(self.seeds["improve"], improvement.seeds)
                  if improvement.rounds else [])
-        models, self.curve = improvement_rounds(models, improvement, seeds, play, refit,
-                                                run.clock.switch)
+        models, self.curve = improvement_rounds(
+            models, improvement, seeds, play, refit, run.clock.switch,
+            demonstrate if self.demonstrator is not None else None)
         self.run_options, self.planner_options = models.build(self.specs)
         return models
 

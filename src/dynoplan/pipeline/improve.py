@@ -233,6 +233,12 @@ class ImprovementSettings:
             too (not as demonstrations), while the success of a round's models is
             measured on its episodes without exploration, as the evaluation runs (0.2,
             the default since the eighteenth round of the composition suite; 0: none).
+        demos: above 0, after each round's episodes the demonstrator runs from the
+            starts of the first ``demos`` of them that failed, and its successes join the
+            demonstrations of the refit: demonstrations where DynoPlan fails, in the
+            spirit of DAgger's expert labels on the learner's own states (0, the
+            default: none; a named variant of the composition suite; it asks the
+            demonstrator for up to ``rounds * demos`` more episodes).
     """
 
     rounds: int = 1
@@ -240,6 +246,7 @@ class ImprovementSettings:
     regions: bool = True
     keep: str = "best"
     explore: float = 0.2
+    demos: int = 0
 
     def validate(self) -> None:
         if self.rounds < 0:
@@ -251,6 +258,8 @@ class ImprovementSettings:
                                 f"'{self.keep}'")
         if not 0.0 <= self.explore <= 1.0:
             raise DynoplanError(f"improve_explore must be in [0, 1], got {self.explore}")
+        if self.demos < 0:
+            raise DynoplanError(f"improve_demos must be >= 0, got {self.demos}")
 
     @property
     def batches(self) -> int:
@@ -273,7 +282,9 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
                        play: Callable[[Models, Sequence[EpisodeSeed], float],
                                       list[OwnEpisode]],
                        refit: Callable[[int, list[OwnEpisode]], Models],
-                       say: Callable[[str], None]) -> tuple[Models, list[dict[str, Any]]]:
+                       say: Callable[[str], None],
+                       demonstrate: Callable[[Sequence[EpisodeSeed]], list[Episode]] | None
+                       = None) -> tuple[Models, list[dict[str, Any]]]:
     """``settings.rounds`` rounds from ``models``: ``play(models, seeds, explore)`` runs
     DynoPlan on the models of the round on its ``settings.episodes`` of ``seeds``
     (``settings.seeds`` of them, a stream no other stage uses; ``explore``: the
@@ -281,15 +292,22 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
     models, ``settings.explore`` for a round's exploring episodes, which come after every
     batch's seeds), then ``refit(round, own)`` fits again on everything so far and this
     round's own episodes (the task keeps what it has added); ``say`` is told of each round
-    as it starts.
+    as it starts. With ``settings.demos`` above 0, ``demonstrate(seeds)`` (the task's
+    demonstrator, its successful episodes with progress labels) runs from the seeds of
+    the first ``settings.demos`` of the round's measured episodes that failed, and its
+    episodes join ``own`` as demonstrations.
 
     Returns:
         The models ``settings.keep`` says and the learning curve: per batch ``round``,
         ``episodes``, ``success_rate`` (of the episodes without exploration) and
         ``demonstrations_added``, with ``explored_episodes`` where the round explored,
-        ``check`` on the batch that only measures the last refit, and ``kept`` on every
-        entry when the best models are kept.
+        ``demonstrator_episodes`` where the demonstrator was asked, ``check`` on the batch
+        that only measures the last refit, and ``kept`` on every entry when the best
+        models are kept.
     """
+    if settings.demos and demonstrate is None:
+        raise DynoplanError("improve_demos asks the task's demonstrator for episodes; this "
+                            "task has none")
     n = settings.episodes
     measured = settings.batches * n  # the exploring episodes' seeds come after these
     curve: list[dict[str, Any]] = []
@@ -297,7 +315,8 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
     for r in range(settings.batches):
         last = r == settings.rounds  # the extra batch that measures the last refit
         say("improvement check" if last else f"improvement round {r + 1}")
-        own = play(models, seeds[r * n:(r + 1) * n], 0.0)
+        batch = seeds[r * n:(r + 1) * n]
+        own = play(models, batch, 0.0)
         success = float(np.mean([e.success for e in own]))
         candidates.append((success, models))
         if last:
@@ -306,10 +325,15 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
             break
         explored = [] if settings.explore == 0.0 else play(
             models, seeds[measured + r * n:measured + (r + 1) * n], settings.explore)
-        own = own + explored
+        failed = [seed for seed, e in zip(batch, own, strict=True) if not e.success]
+        asked = failed[:settings.demos]
+        shown = [] if not asked or demonstrate is None else [
+            OwnEpisode(True, (), episode) for episode in demonstrate(asked)]
+        own = own + explored + shown
         curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                       "demonstrations_added": sum(e.demonstration is not None for e in own),
-                      **({"explored_episodes": len(explored)} if explored else {})})
+                      **({"explored_episodes": len(explored)} if explored else {}),
+                      **({"demonstrator_episodes": len(asked)} if asked else {})})
         models = refit(r, own)
     if settings.batches > settings.rounds:  # the first of the models that succeeded most
         kept = max(range(len(candidates)), key=lambda i: (candidates[i][0], -i))

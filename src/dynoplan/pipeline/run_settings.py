@@ -43,10 +43,10 @@ class PipelineSettings:
             there gets a region of its own on those states, joined to its region on the
             demonstrations (:func:`~dynoplan.pipeline.fit_regions.start_regions`; 0:
             none, the regions fit the demonstrations alone).
-        improve, improve_episodes, improve_regions, improve_keep, improve_explore: how
-            the run learns from DynoPlan's own episodes before the evaluation
-            (:mod:`~dynoplan.pipeline.improve`): the ``rounds``, ``episodes``,
-            ``regions``, ``keep`` and ``explore`` of
+        improve, improve_episodes, improve_regions, improve_keep, improve_explore,
+            improve_demos: how the run learns from DynoPlan's own episodes before the
+            evaluation (:mod:`~dynoplan.pipeline.improve`): the ``rounds``,
+            ``episodes``, ``regions``, ``keep``, ``explore`` and ``demos`` of
             :class:`~dynoplan.pipeline.improve.ImprovementSettings` (:attr:`improvement`).
     """
 
@@ -65,6 +65,7 @@ class PipelineSettings:
     improve_regions: bool = ImprovementSettings.regions
     improve_keep: str = ImprovementSettings.keep
     improve_explore: float = ImprovementSettings.explore
+    improve_demos: int = ImprovementSettings.demos
 
     def validate(self) -> None:
         for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes"):
@@ -83,7 +84,8 @@ class PipelineSettings:
     def improvement(self) -> ImprovementSettings:
         """The improvement rounds' settings."""
         return ImprovementSettings(self.improve, self.improve_episodes, self.improve_regions,
-                                   self.improve_keep, self.improve_explore)
+                                   self.improve_keep, self.improve_explore,
+                                   self.improve_demos)
 
 
 def starts_seed(demos_seed: int) -> int:
