@@ -413,6 +413,8 @@ def test_where_no_option_gains_the_option_the_regions_make_likeliest_runs():
     plan = planner.choose(np.array([0.0]), np.random.default_rng(0))
     assert plan.chosen_name == "up" and plan.scores[1] < plan.scores[0]
     assert followed.success and {d.option for d in followed.decisions} == {"up"}
+    # an option the safety constraint rules out (score -inf) is never the regions' choice
+    assert planner._most_likely(np.array([0.0]), (0, 1), 0, np.array([0.0, -np.inf])) == 0
     # an option without a region is left to the scores
     planner, _ = run(True, up_log_l=None)
     assert planner.choose(np.array([0.0]), np.random.default_rng(0)).chosen_name == "down"

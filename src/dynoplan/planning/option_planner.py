@@ -352,7 +352,7 @@ class OptionPlanner:
                     if scores[best_extra] >= here and scores[best_extra] > scores[chosen]:
                         chosen = best_extra
                 if self.regions_without_gain and scores[chosen] < here:  # still no gain
-                    chosen = self._most_likely(s, idx, chosen)
+                    chosen = self._most_likely(s, idx, chosen, scores)
         return Plan(self.option_names, may_run, scores, table.spreads, table.end_states,
                     table.steps, chosen, table.disagreements, table.shares, gain_floor=floor,
                     widened=widened)
@@ -381,11 +381,14 @@ class OptionPlanner:
             table.scores[rows] = np.where(table.shares[rows] > self.risk_level, -np.inf,
                                           table.scores[rows])
 
-    def _most_likely(self, state: FloatArray, idx: tuple[int, ...], chosen: int) -> int:
-        """Of the options ``idx`` (admissible at ``state``, ``(state_dim,)``), the one whose
-        region gives ``state`` the highest likelihood (``Option.likelihood``); ``chosen``
-        where fewer than two of them have a region."""
-        known = [(k, f) for k in idx if (f := self.options[k].likelihood) is not None]
+    def _most_likely(self, state: FloatArray, idx: tuple[int, ...], chosen: int,
+                     scores: FloatArray) -> int:
+        """Of the options ``idx`` (admissible at ``state``, ``(state_dim,)``) that the
+        safety constraint allows (``scores``, ``(options,)``, above ``-inf``), the one
+        whose region gives ``state`` the highest likelihood (``Option.likelihood``);
+        ``chosen`` where fewer than two of them have a region."""
+        known = [(k, f) for k in idx
+                 if (f := self.options[k].likelihood) is not None and scores[k] > -np.inf]
         if len(known) < 2:
             return chosen
         log_l = [float(f(state[None])[0]) for _, f in known]
