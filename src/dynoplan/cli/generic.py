@@ -99,6 +99,11 @@ def pipeline(
         None, "--improve-explore", **_bounds("improve_explore"),
         help="In the improvement rounds' own episodes, the probability at each decision of "
              "a random admissible option instead of DynoPlan's choice [0.2]."),
+    improve_demos: int | None = typer.Option(
+        None, "--improve-demos", **_bounds("improve_demos"),
+        help="After each improvement round's own episodes, the demonstrator runs from the "
+             "starts of up to this many of them that failed; its successes join the "
+             "demonstrations [0]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),
