@@ -467,6 +467,11 @@ def run(
         None, "--improve-explore", **setting_bounds("improve_explore"),
         help="In the improvement round's own episodes, the probability at each decision of "
              "a random admissible option (the pipeline's improve_explore) [0.2]."),
+    improve_demos: int | None = typer.Option(
+        None, "--improve-demos", **setting_bounds("improve_demos"),
+        help="After each improvement round's own episodes, the operator runs from the starts "
+             "of up to this many of them that failed; its successes join the "
+             "demonstrations (the pipeline's improve_demos) [0]."),
     regions_without_gain: bool = _regions_without_gain_option(),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
@@ -497,6 +502,8 @@ def run(
                           rounds=settings.improvement.rounds if improve is None else improve)
     if improve_explore is not None:
         improvement = replace(improvement, explore=improve_explore)
+    if improve_demos is not None:
+        improvement = replace(improvement, demos=improve_demos)
     settings = replace(settings, evaluation=replace(
         sizes, episodes=n, oracle_episodes=min(oracle, n), ablation_episodes=min(ablation, n),
         planner=planner),

@@ -27,14 +27,22 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from dynoplan.data import Dataset, Episode, read_dataset, write_dataset
+from dynoplan.envs.gear.demonstrations import (
+    DemoJob,
+    build_demonstrator,
+    demonstrated_episode,
+    to_dataset_episode,
+)
 from dynoplan.envs.gear.evaluation import improvement_seeds
 from dynoplan.envs.gear.learning.settings import GearMetricsSettings
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.stages import learned_models, outcome_initiation
 from dynoplan.envs.gear.state import DECISION_STEPS
-from dynoplan.parallel import SERIAL, Workers
+from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import ControllerJob
@@ -99,9 +107,19 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
                                collect=False)
         return models
 
+    def demonstrate(seeds: Sequence[EpisodeSeed]) -> list[Episode]:
+        """The operator (the options' demonstrator, its networks in ``out/models``) from
+        the starts of ``seeds``, each with its seed's own human behaviour, as in the
+        evaluation; its successes, labelled as the run's demonstrations."""
+        raw = parallel_map(build_demonstrator, demonstrated_episode, DemoJob("options", first),
+                           [(s.env_seed, None) for s in seeds], workers,
+                           "gear demos where DynoPlan failed", progress)
+        return [_with_infos(to_dataset_episode(r), ("option", "progress")) for r in raw
+                if bool(np.asarray(r["infos"]["success"])[-1])]
+
     kept, curve = improvement_rounds(first, settings,
                                      improvement_seeds(seed, settings.seeds),
-                                     play, refit, say)
+                                     play, refit, say, demonstrate)
     if kept != first:
         shutil.copytree(kept, first, dirs_exist_ok=True)
     return curve
