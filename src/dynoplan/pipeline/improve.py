@@ -238,7 +238,8 @@ class ImprovementSettings:
             demonstrations of the refit: demonstrations where DynoPlan fails, in the
             spirit of DAgger's expert labels on the learner's own states (0, the
             default: none; a named variant of the composition suite; it asks the
-            demonstrator for up to ``rounds * demos`` more episodes).
+            demonstrator for up to ``rounds * demos`` more episodes; a task with recorded
+            demonstrations alone has no demonstrator to ask, and none is asked).
     """
 
     rounds: int = 1
@@ -292,10 +293,11 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
     models, ``settings.explore`` for a round's exploring episodes, which come after every
     batch's seeds), then ``refit(round, own)`` fits again on everything so far and this
     round's own episodes (the task keeps what it has added); ``say`` is told of each round
-    as it starts. With ``settings.demos`` above 0, ``demonstrate(seeds)`` (the task's
-    demonstrator, its successful episodes with progress labels) runs from the seeds of
-    the first ``settings.demos`` of the round's measured episodes that failed, and its
-    episodes join ``own`` as demonstrations.
+    as it starts. With ``settings.demos`` above 0 and a ``demonstrate`` (the task's
+    demonstrator; ``None`` for a task with recorded demonstrations alone: none is asked),
+    ``demonstrate(seeds)`` (its successful episodes with progress labels) runs from the
+    seeds of the first ``settings.demos`` of the round's measured episodes that failed,
+    and its episodes join ``own`` as demonstrations.
 
     Returns:
         The models ``settings.keep`` says and the learning curve: per batch ``round``,
@@ -305,9 +307,6 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
         that only measures the last refit, and ``kept`` on every entry when the best
         models are kept.
     """
-    if settings.demos and demonstrate is None:
-        raise DynoplanError("improve_demos asks the task's demonstrator for episodes; this "
-                            "task has none")
     n = settings.episodes
     measured = settings.batches * n  # the exploring episodes' seeds come after these
     curve: list[dict[str, Any]] = []
@@ -326,7 +325,7 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
         explored = [] if settings.explore == 0.0 else play(
             models, seeds[measured + r * n:measured + (r + 1) * n], settings.explore)
         failed = [seed for seed, e in zip(batch, own, strict=True) if not e.success]
-        asked = failed[:settings.demos]
+        asked = failed[:settings.demos] if demonstrate is not None else []
         shown = [] if not asked or demonstrate is None else [
             OwnEpisode(True, (), episode) for episode in demonstrate(asked)]
         own = own + explored + shown
