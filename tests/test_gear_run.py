@@ -360,3 +360,21 @@ def test_start_states_labelled_by_the_operator_reach_the_pick_region(quick_gear_
         regions = load_gear_models(models).regions
         admitted[name] = float(np.mean(regions.contains(states, "pick")))
     assert admitted["with"] >= 0.9 and admitted["with"] >= admitted["without"]
+
+
+@pytest.mark.slow
+def test_the_operator_demonstrates_from_the_starts_it_is_given(quick_gear_run: Path):
+    """improve_demos on the gear: the operator runs from the starts where DynoPlan failed,
+    each episode the one its seed starts, labelled as the run's demonstrations."""
+    from dynoplan.data import read_dataset
+    from dynoplan.envs.gear.evaluation import improvement_seeds
+    from dynoplan.envs.gear.improve import operator_demonstrations
+
+    starts = improvement_seeds(0, 2)
+    shown = operator_demonstrations(quick_gear_run / "models", starts)
+    assert shown, "the operator succeeds from the quick run's starts"
+    assert {e.seed for e in shown} <= {s.env_seed for s in starts}
+    demos = read_dataset(quick_gear_run / "demos")
+    assert all(set(e.infos) == {"option", "progress"} for e in shown)
+    assert all(e.infos["progress"][-1] == 1.0 for e in shown)
+    assert shown[0].observations.shape[1] == next(iter(demos)).observations.shape[1]

@@ -108,14 +108,7 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
         return models
 
     def demonstrate(seeds: Sequence[EpisodeSeed]) -> list[Episode]:
-        """The operator (the options' demonstrator, its networks in ``out/models``) from
-        the starts of ``seeds``, each with its seed's own human behaviour, as in the
-        evaluation; its successes, labelled as the run's demonstrations."""
-        raw = parallel_map(build_demonstrator, demonstrated_episode, DemoJob("options", first),
-                           [(s.env_seed, None) for s in seeds], workers,
-                           "gear demos where DynoPlan failed", progress)
-        return [_with_infos(to_dataset_episode(r), ("option", "progress")) for r in raw
-                if bool(np.asarray(r["infos"]["success"])[-1])]
+        return operator_demonstrations(first, seeds, workers, progress)
 
     kept, curve = improvement_rounds(first, settings,
                                      improvement_seeds(seed, settings.seeds),
@@ -123,6 +116,20 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
     if kept != first:
         shutil.copytree(kept, first, dirs_exist_ok=True)
     return curve
+
+
+def operator_demonstrations(models: Path, seeds: Sequence[EpisodeSeed],
+                            workers: Workers = SERIAL,
+                            progress: bool = False) -> list[Episode]:
+    """The operator (the options' demonstrator, its networks in ``models``) from the
+    starts of ``seeds`` (each with its seed's own human behaviour, as in the evaluation):
+    its successful episodes, in order, with the infos of the run's demonstrations
+    (``option``, ``progress``); the improvement rounds' ``improve_demos``."""
+    raw = parallel_map(build_demonstrator, demonstrated_episode, DemoJob("options", models),
+                       [(s.env_seed, None) for s in seeds], workers,
+                       "gear demos where DynoPlan failed", progress)
+    return [_with_infos(to_dataset_episode(r), ("option", "progress")) for r in raw
+            if bool(np.asarray(r["infos"]["success"])[-1])]
 
 
 def _with_infos(episode: Episode, keys: Sequence[str]) -> Episode:
@@ -139,4 +146,4 @@ def _write_like(source: Dataset, out: Path, episodes: list[Episode], round_: int
         "note": "the run's episodes and DynoPlan's own from the improvement rounds"}))
 
 
-__all__ = ["IMPROVE_DIR", "improved_models"]
+__all__ = ["IMPROVE_DIR", "improved_models", "operator_demonstrations"]
