@@ -5,6 +5,7 @@ Usage (from the repository root)::
     python -m benchmarks.suite.trace results/suite panda-stack 1
     python -m benchmarks.suite.trace results/suite panda-stack 1 --decisions 1,11
     python -m benchmarks.suite.trace results/suite cartpole-move 0 --disturbed
+    python -m benchmarks.suite.trace results/suite lunar-lander 3 --starts
 
 For one task and seed of the suite run ``RUN`` (the ``--out`` of :mod:`benchmarks.suite`)
 this loads ``RUN/<task>/seed<s>/models``, builds DynoPlan as the evaluation does (with
@@ -28,6 +29,7 @@ import numpy as np
 from benchmarks.suite.__main__ import parse_sets
 from benchmarks.suite.rerun import load_run_seed, refit_goal, split_sets
 from dynoplan.control.controller import EpisodeTrace
+from dynoplan.data import read_dataset
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.config import pipeline_settings
 from dynoplan.pipeline.evaluate import (
@@ -65,6 +67,12 @@ def decision_lines(trace: EpisodeTrace, goal_means: "np.ndarray") -> list[str]:
     return lines
 
 
+def _values(state: "np.ndarray") -> str:
+    """A state as ``[0.33 -0.12 ...]``, two decimals."""
+    return np.array2string(np.asarray(state, dtype=np.float64).ravel(), precision=2,
+                           suppress_small=True, max_line_width=10_000)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.suite.trace",
                                      description=__doc__.split("\n\n")[0])
@@ -78,6 +86,10 @@ def main(argv: list[str] | None = None) -> int:
                              "(fit.goal_*: the goal heuristic is fitted again)")
     parser.add_argument("--disturbed", action="store_true",
                         help="under the task's disturbance")
+    parser.add_argument("--starts", action="store_true",
+                        help="print where each demonstration and each episode started "
+                             "(the first observation; the episodes': the first decision's "
+                             "state)")
     args = parser.parse_args(argv)
     try:
         goal_sets, control = split_sets(parse_sets(args.set))
@@ -94,6 +106,9 @@ def main(argv: list[str] | None = None) -> int:
                                      planner_options, env.action_space, fitted.state_scale)
         runner = ControllerRunner(env, controller, regions=learned_regions(fitted))
         seeds = episode_seeds(summary["seeds"]["evaluation"], int(rows[DYNOPLAN]["episodes"]))
+        if args.starts:
+            for k, demo in enumerate(read_dataset(loaded.folder / "demos")):
+                print(f"demonstration {k} starts at {_values(demo.observations[0])}")
         successes = 0
         for seed in seeds:
             trace = runner.run(seed)
@@ -101,8 +116,10 @@ def main(argv: list[str] | None = None) -> int:
             if seed.index in wanted:
                 states = np.stack([d.state for d in trace.decisions])
                 print("\n".join(decision_lines(trace, fitted.goal.mean_std(states)[0])))
+            start = f" from {_values(trace.decisions[0].state)}" \
+                if args.starts and trace.decisions else ""
             print(f"{seed.index} {'success' if trace.success else 'failure'} "
-                  f"{trace.env_steps} {option_runs(trace)}", flush=True)
+                  f"{trace.env_steps}{start} {option_runs(trace)}", flush=True)
         print(f"DynoPlan: {successes} of {len(seeds)} (the run's: "
               f"{rows[DYNOPLAN]['success_rate']:.2f})")
     except (DynoplanError, OSError, ValueError, KeyError) as exc:
