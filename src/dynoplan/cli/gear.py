@@ -471,7 +471,7 @@ def run(
         None, "--improve-demos", **setting_bounds("improve_demos"),
         help="After each improvement round's own episodes, the operator runs from the starts "
              "of up to this many of them that failed; its successes join the "
-             "demonstrations (the pipeline's improve_demos) [0]."),
+             "demonstrations (the pipeline's improve_demos) [5]."),
     regions_without_gain: bool = _regions_without_gain_option(),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),

@@ -103,7 +103,7 @@ def pipeline(
         None, "--improve-demos", **_bounds("improve_demos"),
         help="After each improvement round's own episodes, the demonstrator runs from the "
              "starts of up to this many of them that failed; its successes join the "
-             "demonstrations [0]."),
+             "demonstrations [5]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),

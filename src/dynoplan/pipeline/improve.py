@@ -236,10 +236,10 @@ class ImprovementSettings:
         demos: above 0, after each round's episodes the demonstrator runs from the
             starts of the first ``demos`` of them that failed, and its successes join the
             demonstrations of the refit: demonstrations where DynoPlan fails, in the
-            spirit of DAgger's expert labels on the learner's own states (0, the
-            default: none; a named variant of the composition suite; it asks the
-            demonstrator for up to ``rounds * demos`` more episodes; a task with recorded
-            demonstrations alone has no demonstrator to ask, and none is asked).
+            spirit of DAgger's expert labels on the learner's own states (5, the
+            default since the eighteenth round of the composition suite; 0: none). It
+            asks the demonstrator for up to ``rounds * demos`` more episodes; a task with
+            recorded demonstrations alone has no demonstrator to ask, and none is asked.
     """
 
     rounds: int = 1
@@ -247,7 +247,7 @@ class ImprovementSettings:
     regions: bool = True
     keep: str = "best"
     explore: float = 0.2
-    demos: int = 0
+    demos: int = 5
 
     def validate(self) -> None:
         if self.rounds < 0:
