@@ -316,7 +316,7 @@ def test_the_gear_commands_set_the_planners_depth():
     assert _planner_settings(None, None, None, False).depth == GEAR_CONTROL.depth == 1
     assert _planner_settings(None, None, None, False, depth=2).depth == 2
     for command in ("evaluate", "episode"):
-        shown = CliRunner().invoke(app, ["gear", command, "--help"], terminal_width=200)
+        shown = CliRunner().invoke(app, ["gear", command, "--help"], env={"COLUMNS": "200"})
         assert "--depth" in shown.output
 
 
@@ -327,8 +327,8 @@ def test_the_gear_controllers_do_not_repeat_an_option_without_effect_unless_told
     assert _planner_settings(None, None, None, False) == GEAR_CONTROL
     ablation = _planner_settings(None, None, None, False, repeat_no_effect=True)
     assert ablation.no_effect_tolerance is None and ablation.no_effect_share is None
-    for command in ("evaluate", "episode"):
-        shown = CliRunner().invoke(app, ["gear", command, "--help"], terminal_width=200)
+    for command in ("evaluate", "episode"):  # rich reads the width from COLUMNS
+        shown = CliRunner().invoke(app, ["gear", command, "--help"], env={"COLUMNS": "200"})
         assert "--repeat-no-effect" in shown.output
 
 
