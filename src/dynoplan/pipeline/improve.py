@@ -324,10 +324,13 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
             break
         explored = [] if settings.explore == 0.0 else play(
             models, seeds[measured + r * n:measured + (r + 1) * n], settings.explore)
-        failed = [seed for seed, e in zip(batch, own, strict=True) if not e.success]
-        asked = failed[:settings.demos] if demonstrate is not None else []
-        shown = [] if not asked or demonstrate is None else [
-            OwnEpisode(True, (), episode) for episode in demonstrate(asked)]
+        asked: list[EpisodeSeed] = []
+        shown: list[OwnEpisode] = []
+        if demonstrate is not None:  # the demonstrator at the batch's first failed starts
+            asked = [seed for seed, e in zip(batch, own, strict=True) if not e.success]
+            asked = asked[:settings.demos]
+            shown = [OwnEpisode(True, (), episode) for episode in demonstrate(asked)] \
+                if asked else []
         own = own + explored + shown
         curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                       "demonstrations_added": sum(e.demonstration is not None for e in own),

@@ -56,6 +56,11 @@ RawEpisode = dict[str, Any]
 ``progress``, ``stage``, ``min_human_distance``, ``success``, ``human_contacts``,
 ``pads_on_gear``, ``insertion_depth``), ``seed`` and ``human_mode``."""
 
+
+def succeeded(episode: RawEpisode) -> bool:
+    """Whether ``episode`` ended in success (its last step's ``infos["success"]``)."""
+    return bool(np.asarray(episode["infos"]["success"])[-1])
+
 _INFO_KEYS = ("stage", "min_human_distance", "is_success", "human_contacts", "pads_on_gear",
               "insertion_depth")
 
@@ -298,8 +303,7 @@ def _successful_episodes(job: DemoJob, n: int, seed: int, human_mode: str | None
                             [(seeds[i], modes[j]) for j, i in pairs], workers,
                             f"gear demos (options, {len(pairs)} tries)", progress)
 
-    found, _ = successful_attempts(n, len(seeds), run,
-                                   lambda e: bool(np.asarray(e["infos"]["success"])[-1]))
+    found, _ = successful_attempts(n, len(seeds), run, succeeded)
     done = [e for _, e in (f for f in found if f is not None)]
     if len(done) < n:
         raise DynoplanError(f"only {len(done)} of {3 * n} option demonstrations succeeded; "
@@ -310,7 +314,7 @@ def _successful_episodes(job: DemoJob, n: int, seed: int, human_mode: str | None
 def summarise(episodes: list[RawEpisode], seed: int, wall_seconds: float) -> dict[str, Any]:
     """Success, safety and speed over ``episodes`` (the ``summary.json`` content)."""
     n = len(episodes)
-    success = [bool(ep["infos"]["success"][-1]) for ep in episodes]
+    success = [succeeded(ep) for ep in episodes]
     steps = np.array([len(ep["actions"]) for ep in episodes])
     sim_seconds = float(steps.sum() * CONTROL_DT)
     step_seconds = float(sum(ep["step_seconds"] for ep in episodes))
@@ -454,7 +458,7 @@ def record_demos(n: int, seed: int, out: Path, progress: bool = True,
     finally:
         env.close()
     write_dataset(out, episodes, metadata)
-    successes = [bool(np.asarray(r["infos"]["success"])[-1]) for r in raw]
+    successes = [succeeded(r) for r in raw]
     return {
         "dataset": str(out),
         "episodes": n,

@@ -27,13 +27,12 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from dynoplan.data import Dataset, Episode, read_dataset, write_dataset
 from dynoplan.envs.gear.demonstrations import (
     DemoJob,
     build_demonstrator,
     demonstrated_episode,
+    succeeded,
     to_dataset_episode,
 )
 from dynoplan.envs.gear.evaluation import improvement_seeds
@@ -129,7 +128,7 @@ def operator_demonstrations(models: Path, seeds: Sequence[EpisodeSeed],
                        [(s.env_seed, None) for s in seeds], workers,
                        "gear demos where DynoPlan failed", progress)
     return [_with_infos(to_dataset_episode(r), ("option", "progress")) for r in raw
-            if bool(np.asarray(r["infos"]["success"])[-1])]
+            if succeeded(r)]
 
 
 def _with_infos(episode: Episode, keys: Sequence[str]) -> Episode:
