@@ -52,6 +52,7 @@ CELLS_MAX = 10_000
 SETTING_BOUNDS: dict[str, tuple[float, float]] = {
     "demos": (1, EPISODES_MAX), "exploration_episodes": (1, EPISODES_MAX),
     "exploration_option_steps": (1, STEPS_MAX), "exploration_branches": (0, EPISODES_MAX),
+    "demo_detours": (0, EPISODES_MAX),
     "region_starts": (0, EPISODES_MAX),
     "episodes": (1, EPISODES_MAX),
     "seed": (0, SEED_MAX), "improve": (0, 100), "improve_episodes": (1, EPISODES_MAX),

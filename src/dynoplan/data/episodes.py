@@ -40,6 +40,10 @@ INTERRUPTED_KEY = "interrupted"
 """``infos`` key, ``(T,)`` ``bool``: True at the last step of an option run that a
 controller cut short to run another option (a replan), so that where the run stopped is
 not where its option ends."""
+DETOUR_KEY = "detour"
+"""``infos`` key, ``(T,)`` ``bool``: True at the steps of a demonstration on which an option
+the demonstrator did not choose acted (a detour, :class:`~dynoplan.pipeline.collect.Detour`):
+they are runs of that option and states with a progress, not the demonstrator's choice."""
 
 StateFn = Callable[[np.ndarray], np.ndarray]
 """Maps observations ``(M, *obs_shape)`` to planner states ``(M, state_dim)``."""

@@ -28,6 +28,7 @@ import numpy as np
 from dynoplan.adapters.spec import OptionSpec, as_spec, check_unique_names
 from dynoplan.control.controller import default_success, flat_state
 from dynoplan.data.episodes import (
+    DETOUR_KEY,
     FAILURE_KEY,
     INTERRUPTED_KEY,
     OPTION_KEY,
@@ -260,21 +261,117 @@ class RandomOptions(Demonstrator):
     def choose(self, observation: Any) -> str:
         s = self.state_fn(observation)[None]
         if self._current is not None:
-            spec = self.specs[self._current]
-            capped = self._steps >= self.max_option_steps
-            stop = (capped or not bool(spec.continuation_set.contains(s)[0])
-                    or self._rng.random() < float(spec.termination.probability(s)[0]))
+            stop, capped = run_stops(self.specs[self._current], s, self._rng, self._steps,
+                                     self.max_option_steps)
             if stop:
                 if capped:
                     self.cut.append(self._t - 1)
                 self._current = None
         self._t += 1
         if self._current is None:
-            admissible = [i for i, sp in enumerate(self.specs) if sp.initiation.contains(s)[0]]
-            pool = admissible or list(range(len(self.specs)))
-            self._current = int(self._rng.choice(pool))
+            self._current = random_admissible(self.specs, s, self._rng)
             self._steps = 0
         self._steps += 1
+        return self.specs[self._current].name
+
+
+def run_stops(spec: OptionSpec, state: FloatArray, rng: Generator, steps: int,
+              max_steps: int) -> tuple[bool, bool]:
+    """Whether a run of ``spec`` that has acted ``steps`` times stops at ``state``
+    ``(1, d)`` (it has run ``max_steps``, left its continuation set, or its termination
+    fired: one draw from ``rng``, made only when the first two do not hold), and whether
+    the cap alone stopped it."""
+    capped = steps >= max_steps
+    stop = (capped or not bool(spec.continuation_set.contains(state)[0])
+            or rng.random() < float(spec.termination.probability(state)[0]))
+    return stop, capped
+
+
+def random_admissible(specs: Sequence[OptionSpec], state: FloatArray, rng: Generator) -> int:
+    """The index of an option drawn uniformly from those whose own initiation set holds
+    at ``state`` ``(1, d)`` (from all of them where none does)."""
+    admissible = [i for i, sp in enumerate(specs) if sp.initiation.contains(state)[0]]
+    return int(rng.choice(admissible or list(range(len(specs)))))
+
+
+class Detour(Demonstrator):
+    """A demonstrator with one detour per episode: DART's idea (Laskey et al., CoRL
+    2017: disturb the supervisor while it demonstrates, so that the data show it
+    recovering) at the level of options.
+
+    From a step drawn uniformly from ``[1, within)`` at ``reset``, an option drawn at
+    random (:func:`random_admissible`, the distractors too) acts instead of the
+    demonstrator's choice until it stops as an exploring run stops (:func:`run_stops`,
+    at most ``max_steps``). Then the demonstrator goes on from wherever the detour left
+    the task. It is asked at every step, the detour's too, so that a script that keeps
+    track of the episode keeps track of it.
+
+    Attributes:
+        steps: the detour's steps (0-based) in this episode.
+        cut: the cap alone ended the detour (where it stopped is not its option's end).
+    """
+
+    def __init__(self, demonstrator: Any, specs: Sequence[OptionSpec],
+                 state_fn: ObservationFn = flat_state, within: int = 2,
+                 max_steps: int = 1) -> None:
+        if within < 2 or max_steps < 1:
+            raise DynoplanError(f"a detour needs within >= 2 and max_steps >= 1, got "
+                                f"{within} and {max_steps}")
+        self.demonstrator = demonstrator_from(demonstrator)
+        self.specs = list(specs)
+        self.state_fn = state_fn
+        self.within = within
+        self.max_steps = max_steps
+        self._rng: Generator = np.random.default_rng(0)
+        self._at = 1
+        self._t = 0
+        self._current: int | None = None
+        self._over = False
+        self.steps: list[int] = []
+        self.cut = False
+
+    @classmethod
+    def around(cls, demonstrator: Any, specs: Sequence[OptionSpec], demos: Sequence[Episode],
+               state_fn: ObservationFn = flat_state) -> "Detour":
+        """Detours sized from the demonstrations ``demos``: they start within their
+        median length and last at most the median length of their option runs."""
+        lengths = [len(d) for d in demos]
+        runs = [len(r) for d in demos
+                for r in np.split(d.infos[OPTION_KEY],
+                                  np.flatnonzero(np.diff(d.infos[OPTION_KEY])) + 1)]
+        return cls(demonstrator, specs, state_fn, max(2, int(np.median(lengths))),
+                   max(1, int(np.median(runs))))
+
+    def reset(self, observation: Any, rng: Generator) -> None:
+        self.demonstrator.reset(observation, rng)
+        self._rng = rng
+        self._at = int(rng.integers(1, self.within))
+        self._t = 0
+        self._current = None
+        self._over = False
+        self.steps = []
+        self.cut = False
+
+    def observe(self, info: dict[str, Any]) -> None:
+        observe = getattr(self.demonstrator, "observe", None)
+        if observe is not None:
+            observe(info)
+
+    def choose(self, observation: Any) -> "str | Decision | None":
+        choice = self.demonstrator.choose(observation)
+        t, self._t = self._t, self._t + 1
+        if self._over or t < self._at:
+            return choice
+        s = self.state_fn(observation)[None]
+        if self._current is None:
+            self._current = random_admissible(self.specs, s, self._rng)
+        else:
+            stop, self.cut = run_stops(self.specs[self._current], s, self._rng,
+                                       len(self.steps), self.max_steps)
+            if stop:
+                self._over = True
+                return choice
+        self.steps.append(t)
         return self.specs[self._current].name
 
 
@@ -463,7 +560,9 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
     derived from ``seed`` are tried in order (:func:`successful_attempts`) and attempts
     stop after ``max_attempts`` (default ``5 * episodes``). The demonstrations come in
     the order of their seeds. ``infos["progress"]`` after step ``t`` of a ``T``-step
-    demonstration is ``(t + 1) / T``.
+    demonstration is ``(t + 1) / T``. A :class:`Detour` as the demonstrator marks each
+    episode's detour (``infos["detour"]``, and ``infos["interrupted"]`` at its last step
+    where the cap cut it).
 
     Raises:
         DynoplanError: fewer than ``episodes`` demonstrations succeeded.
@@ -474,10 +573,16 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
     attempts = max_attempts if max_attempts is not None else 5 * episodes
     seeds = episode_seeds(seed, attempts)
 
+    def one(i: int) -> Recording:
+        recording = record_episode(env, specs, demo, seeds[i].env_seed, seeds[i].rng(),
+                                   max_steps)
+        if isinstance(demo, Detour):
+            _mark_detour(recording.episode, demo)
+        return recording
+
     def run(pairs: list[tuple[int, int]]) -> list[Recording]:
-        return [record_episode(env, specs, demo, seeds[i].env_seed, seeds[i].rng(), max_steps)
-                for _, i in track(pairs, "demonstrations", total=len(pairs),
-                                  enabled=progress)]
+        return [one(i) for _, i in track(pairs, "demonstrations", total=len(pairs),
+                                         enabled=progress)]
 
     found, tried = successful_attempts(episodes, attempts, run, lambda r: r.success)
     kept = [with_progress(recording.episode)
@@ -489,6 +594,18 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
             "at the last step, else terminated; a task that never terminates needs a success "
             "function, --success MODULE:FUNCTION)")
     return kept
+
+
+def _mark_detour(episode: Episode, detour: Detour) -> None:
+    """``infos["detour"]`` (and ``infos["interrupted"]``) of ``episode`` from ``detour``."""
+    steps = np.asarray([t for t in detour.steps if t < len(episode)], dtype=np.int64)
+    marked = np.zeros(len(episode), dtype=bool)
+    marked[steps] = True
+    episode.infos[DETOUR_KEY] = marked
+    cut = np.zeros(len(episode), dtype=bool)
+    if detour.cut and len(steps):
+        cut[steps[-1]] = True
+    episode.infos[INTERRUPTED_KEY] = cut
 
 
 def with_progress(episode: Episode) -> Episode:

@@ -6,7 +6,13 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from dynoplan.control.controller import flat_state
-from dynoplan.data.episodes import FAILURE_KEY, INTERRUPTED_KEY, OPTION_KEY, Episode
+from dynoplan.data.episodes import (
+    DETOUR_KEY,
+    FAILURE_KEY,
+    INTERRUPTED_KEY,
+    OPTION_KEY,
+    Episode,
+)
 from dynoplan.errors import DynoplanError
 from dynoplan.pipeline.collect import ObservationFn, decision_episodes
 from dynoplan.types import FloatArray, Generator
@@ -237,13 +243,16 @@ def split_runs(episodes: Sequence[Episode], fraction: float,
 
 def labelled_states(episodes: Sequence[Episode], n_options: int, state_fn: ObservationFn,
                      ) -> tuple[FloatArray, np.ndarray, np.ndarray]:
-    """Every state an option acted in: ``(N, d)`` states, ``(N,)`` labels and episode ids."""
+    """Every state an option was chosen in: ``(N, d)`` states, ``(N,)`` labels and
+    episode ids. A demonstration's detour (``infos["detour"]``) is no one's choice: its
+    steps are left out."""
     states, labels, groups = [], [], []
     for index, episode in enumerate(episodes):
         y = option_labels(episode, index, n_options)
-        labels.append(y)
-        states.append(episode_states(episode, state_fn)[:-1])
-        groups.append(np.full(len(y), index))
+        chosen = ~np.asarray(episode.infos.get(DETOUR_KEY, np.zeros(len(y), bool)), bool)
+        labels.append(y[chosen])
+        states.append(episode_states(episode, state_fn)[:-1][chosen])
+        groups.append(np.full(int(chosen.sum()), index))
     if not states:
         return np.zeros((0, 0)), np.zeros(0, np.int64), np.zeros(0, np.int64)
     return np.concatenate(states), np.concatenate(labels), np.concatenate(groups)

@@ -25,6 +25,7 @@ from dynoplan.options.option import Option
 from dynoplan.parallel import SERIAL, Workers
 from dynoplan.pipeline.admissibility import admissibility, admissibility_table, start_states
 from dynoplan.pipeline.collect import (
+    Detour,
     ObservationFn,
     collect_transitions,
     demonstrations_at,
@@ -64,7 +65,13 @@ from dynoplan.pipeline.improve import (
     learning_curve_text,
     own_episodes,
 )
-from dynoplan.pipeline.run_settings import PipelineSettings, jsonable, run_seeds, starts_seed
+from dynoplan.pipeline.run_settings import (
+    PipelineSettings,
+    detours_seed,
+    jsonable,
+    run_seeds,
+    starts_seed,
+)
 from dynoplan.pipeline.task import PipelineRun, Task
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -257,6 +264,13 @@ class GenericStages:
             self.demos = record_demonstrations(self.environment, self.specs, self.demonstrator,
                                                self.settings.demos, self.seeds["demos"],
                                                progress=run.progress)
+            if self.settings.demo_detours:
+                run.clock.switch("demonstrations with detours")
+                self.demos += record_demonstrations(
+                    self.environment, self.specs,
+                    Detour.around(self.demonstrator, self.specs, self.demos),
+                    self.settings.demo_detours, detours_seed(self.seeds["demos"]),
+                    progress=run.progress)
         else:
             raise DynoplanError("give a demonstrator or recorded demonstrations (demos=...)")
         if self.settings.region_starts and self.demonstrator is not None:

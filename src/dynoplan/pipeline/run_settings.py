@@ -37,6 +37,10 @@ class PipelineSettings:
         control: how DynoPlan plans and every controller runs.
         controllers: which controllers to evaluate (default: DynoPlan, each option
             alone, random choice).
+        demo_detours: further demonstrations, each with one detour: an option drawn at
+            random acts for a while and the demonstrator recovers from where it left the
+            task (:class:`~dynoplan.pipeline.collect.Detour`; with a demonstrator only;
+            0: none).
         region_starts: start states of the task (resets of a seed stream of their own)
             at which the demonstrator's first choice is asked
             (:func:`~dynoplan.pipeline.collect.start_choices`); each option chosen
@@ -54,6 +58,7 @@ class PipelineSettings:
     exploration_episodes: int = 20
     exploration_option_steps: int = 100
     exploration_branches: int = 0
+    demo_detours: int = 0
     region_starts: int = 0
     episodes: int = 100
     seed: int = 0
@@ -73,6 +78,8 @@ class PipelineSettings:
                 raise DynoplanError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.region_starts < 0:
             raise DynoplanError(f"region_starts must be >= 0, got {self.region_starts}")
+        if self.demo_detours < 0:
+            raise DynoplanError(f"demo_detours must be >= 0, got {self.demo_detours}")
         if self.exploration_branches < 0:
             raise DynoplanError("exploration_branches must be >= 0, got "
                                 f"{self.exploration_branches}")
@@ -93,6 +100,12 @@ def starts_seed(demos_seed: int) -> int:
     stream of :func:`run_seeds` (derived from the demonstrations' so that those stay the
     same with or without it)."""
     return int(np.random.SeedSequence([int(demos_seed), 7]).generate_state(1)[0] % 2**31)
+
+
+def detours_seed(demos_seed: int) -> int:
+    """The seed stream of a run's demonstrations with detours (``demo_detours``), apart
+    from every other stream (derived as :func:`starts_seed`)."""
+    return int(np.random.SeedSequence([int(demos_seed), 8]).generate_state(1)[0] % 2**31)
 
 
 def run_seeds(seed: int, improve: bool = False) -> dict[str, int]:
@@ -117,4 +130,4 @@ def jsonable(value: Any) -> Any:
     return value
 
 
-__all__ = ["PipelineSettings", "jsonable", "run_seeds", "starts_seed"]
+__all__ = ["PipelineSettings", "detours_seed", "jsonable", "run_seeds", "starts_seed"]
