@@ -12,6 +12,7 @@ from gymnasium import spaces
 
 from dynoplan import DynoplanError
 from dynoplan.adapters import make_option, option_spec
+from dynoplan.control.controller import flat_state
 from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
 from dynoplan.pipeline import (
     ControllerSettings,
@@ -29,10 +30,11 @@ from dynoplan.pipeline import (
     record_demonstrations,
     run_pipeline,
 )
-from dynoplan.pipeline.collect import successful_attempts
+from dynoplan.pipeline.collect import Detour, successful_attempts
 from dynoplan.pipeline.diagnostics import episode_history_warning
 from dynoplan.pipeline.evaluate import evaluate_controllers
 from dynoplan.pipeline.fit import strided
+from dynoplan.pipeline.fit_data import labelled_states
 
 
 class Line(gym.Env):
@@ -247,6 +249,38 @@ def test_exploration_branches_off_the_demonstrations_where_they_went():
     assert {e.seed for e in branched[2:]} <= {d.seed for d in demos}
     with pytest.raises(DynoplanError, match="must be >= 0, got -1"):
         collect_transitions(line_env(), specs, 2, seed=5, demos=demos, branches=-1)
+
+
+def test_a_detour_is_a_run_of_another_option_that_the_demonstrator_recovers_from():
+    specs = line_options()
+    demos = record_demonstrations(line_env(), specs, lambda obs: "right", episodes=3, seed=1)
+    detour = Detour.around(lambda obs: "right", specs, demos)
+    assert detour.within == int(np.median([len(d) for d in demos]))
+    recorded = record_demonstrations(line_env(), specs, detour, episodes=6, seed=2)
+    again = record_demonstrations(line_env(), specs, detour, episodes=6, seed=2)
+    assert all(np.array_equal(a.observations, b.observations)
+               for a, b in zip(recorded, again, strict=True))
+    went_left = detoured = 0
+    for episode in recorded:
+        marked = episode.infos["detour"]
+        # at most one detour (none where the episode ended before it was due), after the
+        # first step, of consecutive steps; the rest is the demonstrator's
+        steps = np.flatnonzero(marked)
+        assert not len(steps) or (steps[0] >= 1 and np.all(np.diff(steps) == 1))
+        detoured += bool(len(steps))
+        assert np.all(episode.options[~marked] == 0)
+        went_left += int(np.any(episode.options[marked] == 1))
+        # it still reached the goal: progress runs to 1 over the whole episode
+        assert episode.infos["progress"][-1] == 1.0 and episode.observations[-1, 0] >= 5
+    assert detoured >= 4 and went_left > 0  # some went the wrong way and were made up for
+    # the regions see the demonstrator's choices only; the dynamics see every step
+    states, labels, _ = labelled_states(recorded, 2, flat_state)
+    assert len(states) == sum(int((~e.infos["detour"]).sum()) for e in recorded)
+    assert set(labels.tolist()) == {0}
+    pairs = option_transitions(recorded, ["right", "left"])
+    assert len(pairs["left"][0]) == sum(int((e.options == 1).sum()) for e in recorded) > 0
+    with pytest.raises(DynoplanError, match="within >= 2 and max_steps >= 1"):
+        Detour(lambda obs: "right", specs, within=1)
 
 
 # --- bad input ---------------------------------------------------------------------------
