@@ -283,6 +283,16 @@ def test_a_detour_is_a_run_of_another_option_that_the_demonstrator_recovers_from
         Detour(lambda obs: "right", specs, within=1)
 
 
+def test_a_run_with_detours_writes_them_beside_the_demonstrations(tmp_path):
+    settings = PipelineSettings(**{**SMALL.__dict__, "demo_detours": 2, "improve": 0})
+    res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                       settings=settings, out=tmp_path)
+    demos = read_dataset(tmp_path / "demos").episodes
+    assert len(demos) == settings.demos + 2
+    assert [bool(d.infos["detour"].any()) for d in demos[:settings.demos]] == [False] * 4
+    assert res.evaluation["dynoplan"]["success_rate"] == 1.0
+
+
 # --- bad input ---------------------------------------------------------------------------
 
 

@@ -608,6 +608,14 @@ def _mark_detour(episode: Episode, detour: Detour) -> None:
     episode.infos[INTERRUPTED_KEY] = cut
 
 
+def without_detour(episode: Episode) -> Episode:
+    """``episode`` (a demonstration with no detour) marked as such, with the fields of a
+    :class:`Detour`'s demonstrations (one dataset holds episodes of one layout)."""
+    for key in (DETOUR_KEY, INTERRUPTED_KEY):
+        episode.infos.setdefault(key, np.zeros(len(episode), dtype=bool))
+    return episode
+
+
 def with_progress(episode: Episode) -> Episode:
     """``episode`` (a successful demonstration) with its progress labels:
     ``infos["progress"]`` after step ``t`` of ``T`` steps is ``(t + 1) / T``."""

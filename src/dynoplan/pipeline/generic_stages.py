@@ -33,6 +33,7 @@ from dynoplan.pipeline.collect import (
     probe_options,
     record_demonstrations,
     start_choices,
+    without_detour,
 )
 from dynoplan.pipeline.diagnostics import (
     episode_history_warning,
@@ -266,6 +267,7 @@ class GenericStages:
                                                progress=run.progress)
             if self.settings.demo_detours:
                 run.clock.switch("demonstrations with detours")
+                self.demos = [without_detour(d) for d in self.demos]
                 self.demos += record_demonstrations(
                     self.environment, self.specs,
                     Detour.around(self.demonstrator, self.specs, self.demos),
