@@ -42,14 +42,15 @@ def test_random_walk_writes_summary_figures_and_is_deterministic(tmp_path):
 
 
 @pytest.mark.slow
-def test_depth_two_and_lockstep_reach_the_goal_on_the_walk(tmp_path):
-    for flags in (["--depth", "2"], ["--lockstep"], ["--lockstep", "--depth", "2"]):
+def test_depth_two_and_one_by_one_reach_the_goal_on_the_walk(tmp_path):
+    for flags in (["--depth", "2"], ["--one-by-one"], ["--one-by-one", "--depth", "2"]):
         out = tmp_path / "-".join(flags)
         _run("random-walk", "--episodes", "30", "--quiet", "--out", str(out), *flags)
         summary = json.loads((out / "summary.json").read_text())
         assert summary["success_rate"] == 1.0, flags
         assert summary["planning_steps_median"] <= 7, flags
         assert summary["settings"]["depth"] == (2 if "2" in flags else 1)
+        assert summary["settings"]["lockstep"] == ("--one-by-one" not in flags)
 
 
 @pytest.mark.parametrize(

@@ -70,3 +70,17 @@ def test_dynoplan_beats_every_single_option_and_random_choice():
     assert random["planning_steps_median"] > planner["planning_steps_median"]
     assert mean_steps("option:left_0.5")["success_rate"] == 0.0
     assert mean_steps("option:right_0.9")["planning_steps_median"] > 10
+
+
+def test_more_episodes_than_run_side_by_side_run_in_batches(monkeypatch):
+    """The walk's episodes run in lockstep by default, at most LOCKSTEP_EPISODES at a time
+    (memory stays bounded): 23 episodes in batches of 10 all reach the goal."""
+    import dynoplan.experiments.random_walk as walk
+
+    monkeypatch.setattr(walk, "LOCKSTEP_EPISODES", 10)
+    settings = RandomWalkSettings(episodes=23, seed=4)
+    assert settings.lockstep
+    seeds = episode_seeds(settings.seed, settings.episodes)
+    traces = walk.run_lockstep(make_walk_controller("dynoplan", 0.2, settings), 0.2,
+                               settings, seeds)
+    assert len(traces) == 23 and all(t.success and t.planning_steps > 0 for t in traces)

@@ -54,9 +54,10 @@ def random_walk(
     depth: int = typer.Option(1, min=1, max=DEPTH_MAX,
                               help="Options per imagined sequence (1: Eq. 1; 2: look one "
                                    "option further)."),
-    lockstep: bool = typer.Option(False, "--lockstep",
-                                  help="Run the episodes side by side: every episode's "
-                                       "decision of one step in one planner call."),
+    lockstep: bool = typer.Option(True, "--lockstep/--one-by-one",
+                                  help="Run the episodes side by side, every episode's "
+                                       "decision of one step in one planner call (the same "
+                                       "distribution of results), or one after another."),
     start_state: int = typer.Option(0, min=0, help="Start state of the walk (0..19)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:

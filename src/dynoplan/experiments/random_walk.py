@@ -36,6 +36,9 @@ from dynoplan.reports.random_walk_results import random_walk_markdown, trace_row
 from dynoplan.seeding import EpisodeSeed, batch_planner_seed, episode_seeds
 
 ROBUSTNESS_NOISES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+LOCKSTEP_EPISODES = 1000
+"""Most episodes that run side by side (:func:`run_lockstep`); more run in batches of
+this many, one after another, so that memory stays bounded."""
 
 
 @dataclass(frozen=True)
@@ -45,7 +48,8 @@ class RandomWalkSettings:
     ``depth``: options per imagined sequence of DynoPlan's planner (1: Eq. 1).
     ``lockstep``: run each controller's episodes side by side, every episode's decision
     of one step in one planner call (:func:`~dynoplan.control.batched.run_batched`; the
-    same distribution of results, not the same episodes).
+    same distribution of results as one after another, not the same episodes); the
+    default, since the walk's decisions are tiny and a call's fixed cost dominates.
     """
 
     episodes: int = 1000
@@ -55,7 +59,7 @@ class RandomWalkSettings:
     samples: int = 128
     max_decisions: int = 50
     depth: int = 1
-    lockstep: bool = False
+    lockstep: bool = True
     start_state: int = 0
     goal_state: int = 20
     robustness_noises: tuple[float, ...] = field(default=ROBUSTNESS_NOISES)
@@ -94,7 +98,7 @@ def run_lockstep(controller: Controller, noise: float, settings: RandomWalkSetti
     decisions of one step for every episode in one planner call (the planner of
     ``controller``, as a :class:`~dynoplan.planning.SequencePlanner` of the same
     settings: at depth 1 the same Eq. 1, advancing only the rollouts still running),
-    a baseline's one after another."""
+    a baseline's one after another; at most :data:`LOCKSTEP_EPISODES` at a time."""
     chooser: Any = controller.chooser
     if isinstance(chooser, OptionPlanner):
         chooser = SequencePlanner(chooser.options, NoisyWalkGoal(noise, settings.goal_state),
@@ -104,10 +108,14 @@ def run_lockstep(controller: Controller, noise: float, settings: RandomWalkSetti
     # every reset and step pass through it): the time limit and the order stay
     envs = [gym.make(RANDOM_WALK_ID, goal_state=settings.goal_state,
                      start_state=settings.start_state, disable_env_checker=True)
-            for _ in seeds]
+            for _ in seeds[:LOCKSTEP_EPISODES]]
     planner_rng = np.random.default_rng(batch_planner_seed(settings.seed))
-    return run_batched(envs, controller.options, chooser, seeds, planner_rng,
-                       max_decisions=settings.max_decisions)
+    traces: list[EpisodeTrace] = []
+    for first in range(0, len(seeds), LOCKSTEP_EPISODES):
+        batch = seeds[first:first + LOCKSTEP_EPISODES]
+        traces += run_batched(envs[:len(batch)], controller.options, chooser, batch,
+                              planner_rng, max_decisions=settings.max_decisions)
+    return traces
 
 
 def run_random_walk(settings: RandomWalkSettings, out: Path, progress: bool = True) -> dict[
