@@ -10,7 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from benchmarks.suite import __main__ as suite
-from benchmarks.suite import regions, registry, rerun, trace
+from benchmarks.suite import compare, regions, registry, rerun, trace
 from dynoplan.pipeline import probe_options, record_demonstrations
 
 INSTALLED = [e for e in registry.TASKS if e.missing() is None]
@@ -114,3 +114,20 @@ def test_a_small_suite_run_writes_every_row_with_the_demonstrator_as_the_bar(tmp
     out = capsys.readouterr().out
     assert out.count("fresh states inside their option's region: go_to_key ") == 2
     assert "regions on the demonstrations and 5 start states:" in out
+
+
+def test_compare_merges_groups_of_tasks_and_gives_the_mean_and_the_disturbed_rows(tmp_path):
+    def task(name, ours, disturbed):
+        return {"task": name, "demonstrator": [1.0, 1.0], "dynoplan": ours,
+                "disturbed_demonstrator": [1.0, 0.5], "disturbed_dynoplan": disturbed}
+
+    for folder, tasks in (("a", [task("cart", [1.0, 0.5], [0.5, 0.5])]),
+                          ("b", [task("door", [1.0, 1.0], [0.0, 0.0])])):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "suite.json").write_text(json.dumps(
+            {"settings": {"demos": 10}, "tasks": tasks}))
+    table = compare.compare([str(tmp_path / "a"), str(tmp_path / "b")]).splitlines()
+    assert table[0] == "| settings changed | cart | door | mean ratio |"
+    assert table[2] == "| demos=10 | 1.00 / 0.50 (0.75) | 1.00 / 1.00 (1.00) | 0.875 |"
+    assert table[3] == ("| disturbed, demos=10 | 0.50 / 0.50 (0.67) | 0.00 / 0.00 (0.00) "
+                        "| 0.333 |")

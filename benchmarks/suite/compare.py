@@ -8,9 +8,11 @@ Usage (from the repository root)::
 Reads each folder's ``suite.json`` (written by ``python -m benchmarks.suite``) and prints
 one markdown table: a row per run (named by the settings it changed, or by the label
 given as ``LABEL=FOLDER``), a column per task,
-each cell DynoPlan's success on every seed and, in brackets, the composition ratio.
-Runs of the same settings on different tasks (one folder per group of tasks) are merged
-into one row.
+each cell DynoPlan's success on every seed and, in brackets, the composition ratio, and
+a last column with the mean of the ratios (when every task has one). Under it, the same
+rows under each task's disturbance, each cell's ratio against the disturbed
+demonstrator's mean. Runs of the same settings on different tasks (one folder per group
+of tasks) are merged into one row.
 """
 
 import json
@@ -25,28 +27,47 @@ def variant(run: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in sorted(sets.items())) or "defaults"
 
 
-def cell(task: dict[str, Any]) -> str:
-    seeds = " / ".join(f"{x:.2f}" for x in task["dynoplan"])
-    ratio = task.get("composition_ratio")
-    return seeds + ("" if ratio is None else f" ({ratio:.2f})")
+def ratio(task: dict[str, Any], disturbed: bool = False) -> float | None:
+    """DynoPlan's mean success over the demonstrator's (clean, or under the disturbance);
+    ``None`` where the demonstrator never succeeded or the run has no such rows."""
+    prefix = "disturbed_" if disturbed else ""
+    ours, bar = task.get(prefix + "dynoplan"), task.get(prefix + "demonstrator")
+    if not ours or not bar or sum(bar) == 0:
+        return None
+    return sum(ours) / sum(bar)
+
+
+def cell(task: dict[str, Any], disturbed: bool = False) -> str:
+    seeds = " / ".join(f"{x:.2f}" for x in task["disturbed_dynoplan" if disturbed
+                                                else "dynoplan"])
+    share = ratio(task, disturbed)
+    return seeds + ("" if share is None else f" ({share:.2f})")
 
 
 def compare(folders: list[str]) -> str:
     """The markdown table of the runs in ``folders``."""
-    rows: dict[str, dict[str, str]] = {}
+    runs: dict[str, dict[str, dict[str, Any]]] = {}
     tasks: list[str] = []
     for item in folders:
         label, _, folder = item.rpartition("=")
         run = json.loads((Path(folder) / "suite.json").read_text(encoding="utf-8"))
-        row = rows.setdefault(label or variant(run), {})
+        row = runs.setdefault(label or variant(run), {})
         for task in run["tasks"]:
-            row[task["task"]] = cell(task)
+            row[task["task"]] = task
             if task["task"] not in tasks:
                 tasks.append(task["task"])
-    lines = ["| settings changed | " + " | ".join(tasks) + " |",
-             "|---|" + "---|" * len(tasks)]
-    lines += [f"| {name} | " + " | ".join(row.get(t, "–") for t in tasks) + " |"
-              for name, row in rows.items()]
+    lines = ["| settings changed | " + " | ".join(tasks) + " | mean ratio |",
+             "|---|" + "---|" * (len(tasks) + 1)]
+    for disturbed in (False, True):
+        for name, row in runs.items():
+            if disturbed and not all(row[t].get("disturbed_dynoplan") for t in row):
+                continue
+            shares = [ratio(row[t], disturbed) if t in row else None for t in tasks]
+            mean = ("–" if any(x is None for x in shares)
+                    else f"{sum(x for x in shares if x is not None) / len(shares):.3f}")
+            cells = [cell(row[t], disturbed) if t in row else "–" for t in tasks]
+            lines.append(f"| {'disturbed, ' if disturbed else ''}{name} | "
+                         + " | ".join(cells) + f" | {mean} |")
     return "\n".join(lines) + "\n"
 
 
