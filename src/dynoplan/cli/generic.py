@@ -70,6 +70,10 @@ def pipeline(
         None, "--exploration-branches", **_bounds("exploration_branches"),
         help="Further exploration episodes that branch off a demonstration (start where "
              "it was after a random step, its reset seed replayed) [0]."),
+    demo_detours: int | None = typer.Option(
+        None, "--demo-detours", **_bounds("demo_detours"),
+        help="Further demonstrations, each with one detour: a random option acts for a "
+             "while and the demonstrator recovers (a variant) [0]."),
     region_starts: int | None = typer.Option(
         None, "--region-starts", **_bounds("region_starts"),
         help="Start states (resets of their own seeds) where the demonstrator's first "
