@@ -275,6 +275,14 @@ class RandomOptions(Demonstrator):
         return self.specs[self._current].name
 
 
+def label_runs(labels: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of option labels ``(T,)``: every maximal stretch ``start:end`` of steps
+    with one label, in order (``T >= 1``)."""
+    cuts = np.flatnonzero(np.diff(labels)) + 1
+    return [(int(a), int(b)) for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(labels)],
+                                             strict=True)]
+
+
 def run_stops(spec: OptionSpec, state: FloatArray, rng: Generator, steps: int,
               max_steps: int) -> tuple[bool, bool]:
     """Whether a run of ``spec`` that has acted ``steps`` times stops at ``state``
@@ -336,9 +344,7 @@ class Detour(Demonstrator):
         """Detours sized from the demonstrations ``demos``: they start within their
         median length and last at most the median length of their option runs."""
         lengths = [len(d) for d in demos]
-        runs = [len(r) for d in demos
-                for r in np.split(d.infos[OPTION_KEY],
-                                  np.flatnonzero(np.diff(d.infos[OPTION_KEY])) + 1)]
+        runs = [end - start for d in demos for start, end in label_runs(d.infos[OPTION_KEY])]
         return cls(demonstrator, specs, state_fn, max(2, int(np.median(lengths))),
                    max(1, int(np.median(runs))))
 
@@ -598,7 +604,7 @@ def record_demonstrations(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
 
 def _mark_detour(episode: Episode, detour: Detour) -> None:
     """``infos["detour"]`` (and ``infos["interrupted"]``) of ``episode`` from ``detour``."""
-    steps = np.asarray([t for t in detour.steps if t < len(episode)], dtype=np.int64)
+    steps = np.asarray(detour.steps, dtype=np.int64)  # each one acted: all < len(episode)
     marked = np.zeros(len(episode), dtype=bool)
     marked[steps] = True
     episode.infos[DETOUR_KEY] = marked

@@ -14,7 +14,7 @@ from dynoplan.data.episodes import (
     Episode,
 )
 from dynoplan.errors import DynoplanError
-from dynoplan.pipeline.collect import ObservationFn, decision_episodes
+from dynoplan.pipeline.collect import ObservationFn, decision_episodes, label_runs
 from dynoplan.types import FloatArray, Generator
 
 
@@ -101,14 +101,6 @@ def option_runs(episodes: Sequence[Episode], option_names: Sequence[str],
         found[name][2].append(steps)
     return {n: (np.array(a).reshape(-1, d), np.array(b).reshape(-1, d),
                 np.array(c, dtype=np.int64)) for n, (a, b, c) in found.items()}
-
-
-def label_runs(labels: np.ndarray) -> list[tuple[int, int]]:
-    """The runs of option labels ``(T,)``: every maximal stretch ``start:end`` of steps
-    with one label, in order (``T >= 1``)."""
-    cuts = np.flatnonzero(np.diff(labels)) + 1
-    return [(int(a), int(b)) for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(labels)],
-                                             strict=True)]
 
 
 def decision_runs(episodes: Sequence[Episode], steps: int) -> list[Episode]:

@@ -99,13 +99,19 @@ def starts_seed(demos_seed: int) -> int:
     """The seed stream of a run's start states (``region_starts``), apart from every other
     stream of :func:`run_seeds` (derived from the demonstrations' so that those stay the
     same with or without it)."""
-    return int(np.random.SeedSequence([int(demos_seed), 7]).generate_state(1)[0] % 2**31)
+    return _demos_child(demos_seed, 7)
 
 
 def detours_seed(demos_seed: int) -> int:
     """The seed stream of a run's demonstrations with detours (``demo_detours``), apart
     from every other stream (derived as :func:`starts_seed`)."""
-    return int(np.random.SeedSequence([int(demos_seed), 8]).generate_state(1)[0] % 2**31)
+    return _demos_child(demos_seed, 8)
+
+
+def _demos_child(demos_seed: int, key: int) -> int:
+    """A seed stream derived from the demonstrations' seed and ``key``: apart from every
+    stream of :func:`run_seeds`, and from the other keys'."""
+    return int(np.random.SeedSequence([int(demos_seed), key]).generate_state(1)[0] % 2**31)
 
 
 def run_seeds(seed: int, improve: bool = False) -> dict[str, int]:
