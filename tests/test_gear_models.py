@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from dynoplan.data import Episode, read_dataset
-from dynoplan.envs.gear.controllers import GEAR_CONTROL
+from dynoplan.envs.gear.controllers import GEAR_CONTROL, option_state_map
 from dynoplan.envs.gear.demonstrations import record_demos
 from dynoplan.envs.gear.features import RELATIVE, TASK
 from dynoplan.envs.gear.learning.data import write_demonstration_transitions
@@ -23,13 +23,15 @@ from dynoplan.envs.gear.learning.training import train_gear_models
 from dynoplan.envs.gear.models_folder import HELDOUT_DIR, METRICS_FILE, load_gear_models
 from dynoplan.envs.gear.options import gear_option_names
 from dynoplan.envs.gear.options.catalog import network_files
+from dynoplan.envs.gear.options.insert import INSERT_NAME, INSERT_STATE
 from dynoplan.envs.gear.reports.figures import GOAL_FIGURE, TSNE_FIGURE, make_gear_figures
 from dynoplan.envs.gear.stages import learned_models
-from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.folder import GOAL_FILE, MANIFEST_FILE, REGIONS_FILE, dynamics_file
 from dynoplan.models.goal_network import GoalNetwork
 from dynoplan.models.regions import SafetyRegions
+from dynoplan.options.state_map import MappedDynamics
 from dynoplan.pipeline.evaluate import no_effect_tolerance
 from dynoplan.pipeline.fit import fit_regions_cross_validated
 from dynoplan.pipeline.fit_data import decision_runs, episode_states, option_transitions
@@ -137,6 +139,40 @@ def test_save_and_load_round_trip_bit_exactly(trained, tmp_path):
     again = load_gear_models(out)
     states = np.random.default_rng(0).normal(size=(20, STATE_DIM))
     np.testing.assert_array_equal(again.goal.mean_std(states)[0], models.goal.mean_std(states)[0])
+
+
+def test_the_insertion_on_its_own_state_rolls_there_and_leaves_the_rest_alone(data, trained,
+                                                                              tmp_path):
+    """With ``own_states`` the insertion's dynamics read its 13 values (arm, gripper, tool,
+    gear); the folder says so, the controllers roll it through its map, and the other
+    options' models are the same files as without."""
+    out, _ = trained
+    own = tmp_path / "own"
+    metrics = train_gear_models(data / "demos", None, own, seed=0,
+                                heldout_demos=data / "heldout", quick=True, progress=False,
+                                own_states=True)
+    assert metrics["option_states"] == {INSERT_NAME: [STATE_NAMES[i]
+                                                      for i in INSERT_STATE.indices]}
+    models = load_gear_models(own)
+    assert models.option_state_dims == {INSERT_NAME: 13}
+    assert models.dynamics[INSERT_NAME].state_dim == 13
+    for name in gear_option_names():
+        same = (own / dynamics_file(name)).read_bytes() == (out / dynamics_file(name)).read_bytes()
+        assert same == (name != INSERT_NAME), name
+        assert option_state_map(name, models) == (INSERT_STATE if name == INSERT_NAME else None)
+    # a rollout step of the insertion keeps the right arm and the human where they were
+    states = np.array(next(iter(read_dataset(data / "demos"))).observations[:5])
+    planner = PlannerState()(states)
+    step = MappedDynamics(models.dynamics[INSERT_NAME], INSERT_STATE).sample(
+        planner, np.random.default_rng(0))
+    kept = [i for i in range(STATE_DIM) if i not in INSERT_STATE.indices]
+    np.testing.assert_array_equal(step[:, kept], planner[:, kept])
+    assert not np.allclose(step[:, list(INSERT_STATE.indices)],
+                           planner[:, list(INSERT_STATE.indices)])
+    # a folder whose own state the registered option does not declare is refused
+    wrong = replace(models, extra={**models.extra, "option_state_dims": {"pick": 13}})
+    with pytest.raises(DynoplanError, match=r"option 'pick'.*declares none"):
+        option_state_map("pick", wrong)
 
 
 def _copy(out: Path, tmp_path: Path) -> Path:

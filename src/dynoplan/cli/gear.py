@@ -473,6 +473,10 @@ def run(
              "of up to this many of them that failed; its successes join the "
              "demonstrations (the pipeline's improve_demos) [5]."),
     regions_without_gain: bool = _regions_without_gain_option(),
+    own_states: bool = typer.Option(
+        False, "--own-states/--planner-state",
+        help="Fit and roll each option that declares its own state (the insertion: its "
+             "arm, gripper, tool and gear) on it, not on the planner state [planner state]."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
@@ -510,7 +514,7 @@ def run(
         faults=replace(settings.faults, episodes=min(settings.faults.episodes, n)),
         video=not no_video,
         region_starts=settings.region_starts if region_starts is None else region_starts,
-        improvement=improvement)
+        improvement=improvement, own_states=own_states)
     summary = run_gear_pipeline(out, seed, settings, progress=not quiet,
                                 log=(lambda _: None) if quiet else typer.echo, workers=pool)
     _echo_results(summary["results"])

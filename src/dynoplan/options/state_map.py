@@ -133,6 +133,37 @@ class MappedDynamics:
         z = self.dynamics.sample(self.state_map.to_option(states), rng)
         return self.state_map.to_planner(states, z)
 
+    @property
+    def members(self) -> int:
+        """The inner model's ensemble members (for held-out reports,
+        :mod:`dynoplan.models.evaluation`)."""
+        members = getattr(self.dynamics, "members", None)
+        if members is None:
+            raise TypeError("the inner dynamics model has no ensemble members")
+        return int(members)
+
+    def predict(self, states: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Every member's Gaussian of the next planner state: ``(batch, planner_dim)`` ->
+        means and variances ``(members, batch, planner_dim)``. Defined for a
+        :class:`CoordinateMap` over a model with ``predict``: the option's coordinates
+        are the inner model's Gaussian, the others stay as they are (variance 0), as
+        :meth:`sample` leaves them.
+
+        Raises:
+            TypeError: another map, or an inner model without ``predict``.
+        """
+        inner = getattr(self.dynamics, "predict", None)
+        if not isinstance(self.state_map, CoordinateMap) or inner is None:
+            raise TypeError("predict needs a CoordinateMap over a model with predict")
+        s = np.asarray(states, dtype=np.float64)
+        means_z, variances_z = inner(self.state_map.to_option(s))
+        idx = list(self.state_map.indices)
+        means = np.repeat(s[None], len(means_z), axis=0)
+        variances = np.zeros_like(means)
+        means[..., idx] = means_z
+        variances[..., idx] = variances_z
+        return means, variances
+
     @classmethod
     def stack(cls, items: Sequence["MappedDynamics"]) -> StackedDynamics:
         if len({m.state_map.option_dim for m in items}) != 1:

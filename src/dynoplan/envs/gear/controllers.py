@@ -67,6 +67,7 @@ from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import Everywhere, Initiation, Nowhere
 from dynoplan.options.option import Option
+from dynoplan.options.state_map import StateMap
 from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.evaluate import ControllerVariant, TaskControl
 from dynoplan.pipeline.fit import FittedModels
@@ -189,7 +190,8 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
     with its own termination ``beta_w`` and its initiation, continuation and fallback sets
     under ``sets`` (one of :data:`INITIATION_SETS`), and what every task's fitted options
     carry (:meth:`~dynoplan.pipeline.fit.FittedModels.build`): whether the demonstrations
-    ran it and its region's likelihood (none under ``everywhere``, which uses no region)."""
+    ran it, its region's likelihood (none under ``everywhere``, which uses no region) and
+    its own state (:func:`option_state_map`)."""
     missing = [n for n in models.option_names if n not in factories]
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
@@ -201,10 +203,32 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
         options.append(Option(name, policy, dynamics, termination=policy.termination(),
                               initiation=initiation, continuation=continuation,
                               fallback=option_fallback(name, sets),
+                              state_map=option_state_map(name, models),
                               demonstrated=models.demonstrated(name),
                               likelihood=None if sets == "everywhere"
                               else models.likelihood(name)))
     return options
+
+
+def option_state_map(name: str, models: FittedModels) -> StateMap | None:
+    """The state option ``name``'s dynamics in ``models`` read: its registry record's own
+    state (:attr:`~dynoplan.envs.gear.options.registry.GearOption.state_map`) when the
+    models folder says they were fitted on it, else ``None`` (the planner state).
+
+    Raises:
+        DynoplanError: the folder's own state has another size than the record's map, or
+            the record declares none.
+    """
+    own = models.option_state_dims.get(name)
+    if own is None:
+        return None
+    state_map = gear_option(name).state_map
+    if state_map is None or state_map.option_dim != own:
+        raise DynoplanError(
+            f"option '{name}': its dynamics read its own state of {own} values; the "
+            "registered option " + ("declares none" if state_map is None
+                                    else f"maps {state_map.option_dim}"))
+    return state_map
 
 
 def option_sets(name: str, models: FittedModels,
@@ -362,6 +386,7 @@ __all__ = [
     "not_carried",
     "option_fallback",
     "option_sets",
+    "option_state_map",
     "own_sets",
 ]
 

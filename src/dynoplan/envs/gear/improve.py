@@ -65,11 +65,13 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
                     planner: ControllerSettings, progress: bool = False,
                     workers: Workers = SERIAL,
                     say: Callable[[str], None] = lambda _: None,
-                    region_starts: Path | None = None) -> list[dict[str, Any]]:
+                    region_starts: Path | None = None,
+                    own_states: bool = False) -> list[dict[str, Any]]:
     """``settings.rounds`` improvement rounds on the gear run in ``out`` (its ``demos/``,
     ``heldout/``, ``transitions/``, ``outcomes/`` and ``models/``; ``outcomes.runs`` 0: no
     initiation learned from outcomes), DynoPlan planning as ``planner`` says, the regions
-    refitted with the labelled start states ``region_starts`` when given; the models
+    refitted with the labelled start states ``region_starts`` when given (the dynamics on
+    the options' own states with ``own_states``, as the first fit); the models
     ``settings.keep`` says end in ``out/models``. The learning curve
     (:func:`~dynoplan.pipeline.improve.improvement_rounds`)."""
     folder = out / IMPROVE_DIR
@@ -100,7 +102,7 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
         learned_models(round_dir / "demos", round_dir / "transitions", models, seed,
                        out / "heldout", fit, metrics, progress=progress, workers=workers,
                        region_demos=None if settings.regions else out / "demos",
-                       region_starts=region_starts)
+                       region_starts=region_starts, own_states=own_states)
         if outcomes.runs:
             outcome_initiation(models, out / "outcomes", seed, outcomes, progress, workers,
                                collect=False)

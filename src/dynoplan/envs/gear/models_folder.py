@@ -27,7 +27,13 @@ from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
 from dynoplan.errors import DynoplanError
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.folder import MANIFEST_FILE
-from dynoplan.pipeline.fit import FitSettings, FittedModels, GoalModel, RegionsModel
+from dynoplan.pipeline.fit import (
+    OPTION_STATE_DIMS,
+    FitSettings,
+    FittedModels,
+    GoalModel,
+    RegionsModel,
+)
 from dynoplan.types import FloatArray
 
 TASK_NAME = "gear_assembly"
@@ -38,7 +44,8 @@ RETRAIN = "train them with 'dynoplan gear train' or 'dynoplan gear run'"
 
 def gear_models(dynamics: Mapping[str, DynamicsModel], goal: GoalModel,
                 regions: RegionsModel, seed: int, settings: FitSettings,
-                state_scale: FloatArray) -> FittedModels:
+                state_scale: FloatArray,
+                option_state_dims: Mapping[str, int] | None = None) -> FittedModels:
     """The gear's fitted models in the pipeline's one in-memory form, which
     :meth:`~dynoplan.pipeline.fit.FittedModels.write` writes as a models folder.
 
@@ -54,13 +61,18 @@ def gear_models(dynamics: Mapping[str, DynamicsModel], goal: GoalModel,
             coordinate over the fitted data, as a pipeline fit records it
             (:attr:`~dynoplan.pipeline.fit.FittedModels.state_scale`: the controller's
             ``no_effect_share`` and ``loop_share`` scale by it).
+        option_state_dims: per option fitted on its own state, that state's size
+            (:attr:`~dynoplan.pipeline.fit.FittedModels.option_state_dims`; none: every
+            option on the planner state).
     """
     names = list(gear_option_names())
     return FittedModels(names, {name: dynamics[name] for name in names}, goal, regions,
                         DECISION_STEPS, {"state_scale": np.asarray(state_scale).tolist()},
                         True, TASK_NAME,
                         {"state_names": list(STATE_NAMES), "seed": seed,
-                         "settings": asdict(settings)})
+                         "settings": asdict(settings),
+                         **({OPTION_STATE_DIMS: dict(option_state_dims)}
+                            if option_state_dims else {})})
 
 
 def load_gear_models(folder: str | os.PathLike[str], task: str = TASK_NAME) -> FittedModels:

@@ -96,7 +96,10 @@ class GearRunSettings:
     ``outcomes``' runs (``runs`` 0: no outcomes stage, the Eq. 5 regions alone), the
     ``improvement`` rounds on DynoPlan's own episodes (the pipeline's defaults),
     ``region_starts`` start states labelled by the operator's first choice for the
-    regions (the pipeline's ``region_starts``; 0: none)."""
+    regions (the pipeline's ``region_starts``; 0: none), ``own_states``: every option
+    whose registry record declares its own state has its dynamics fitted and rolled on it
+    (:func:`~dynoplan.envs.gear.learning.training.train_gear_models`; off: every option
+    on the planner state)."""
 
     demos: int = 10
     region_starts: int = 0
@@ -110,6 +113,7 @@ class GearRunSettings:
     video: bool = True
     outcomes: OptionRunSettings = OUTCOME_RUNS
     improvement: ImprovementSettings = field(default_factory=ImprovementSettings)
+    own_states: bool = False
 
 
 QUICK_RUN = GearRunSettings(
@@ -204,7 +208,7 @@ class GearStages:
         metrics = run.clock.stage("train", lambda: learned_models(
             demos, runs, out / "models", self.seed, out / "heldout", settings.fit,
             settings.metrics, progress=run.progress, workers=run.workers,
-            region_starts=_starts(out, settings)))
+            region_starts=_starts(out, settings), own_states=settings.own_states))
         self.summary["model_metrics"] = _headline(metrics)
         return out / "models"
 
@@ -226,7 +230,7 @@ class GearStages:
             self.summary["improvement"] = run.clock.stage("improve", lambda: improved_models(
                 out, seed, settings.improvement, settings.fit, settings.metrics,
                 settings.outcomes, settings.evaluation.planner, run.progress, run.workers,
-                region_starts=_starts(out, settings)))
+                region_starts=_starts(out, settings), own_states=settings.own_states))
             self.summary["model_metrics"] = _headline(read_json_object(
                 models / METRICS_FILE, "the kept models' metrics"))
         self.summary["figures"] = run.clock.stage("figures", lambda: figures(

@@ -150,6 +150,10 @@ class GearTask:
         variant = VARIANTS[controller]
         options = gear_options(gear_env, fitted, factories, variant.sets)
         if self.peg_frame:
+            own = [o.name for o in options if o.state_map is not None]
+            if own:
+                raise DynoplanError(f"{models}: the peg frame maps the planner state, and "
+                                    f"{', '.join(own)} already roll on their own states")
             frame = PegFrame()
             options = [replace(o, state_map=frame) for o in options]
         return ControllerRunner(

@@ -150,11 +150,13 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
                    metrics: GearMetricsSettings = DEFAULT_METRICS, progress: bool = True,
                    workers: Workers = SERIAL, log: Callable[[str], None] = _silent,
                    region_demos: Path | None = None,
-                   region_starts: Path | None = None) -> dict[str, Any]:
+                   region_starts: Path | None = None,
+                   own_states: bool = False) -> dict[str, Any]:
     """Stage ``train``: goal heuristic, safety regions (on ``region_demos``, default
     ``demos``, widened by the labelled start states ``region_starts`` when given) and dynamics
-    fitted as ``fit`` says into ``models`` and measured as ``metrics`` says; the content
-    of ``metrics.json``. ``heldout`` ``None``: :func:`heldout_trials` into
+    (``own_states``: on the options' own states where they declare one) fitted as ``fit``
+    says into ``models`` and measured as ``metrics`` says; the content of
+    ``metrics.json``. ``heldout`` ``None``: :func:`heldout_trials` into
     ``models/heldout-demos``."""
     from dynoplan.envs.gear.learning.training import train_gear_models
 
@@ -165,7 +167,8 @@ def learned_models(demos: Path, transitions: Path | None, models: Path, seed: in
     with staged_folder(models, keep=True) as staged:
         return train_gear_models(demos, transitions, staged, seed, heldout, False,
                                  progress=progress, settings=fit, measures=metrics,
-                                 region_demos=region_demos, region_starts=region_starts)
+                                 region_demos=region_demos, region_starts=region_starts,
+                                 own_states=own_states)
 
 
 def learned_initiation(models: Path, out: Path, seed: int, settings: "OptionRunSettings",

@@ -46,7 +46,7 @@ is the held-out measurement of ``metrics.json``. The rest lives in :mod:`.settin
 """
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -73,12 +73,13 @@ from dynoplan.envs.gear.learning.settings import (
     GearMetricsSettings,
 )
 from dynoplan.envs.gear.models_folder import METRICS_FILE, gear_models
-from dynoplan.envs.gear.options.catalog import gear_option_names
+from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
 from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.evaluation import (
+    EnsembleModel,
     calibration,
     n_step_report,
     one_step_error,
@@ -90,6 +91,7 @@ from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.goal_network import GoalTrainingReport, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import TrainingReport, deterministic_training
+from dynoplan.options.state_map import CoordinateMap, MappedDynamics, StateMap
 from dynoplan.pipeline.fit import FitSettings, dynamics_epochs, fit_goal
 from dynoplan.pipeline.fit_data import (
     decision_runs,
@@ -109,7 +111,7 @@ from dynoplan.progress import track
 from dynoplan.timing import StageClock
 from dynoplan.types import FloatArray, IntArray
 
-__all__ = ["train_gear_models"]
+__all__ = ["gear_state_maps", "train_gear_models"]
 
 
 def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: int,
@@ -117,7 +119,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                       settings: FitSettings | None = None,
                       measures: GearMetricsSettings | None = None,
                       region_demos: Path | None = None,
-                      region_starts: Path | None = None) -> dict[str, Any]:
+                      region_starts: Path | None = None,
+                      own_states: bool = False) -> dict[str, Any]:
     """Fit the goal heuristic, the safety regions and one dynamics model per option.
 
     Args:
@@ -142,6 +145,12 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         region_starts: start states labelled by the operator's first choice
             (:func:`~dynoplan.envs.gear.stages.start_states`), which widen the regions
             where the options start the task (``None``: none).
+        own_states: every option whose registry record declares its own state
+            (:attr:`~dynoplan.envs.gear.options.registry.GearOption.state_map`) gets its
+            dynamics on that state; the models folder records which
+            (:attr:`~dynoplan.pipeline.fit.FittedModels.option_state_dims`), and the
+            controllers roll those options in it (``False``: every option on the planner
+            state).
 
     Returns:
         The content of ``metrics.json``. The model files are the same to the bit for the
@@ -208,9 +217,11 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
 
     dyn_reports: dict[str, Any] = {}
 
+    maps = gear_state_maps() if own_states else {}
+
     def fit_option_dynamics() -> None:
         fitted["dynamics"] = _train_dynamics(dyn_train, dyn_held, planner, cfg, measure,
-                                             seed, fitted["goal"], dyn_reports)
+                                             seed, fitted["goal"], dyn_reports, maps)
 
     stages: list[tuple[str, Callable[[], None]]] = [
         ("goal", fit_goal), ("regions", fit_regions), ("dynamics", fit_option_dynamics)]
@@ -222,7 +233,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     state_scale = np.concatenate([episode_states(e, planner)
                                   for e in [*dyn_train, *train_set]]).std(axis=0)
     gear_models(fitted["dynamics"], fitted["goal"], fitted["regions"], seed, cfg,
-                state_scale).write(out)
+                state_scale, {n: m.option_dim for n, m in maps.items()}).write(out)
     # coverage over all held-out transitions (options without any do not count)
     dyn_rows = [r for r in dyn_reports.values() if r["coverage_90"] is not None]
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)
@@ -247,6 +258,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                  "transition_episodes_heldout": len(dyn_held)},
         "state_dim": STATE_DIM,
         "option_names": list(gear_option_names()),
+        "option_states": {n: _state_names(m) for n, m in maps.items()},
         "decision_steps": DECISION_STEPS,
         "goal_features": list(gear_features(cfg.goal_features).names),
         "region_features": list(gear_features(cfg.region_features).names),
@@ -364,19 +376,44 @@ def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
     }, regions
 
 
+def gear_state_maps() -> dict[str, StateMap]:
+    """The registered options that declare their own state, and its map
+    (:attr:`~dynoplan.envs.gear.options.registry.GearOption.state_map`)."""
+    maps = {name: gear_option(name).state_map for name in gear_option_names()}
+    return {name: m for name, m in maps.items() if m is not None}
+
+
+def _state_names(state_map: StateMap) -> list[str]:
+    """The names of an option's own state's values: the planner state's for a
+    :class:`~dynoplan.options.state_map.CoordinateMap`, else ``z0, z1, ...``."""
+    if isinstance(state_map, CoordinateMap):
+        return [STATE_NAMES[i] for i in state_map.indices]
+    return [f"z{i}" for i in range(state_map.option_dim)]
+
+
+def _on_own_state(pairs: tuple[FloatArray, FloatArray], state_map: StateMap | None
+                  ) -> tuple[FloatArray, FloatArray]:
+    """Transition pairs of planner states on an option's own state (``None``: as they are)."""
+    if state_map is None:
+        return pairs
+    return state_map.to_option(pairs[0]), state_map.to_option(pairs[1])
+
+
 def _train_dynamics(train_eps: Sequence[Episode], held_eps: Sequence[Episode],
                     planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
-                    seed: int, goal: GoalHeuristic, reports: dict[str, Any]
-                    ) -> dict[str, DynamicsModel]:
+                    seed: int, goal: GoalHeuristic, reports: dict[str, Any],
+                    maps: Mapping[str, StateMap]) -> dict[str, DynamicsModel]:
     """Every registered option's dynamics, fitted by the pipeline
     (:func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`) on its runs among ``train_eps``
     but those held back to calibrate its spread
-    (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`); each option's report of
-    ``metrics.json``'s ``dynamics`` goes into ``reports``, measured on ``held_eps``."""
+    (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`), on its own state when
+    ``maps`` holds one; each option's report of ``metrics.json``'s ``dynamics`` goes into
+    ``reports``, measured on ``held_eps`` in the planner state."""
     names = gear_option_names()
     split = calibration_split(train_eps, names, measure.dynamics_calibration_fraction, seed)
-    pairs = {n: option_transitions(runs, names, planner)[n] for n, (runs, _) in split.items()}
-    held_back = {n: option_transitions(back, names, planner)[n]
+    pairs = {n: _on_own_state(option_transitions(runs, names, planner)[n], maps.get(n))
+             for n, (runs, _) in split.items()}
+    held_back = {n: _on_own_state(option_transitions(back, names, planner)[n], maps.get(n))
                  for n, (_, back) in split.items() if back}
     training: dict[str, TrainingReport] = {}
     models, rows = fit_dynamics(
@@ -390,21 +427,25 @@ def _train_dynamics(train_eps: Sequence[Episode], held_eps: Sequence[Episode],
     for k, name in enumerate(names):
         model = models[name]
         assert isinstance(model, MLPEnsembleDynamics)  # the default fitter's
-        reports[name] = _dynamics_report(k, name, model, training[name], rows[name],
-                                         len(split[name][1]), held_eps, planner, cfg,
-                                         measure, seed, score)
+        own = maps.get(name)
+        reports[name] = _dynamics_report(
+            k, name, model if own is None else MappedDynamics(model, own), training[name],
+            rows[name], len(split[name][1]), held_eps, planner, cfg, measure, seed, score,
+            STATE_NAMES if own is None else _state_names(own))
     return models
 
 
-def _dynamics_report(k: int, name: str, model: MLPEnsembleDynamics, report: TrainingReport,
+def _dynamics_report(k: int, name: str, model: EnsembleModel, report: TrainingReport,
                      fit_row: dict[str, Any], calibration_episodes: int,
                      held_eps: Sequence[Episode], planner: PlannerState, cfg: FitSettings,
                      measure: GearMetricsSettings, seed: int,
-                     goal: Callable[[FloatArray], FloatArray]) -> dict[str, Any]:
+                     goal: Callable[[FloatArray], FloatArray],
+                     fitted_names: Sequence[str]) -> dict[str, Any]:
     """Option ``name``'s (label ``k``) row of ``metrics.json``'s ``dynamics``: its fit
     (``fit_row`` of :func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`, ``report`` of
-    its training) and, on its held-out runs among ``held_eps``, one-step, n-step and
-    calibration errors and the end gap of the goal's mean score ``goal``."""
+    its training; ``fitted_names`` the values its model reads) and, on its held-out runs
+    among ``held_eps``, one-step, n-step and calibration errors and the end gap of the
+    goal's mean score ``goal``, all on planner states (``model`` predicts them)."""
     names = gear_option_names()
     sh, nxth = option_transitions(held_eps, names, planner)[name]
     epochs = dynamics_epochs(fit_row["transitions"], cfg)
@@ -420,7 +461,7 @@ def _dynamics_report(k: int, name: str, model: MLPEnsembleDynamics, report: Trai
         "best_epoch": report.best_epoch,
         "calibration_episodes": calibration_episodes,
         "std_scale": None if std_scale is None else dict(zip(
-            STATE_NAMES, np.round(std_scale, 3).tolist(), strict=True)),
+            fitted_names, np.round(std_scale, 3).tolist(), strict=True)),
     }
     if len(sh) == 0:  # nothing of this option among the held-out data: no report
         return {**row, "one_step_rmse": None, "one_step_no_change_rmse": None,

@@ -33,7 +33,7 @@ from dynoplan.envs.gear.expert import FAST_MOVE as FAST_MOVE_LABEL
 from dynoplan.envs.gear.expert import INSERT as INSERT_LABEL
 from dynoplan.envs.gear.expert import PICK as PICK_LABEL
 from dynoplan.envs.gear.options.base import GearPolicyFactory
-from dynoplan.envs.gear.options.insert import INSERT_NAME, INSERT_START
+from dynoplan.envs.gear.options.insert import INSERT_NAME, INSERT_START, INSERT_STATE
 from dynoplan.envs.gear.options.moves import (
     CAUTIOUS_MOVE_NAME,
     CAUTIOUS_SAFETY_DISTANCE,
@@ -158,8 +158,9 @@ INSERT = GearOption(
     initiation=insert_may_start, continuation=insert_may_go_on,
     network=OptionNetwork(INSERT_FILE, _load_insert, _insert_data_actor, _insert_data_episode,
                           _fit_insertion),
-    color="#1f5fbf")
-"""Paper option 4: the behaviour-cloned insertion network."""
+    color="#1f5fbf", state_map=INSERT_STATE)
+"""Paper option 4: the behaviour-cloned insertion network (its own state:
+:data:`~dynoplan.envs.gear.options.insert.INSERT_STATE`)."""
 
 
 _PAPER = (PICK, FAST_MOVE, CAUTIOUS_MOVE, INSERT)

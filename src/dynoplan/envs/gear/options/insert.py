@@ -47,7 +47,7 @@ from dynoplan.envs.gear.options.moves import FastMovePolicy
 from dynoplan.envs.gear.options.pick import PickPolicy
 from dynoplan.envs.gear.options.starts import StartConfig, displace
 from dynoplan.envs.gear.scene import RIGHT_ARM_JOINTS, build_model
-from dynoplan.envs.gear.state import STATE_SLICES, proximity_beta
+from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES, proximity_beta
 from dynoplan.envs.gear.task import RADIAL_TOLERANCE, SEAT_DEPTH, is_seated, relation
 from dynoplan.errors import DynoplanError
 from dynoplan.models.mlp import MLP, uniform_weight_init
@@ -59,10 +59,18 @@ from dynoplan.models.mlp_file import (
     require_finite,
 )
 from dynoplan.models.storage import load_arrays, save_arrays
+from dynoplan.options.state_map import CoordinateMap
 from dynoplan.options.termination import Termination, TerminationFromCallable
 from dynoplan.types import FloatArray, Generator
 
 INSERT_NAME = "insert"
+INSERT_STATE = CoordinateMap(STATE_DIM, (
+    *range(STATE_SLICES["arm_qpos"].start, STATE_SLICES["arm_qpos"].start + 6),
+    *range(STATE_SLICES["gripper"].start, STATE_SLICES["gear_pos"].stop)))
+"""The insertion's own state (13 of the planner state's 22 values): what it moves, the
+left arm's six joints, the gripper, the tool and the gear. It leaves out the right arm,
+which holds the peg still, and the human's hand, which it does not move: in a rollout of
+the insertion on this state they stay where they were (``gear run --own-states``)."""
 """The option's name (its registry record, datasets, model files, the command line)."""
 
 
@@ -436,7 +444,7 @@ class InsertPolicy(GearOptionPolicy):
         return insert_termination(self._peg, base=self.cfg.termination_base)
 
 
-__all__ = ["DEFAULT_HIDDEN", "FEATURE_DIM", "FEATURE_NAMES", "INSERT_NAME", "MODEL_KIND",
-           "OUTPUT_DIM", "OUTPUT_MEANING", "OUTPUT_NAMES", "InsertConfig", "InsertPolicy",
-           "InsertionNetwork", "PegTipModel",
+__all__ = ["DEFAULT_HIDDEN", "FEATURE_DIM", "FEATURE_NAMES", "INSERT_NAME", "INSERT_STATE",
+           "MODEL_KIND", "OUTPUT_DIM", "OUTPUT_MEANING", "OUTPUT_NAMES", "InsertConfig",
+           "InsertPolicy", "InsertionNetwork", "PegTipModel",
            "insert_termination", "insertion_features", "observed_relation_seated"]

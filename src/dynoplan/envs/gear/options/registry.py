@@ -31,6 +31,7 @@ from dynoplan.envs.gear.options.starts import StartConfig, at_reset
 from dynoplan.errors import DynoplanError
 from dynoplan.imports import import_user_module
 from dynoplan.options.initiation import Initiation
+from dynoplan.options.state_map import StateMap
 from dynoplan.types import BoolArray, FloatArray, Generator
 
 Condition = Initiation | Callable[[FloatArray], BoolArray]
@@ -94,6 +95,9 @@ class GearOption:
         start_sets_human: its ``start`` installs the human's schedule itself (an option
             that starts where the hand has come to the arm); otherwise a schedule of
             ``human_mode`` (or the mode a run asks for) is installed after the start.
+        state_map: the option's own state (:mod:`dynoplan.options.state_map`), which its
+            dynamics are fitted on and rolled in when a run asks for the options' own
+            states (``gear run --own-states``); ``None``: the planner state.
     """
 
     name: str
@@ -106,6 +110,7 @@ class GearOption:
     color: str | None = None
     trial_notes: dict[str, Any] = field(default_factory=dict)
     start_sets_human: bool = False
+    state_map: StateMap | None = None
 
     def __post_init__(self) -> None:
         check_option_name(self.name)
