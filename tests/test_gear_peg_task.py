@@ -170,3 +170,38 @@ def test_the_downstream_task_runs_on_a_quick_gear_run(quick_gear_run: Path, tmp_
     assert framed["goal_sha256"] == shared["goal_sha256"]
     assert shared["demonstrations"] == 2 and shared["episodes"] == 2
     assert read_manifest(out / "shared" / "models").goal.features == PEG_OBJECTS.name
+
+
+def test_gear_task_fit_on_a_folder_without_an_option_the_task_needs_is_one_line(
+        tmp_path, capsys, monkeypatch):
+    """``dynoplan gear task-fit`` checks the options folder before any work."""
+    from test_bad_input import assert_one_line_error, invoke
+
+    names = list(gear_option_names())
+    root = _options_folder(tmp_path / "options", [n for n in names if n != "insert"])
+    code, _, err = invoke(monkeypatch, capsys, "gear", "task-fit", "--options-models",
+                          str(root), "--out", str(tmp_path / "out"), "--quiet")
+    assert_one_line_error(code, err, "'insert'", "models.json")
+    assert not (tmp_path / "out" / "demos").exists()  # nothing recorded
+
+
+@pytest.mark.slow
+def test_gear_task_fit_solves_the_downstream_task_on_a_gear_runs_dynamics(
+        quick_gear_run: Path, tmp_path: Path, capsys, monkeypatch):
+    """From the command line: the task's own demonstrations, the options folder's dynamics
+    byte for byte, its own goal on the peg features, and a line saying what it needed."""
+    from test_bad_input import invoke
+
+    out = tmp_path / "peg"
+    code, stdout, err = invoke(monkeypatch, capsys, "gear", "task-fit", "--options-models",
+                               str(quick_gear_run), "--out", str(out), "--quick", "--demos",
+                               "2", "--episodes", "2", "--quiet", "--workers", "1")
+    assert code == 0, err
+    assert "the task needed 2 demonstrations" in stdout
+    summary = json.loads((out / "task" / "summary.json").read_text())
+    assert summary["task_fit"]["demonstrations"] == 2
+    assert summary["controllers"]["dynoplan"]["episodes"] == 2
+    first, task = read_manifest(quick_gear_run / "models"), read_manifest(out / "task" / "models")
+    assert {n: file_sha256(p) for n, p in task.dynamics.items() if p is not None} == {
+        n: file_sha256(p) for n, p in first.dynamics.items() if p is not None}
+    assert task.goal.features == PEG_OBJECTS.name

@@ -6,7 +6,8 @@ always at one pose. The downstream task (:mod:`dynoplan.envs.gear.peg_pose`,
 within +-5 cm in ``x`` and ``y``, +-3 cm in ``z``); same scene, same options, same
 operator. Here it is solved through the library's task-fit path
 (:func:`dynoplan.pipeline.task_fit.run_task`, the gear's
-:class:`~dynoplan.envs.gear.pipeline_task.GearTask` with ``peg``):
+:class:`~dynoplan.envs.gear.pipeline_task.GearTask` with ``peg``, as
+:mod:`dynoplan.envs.gear.task_fit` and ``dynoplan gear task-fit`` fit it):
 
 1. ``demos/``: the task's own demonstrations, the first task's operator chaining the
    options in the new environment (:func:`~dynoplan.envs.gear.demonstrations.record_demos`);
@@ -50,12 +51,10 @@ import json
 import shlex
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from dynoplan.envs.gear.controllers import GEAR_CONTROL
-from dynoplan.envs.gear.features import FEATURE_MAPS, PEG_OBJECTS
+from dynoplan.envs.gear.features import FEATURE_MAPS
 from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
@@ -66,78 +65,27 @@ from dynoplan.envs.gear.learning.settings import (
 from dynoplan.envs.gear.peg_pose import PEG_WORKSPACE
 from dynoplan.envs.gear.pipeline_task import GearTask
 from dynoplan.envs.gear.state import PlannerState
+from dynoplan.envs.gear.task_fit import (
+    DEMOS,
+    check_options_folder,
+    fit_and_evaluate,
+    task_settings,
+)
 from dynoplan.errors import DynoplanError
 from dynoplan.parallel import SERIAL, Workers, parse_workers
 from dynoplan.pipeline.collect import OptionRunSettings
-from dynoplan.pipeline.run_settings import PipelineSettings, run_seeds
-from dynoplan.pipeline.task_fit import RUNS_FOLDER, TaskResult, load_option_models, run_task
+from dynoplan.pipeline.run_settings import run_seeds
+from dynoplan.pipeline.task_fit import RUNS_FOLDER
 
-DEMOS = 10
-"""The task's demonstrations (the first task's number)."""
 RUNS = OptionRunSettings(runs=40, max_decisions=30, lead_decisions=0)
 """The retrained dynamics' option runs: ``gear run``'s collect stage
 (:data:`~dynoplan.envs.gear.pipeline_stages.TRANSITION_RUNS`)."""
 QUICK_RUNS = OptionRunSettings(runs=4, max_decisions=15, lead_decisions=0)
+"""The retrained dynamics' option runs under ``--quick``."""
 ROWS = ("shared", "shared-frame", "retrained")
 """The downstream task's rows, in the table's order (the default)."""
 REFERENCE = "first-task"
 """The first task through the same task fit (a reference row, on request)."""
-CONTROLLERS = ("dynoplan",)
-"""The rows measured: DynoPlan with learned parts only (the gear's ``dynoplan``)."""
-
-
-def task_settings(seed: int, episodes: int, demos: int, quick: bool,
-                  controllers: tuple[str, ...] = CONTROLLERS) -> PipelineSettings:
-    """How the task is fitted and evaluated: the first task's fit settings (``gear run``'s,
-    or ``--quick``'s) with the goal on :data:`~dynoplan.envs.gear.features.PEG_OBJECTS`,
-    and the gear's controller settings (``gear run``'s :data:`GEAR_CONTROL`, ``--quick``:
-    a shorter horizon and fewer samples, as ``gear run --quick``)."""
-    fit = replace(QUICK_SETTINGS if quick else DEFAULT_SETTINGS, goal_features=PEG_OBJECTS.name)
-    control = (replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3) if quick
-               else GEAR_CONTROL)
-    return PipelineSettings(demos=demos, episodes=episodes, seed=seed, fit=fit,
-                            control=control, controllers=controllers)
-
-
-def fit_and_evaluate(options_models: Path, networks: Path, demos: Path, out: Path,
-                     settings: PipelineSettings, workers: Workers, command: str,
-                     runs: Path | None = None, progress: bool = True,
-                     peg_frame: bool = False, first_task: bool = False) -> TaskResult:
-    """The task fit (:func:`~dynoplan.pipeline.task_fit.run_task`) of the downstream task on
-    the options folder ``options_models``, its demonstrations read from ``demos``, the
-    option networks from ``networks`` (``peg_frame``: the dynamics rolled in the first
-    task's frame; ``first_task``: the first task instead); the result written into
-    ``out``."""
-    from dynoplan.data import read_dataset
-    from dynoplan.envs.gear.operator import OptionOperator
-    from dynoplan.envs.gear.options.catalog import policy_factories
-    from dynoplan.io import staged_folder
-
-    task = GearTask(peg=None if first_task else PEG_WORKSPACE, networks=networks.resolve(),
-                    peg_frame=peg_frame)
-    env = task.make_env()
-    specs = OptionOperator(env.unwrapped, policy_factories(networks)).specs  # type: ignore[arg-type]
-    with staged_folder(out) as staged:
-        return run_task(env, options_models, specs, demos=read_dataset(demos),
-                        settings=settings, out=staged, progress=progress,
-                        status=lambda m: print(f"-- {m}", file=sys.stderr, flush=True),
-                        command=command, workers=workers, task=task, runs=runs,
-                        planner_state=PlannerState(), feature_maps=FEATURE_MAPS,
-                        own_controllers=True)
-
-
-def check_options_folder(options_models: Path) -> Path:
-    """The options folder's models folder, checked (one error line): its dynamics load and
-    cover the task's options, its option networks are there."""
-    from dynoplan.envs.gear.options.catalog import gear_option_names, network_files
-
-    folder = load_option_models(options_models, FEATURE_MAPS, PlannerState())
-    folder.check_task(list(gear_option_names()))
-    missing = [f for f in network_files().values() if not (folder.folder / f).is_file()]
-    if missing:
-        raise DynoplanError(f"{folder.folder}: no option network {', '.join(missing)} (the "
-                            "options folder of a gear run has them)")
-    return folder.folder
 
 
 def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = DEMOS,

@@ -521,6 +521,49 @@ def run(
     typer.echo(f"-> {out}/results.md, results.csv, summary.json")
 
 
+@gear_app.command("task-fit")
+def task_fit(
+    options_models: Path = typer.Option(
+        ..., "--options-models", callback=folder,
+        help="The options folder: a gear run's --out (its models/ with the option networks)."),
+    out: Path = typer.Option(Path("results/gear-peg-task"), callback=out_folder,
+                             help="Output folder: demos/ and task/."),
+    seed: int = typer.Option(0, min=0, max=SEED_MAX, help="Seed of the demonstrations, "
+                             "the fit and the evaluation episodes."),
+    episodes: int = typer.Option(100, min=1, max=EPISODES_MAX,
+                                 help="DynoPlan's evaluation episodes."),
+    demos: int = typer.Option(10, min=1, max=EPISODES_MAX,
+                              help="The task's demonstrations (the operator's)."),
+    peg_frame: bool = typer.Option(
+        False, "--peg-frame/--planner-state",
+        help="Roll the options' dynamics in the first task's frame (PegFrame) [no]."),
+    quick: bool = typer.Option(False, "--quick", help="The fit and planner of gear run "
+                               "--quick (a smoke test, not a measurement)."),
+    workers: str = workers_option(),
+    ray_address: str | None = ray_address_option(),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """The downstream task (the peg held elsewhere each episode) on a gear run's option
+    dynamics, unchanged: only its goal heuristic and regions are fitted, from its own
+    demonstrations."""
+    import shlex
+    import sys
+
+    from dynoplan.envs.gear.task_fit import gear_task_fit
+    from dynoplan.parallel import parse_workers, ray_session
+
+    pool = parse_workers(workers, ray_address)
+    command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    with ray_session(pool):
+        result = gear_task_fit(options_models, out, seed, episodes, demos, peg_frame, quick,
+                               pool, command, progress=not quiet)
+    fit, row = result.summary["task_fit"], result.evaluation["dynoplan"]
+    typer.echo(f"dynoplan: success {row['success_rate']:.0%} of {row['episodes']}; the task "
+               f"needed {fit['demonstrations']} demonstrations ({fit['demonstration_steps']} "
+               f"steps) and {fit['goal_fit_seconds']:.1f} s of goal fit "
+               f"({fit['fit_seconds']:.1f} s in all) -> {out}/task/results.md")
+
+
 @gear_app.command("seeds")
 def seeds(
     runs: list[Path] = typer.Argument(..., help="Folders of gear runs that differ only in "
