@@ -2,15 +2,16 @@
 error and data needs, on a ``gear run`` folder's option runs.
 
 The insertion may declare its own state (:data:`~dynoplan.envs.gear.options.insert.
-INSERT_STATE`: its arm's six joints, the gripper, the tool and the gear, 13 of the 22
-planner values; ``gear run --own-states``). For a ``gear run`` folder ``RUN`` this reads
-its option runs (``RUN/transitions``), splits them as ``gear run``'s fit does (the same
-held-out runs, :func:`~dynoplan.pipeline.fit_data.split_runs` from ``[seed, 1]``), and fits
+INSERT_STATE`: its arm's six joints, the gripper, the tool, the gear and the human's
+hand, 16 of the 22 planner values; ``gear run --own-states``). For a ``gear run`` folder
+``RUN`` this reads its option runs (``RUN/transitions``), splits them as ``gear run``'s
+fit does (the same held-out runs, :func:`~dynoplan.pipeline.fit_data.split_runs` from
+``[seed, 1]``), and fits
 the insertion's dynamics on a share of its training runs (``--fractions``, whole runs
 drawn from ``[seed, 9]``), once on the planner state and once on its own, with the fit
 settings of ``gear run``. On the held-out insertion runs, one decision ahead, it reports
 the median error of the ensemble's mean prediction of the tool point and of the gear (cm)
-and the RMSE over the insertion's 13 values (the coordinates both models predict)::
+and the RMSE over the insertion's own values (the coordinates both models predict)::
 
     python -m benchmarks.gear_own_state results/gear-seed0 --fractions 0.25,0.5,1 \\
         --out results/gear-own-state-seed0.md
@@ -95,7 +96,7 @@ def compare(run: Path, fractions: tuple[float, ...], seed: int) -> list[dict[str
 def table(rows: list[dict[str, Any]], command: str) -> str:
     lines = [f"Produced by `{command}`.", "",
              "| share of the runs | runs (transitions) | tool error (cm): planner state / own "
-             "state | gear error (cm): planner / own | RMSE of the 13 values: planner / own "
+             "state | gear error (cm): planner / own | RMSE of its own values: planner / own "
              "| no change: tool / gear (cm) |", "|---|---|---|---|---|---|"]
     for r in rows:
         p, o, n = r["planner_state"], r["own_state"], r["no_change"]

@@ -143,9 +143,9 @@ def test_save_and_load_round_trip_bit_exactly(trained, tmp_path):
 
 def test_the_insertion_on_its_own_state_rolls_there_and_leaves_the_rest_alone(data, trained,
                                                                               tmp_path):
-    """With ``own_states`` the insertion's dynamics read its 13 values (arm, gripper, tool,
-    gear); the folder says so, the controllers roll it through its map, and the other
-    options' models are the same files as without."""
+    """With ``own_states`` the insertion's dynamics read its 16 values (arm, gripper, tool,
+    gear, the human's hand); the folder says so, the controllers roll it through its map,
+    and the other options' models are the same files as without."""
     out, _ = trained
     own = tmp_path / "own"
     metrics = train_gear_models(data / "demos", None, own, seed=0,
@@ -154,13 +154,13 @@ def test_the_insertion_on_its_own_state_rolls_there_and_leaves_the_rest_alone(da
     assert metrics["option_states"] == {INSERT_NAME: [STATE_NAMES[i]
                                                       for i in INSERT_STATE.indices]}
     models = load_gear_models(own)
-    assert models.option_state_dims == {INSERT_NAME: 13}
-    assert models.dynamics[INSERT_NAME].state_dim == 13
+    assert models.option_state_dims == {INSERT_NAME: 16}
+    assert models.dynamics[INSERT_NAME].state_dim == 16
     for name in gear_option_names():
         same = (own / dynamics_file(name)).read_bytes() == (out / dynamics_file(name)).read_bytes()
         assert same == (name != INSERT_NAME), name
         assert option_state_map(name, models) == (INSERT_STATE if name == INSERT_NAME else None)
-    # a rollout step of the insertion keeps the right arm and the human where they were
+    # a rollout step of the insertion keeps the right arm, which holds the peg, as it was
     states = np.array(next(iter(read_dataset(data / "demos"))).observations[:5])
     planner = PlannerState()(states)
     step = MappedDynamics(models.dynamics[INSERT_NAME], INSERT_STATE).sample(
@@ -170,7 +170,7 @@ def test_the_insertion_on_its_own_state_rolls_there_and_leaves_the_rest_alone(da
     assert not np.allclose(step[:, list(INSERT_STATE.indices)],
                            planner[:, list(INSERT_STATE.indices)])
     # a folder whose own state the registered option does not declare is refused
-    wrong = replace(models, extra={**models.extra, "option_state_dims": {"pick": 13}})
+    wrong = replace(models, extra={**models.extra, "option_state_dims": {"pick": 16}})
     with pytest.raises(DynoplanError, match=r"option 'pick'.*declares none"):
         option_state_map("pick", wrong)
 

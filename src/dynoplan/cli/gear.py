@@ -476,7 +476,8 @@ def run(
     own_states: bool = typer.Option(
         False, "--own-states/--planner-state",
         help="Fit and roll each option that declares its own state (the insertion: its "
-             "arm, gripper, tool and gear) on it, not on the planner state [planner state]."),
+             "arm, gripper, tool, gear and the human's hand) on it, not on the planner "
+             "state [planner state]."),
     no_video: bool = typer.Option(False, "--no-video", help="Do not render an episode."),
     workers: str = workers_option(),
     ray_address: str | None = ray_address_option(),
