@@ -79,8 +79,9 @@ def controller_rows(models: Path, seeds: Sequence[EpisodeSeed], planner: Control
     :data:`~dynoplan.envs.gear.controllers.VARIANTS`), on ``seeds``; the oracle on the
     first ``oracle_episodes`` of them and the ``ablation`` rows (row name -> controller
     and planner-setting changes, as :data:`ABLATION_ROWS`) on the first
-    ``ablation_episodes`` (``None``: all). ``task``: the gear as the episodes see it (the
-    human behaviours they draw from, the runtime monitor)."""
+    ``ablation_episodes`` (``None``: all; ``0``: those rows are left out, as the oracle's
+    with ``oracle_episodes`` 0). ``task``: the gear as the episodes see it (the human
+    behaviours they draw from, the runtime monitor)."""
     gear = replace(task, flat_folder=flat_folder)
     rows: Rows = {name: (ControllerJob(gear, models, name, planner),
                          seeds[:oracle_episodes] if name == "oracle" else seeds)
@@ -92,7 +93,7 @@ def controller_rows(models: Path, seeds: Sequence[EpisodeSeed], planner: Control
     for label, (name, changes) in ablation.items():
         rows[label] = (ControllerJob(gear, models, name, replace(planner, **changes)),
                        seeds[:ablation_episodes])
-    return rows
+    return {name: row for name, row in rows.items() if len(row[1])}
 
 
 def fault_rows(models: Path, seeds: Sequence[EpisodeSeed], planner: ControllerSettings,

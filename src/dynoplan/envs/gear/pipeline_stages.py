@@ -250,9 +250,10 @@ class GearStages:
             rows, run.workers, f"evaluate ({len(rows)} controllers)", run.progress,
             ORACLE_FIRST))
         self.summary["results"] = results_rows(episodes)
-        self.summary["ablation"] = [
+        self.summary["ablation"] = [  # none with --ablation-episodes 0
             summarise(name, episodes[name][:sizes.ablation_episodes])
-            for name in (*CONTROLLERS[:2], *VARIANT_ROWS, *ABLATION_ROWS)]
+            for name in (*CONTROLLERS[:2], *VARIANT_ROWS, *ABLATION_ROWS)
+            if sizes.ablation_episodes and name in episodes]
         write_results(out, self.summary["results"], episodes)
         return episodes
 
