@@ -36,7 +36,7 @@ from dynoplan.envs.gear.state import STATE_SLICES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.io import write_text
 from dynoplan.models.trainer import deterministic_training
-from dynoplan.options.state_map import MappedDynamics
+from dynoplan.options.state_map import MappedDynamics, on_option_state
 from dynoplan.pipeline.fit_data import option_transitions, split_runs
 from dynoplan.pipeline.fit_dynamics import fit_ensemble
 from dynoplan.types import FloatArray
@@ -81,8 +81,8 @@ def compare(run: Path, fractions: tuple[float, ...], seed: int) -> list[dict[str
         s, nxt = option_transitions(chosen, names, planner)[INSERT_NAME]
         with deterministic_training():  # as gear run's fit: the same models every time
             shared, _ = fit_ensemble(INSERT_NAME, s, nxt, seed, DEFAULT_SETTINGS)
-            own, _ = fit_ensemble(INSERT_NAME, INSERT_STATE.to_option(s),
-                                  INSERT_STATE.to_option(nxt), seed, DEFAULT_SETTINGS)
+            own, _ = fit_ensemble(INSERT_NAME, *on_option_state((s, nxt), INSERT_STATE),
+                                  seed, DEFAULT_SETTINGS)
         plain = shared.predict(held_s)[0].mean(axis=0)
         mapped = MappedDynamics(own, INSERT_STATE).predict(held_s)[0].mean(axis=0)
         rows.append({"fraction": fraction, "runs": len(chosen), "transitions": len(s),

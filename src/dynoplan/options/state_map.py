@@ -206,9 +206,20 @@ class _MappedStep:
         return self.stack._to_planner(states, self.step(self.stack._to_option(states)))
 
 
+def on_option_state(pairs: tuple[FloatArray, FloatArray], state_map: StateMap | None
+                    ) -> tuple[FloatArray, FloatArray]:
+    """Transition pairs ``(states, next_states)`` of planner states ``(N, planner_dim)`` on
+    an option's own state (``(N, option_dim)`` each), what its dynamics are fitted on;
+    ``None``: the pairs as they are."""
+    if state_map is None:
+        return pairs
+    return state_map.to_option(pairs[0]), state_map.to_option(pairs[1])
+
+
 def planner_dynamics(dynamics: DynamicsModel, state_map: StateMap | None) -> DynamicsModel:
     """``dynamics`` on planner states: as it is without a map, else :class:`MappedDynamics`."""
     return dynamics if state_map is None else MappedDynamics(dynamics, state_map)
 
 
-__all__ = ["CoordinateMap", "IdentityMap", "MappedDynamics", "StateMap", "planner_dynamics"]
+__all__ = ["CoordinateMap", "IdentityMap", "MappedDynamics", "StateMap", "on_option_state",
+           "planner_dynamics"]

@@ -59,7 +59,7 @@ from dynoplan.models.outcome_initiation import (
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
-from dynoplan.options.state_map import planner_dynamics
+from dynoplan.options.state_map import on_option_state, planner_dynamics
 from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.diagnostics import constant_dimensions, constant_dimensions_warning
 from dynoplan.pipeline.fit_data import (
@@ -449,8 +449,7 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
              option_transitions([*transitions, *demos], names, state_fn, settings.stride))
     maps = {s.name: s.state_map for s in specs if s.state_map is not None}
     for name, state_map in maps.items():  # each such option's dynamics on its own state
-        start, end = pairs[name]
-        pairs[name] = (state_map.to_option(start), state_map.to_option(end))
+        pairs[name] = on_option_state(pairs[name], state_map)
     dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
     say("goal heuristic")
     goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map, transitions)

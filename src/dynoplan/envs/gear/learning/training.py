@@ -91,7 +91,12 @@ from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.goal_network import GoalTrainingReport, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import TrainingReport, deterministic_training
-from dynoplan.options.state_map import CoordinateMap, MappedDynamics, StateMap
+from dynoplan.options.state_map import (
+    CoordinateMap,
+    MappedDynamics,
+    StateMap,
+    on_option_state,
+)
 from dynoplan.pipeline.fit import FitSettings, dynamics_epochs, fit_goal
 from dynoplan.pipeline.fit_data import (
     decision_runs,
@@ -391,14 +396,6 @@ def _state_names(state_map: StateMap) -> list[str]:
     return [f"z{i}" for i in range(state_map.option_dim)]
 
 
-def _on_own_state(pairs: tuple[FloatArray, FloatArray], state_map: StateMap | None
-                  ) -> tuple[FloatArray, FloatArray]:
-    """Transition pairs of planner states on an option's own state (``None``: as they are)."""
-    if state_map is None:
-        return pairs
-    return state_map.to_option(pairs[0]), state_map.to_option(pairs[1])
-
-
 def _train_dynamics(train_eps: Sequence[Episode], held_eps: Sequence[Episode],
                     planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
                     seed: int, goal: GoalHeuristic, reports: dict[str, Any],
@@ -411,9 +408,9 @@ def _train_dynamics(train_eps: Sequence[Episode], held_eps: Sequence[Episode],
     ``reports``, measured on ``held_eps`` in the planner state."""
     names = gear_option_names()
     split = calibration_split(train_eps, names, measure.dynamics_calibration_fraction, seed)
-    pairs = {n: _on_own_state(option_transitions(runs, names, planner)[n], maps.get(n))
+    pairs = {n: on_option_state(option_transitions(runs, names, planner)[n], maps.get(n))
              for n, (runs, _) in split.items()}
-    held_back = {n: _on_own_state(option_transitions(back, names, planner)[n], maps.get(n))
+    held_back = {n: on_option_state(option_transitions(back, names, planner)[n], maps.get(n))
                  for n, (_, back) in split.items() if back}
     training: dict[str, TrainingReport] = {}
     models, rows = fit_dynamics(
