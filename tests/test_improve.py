@@ -3,6 +3,7 @@ are cut for the fit, and the improvement rounds of a pipeline run."""
 
 from dataclasses import replace
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -30,6 +31,7 @@ from dynoplan.pipeline.improve import (
     step_labels,
 )
 from dynoplan.planning import Plan
+from dynoplan.seeding import episode_seeds
 from test_pipeline import SMALL, line_env, line_options
 
 PAPER = replace(SMALL, improve=0)
@@ -346,7 +348,6 @@ def test_the_demonstrator_is_asked_where_a_round_failed_and_its_episodes_are_dem
 def test_demonstrations_at_the_given_starts_keep_the_successes_with_their_seeds():
     from dynoplan.adapters import as_spec
     from dynoplan.pipeline.collect import demonstrations_at
-    from dynoplan.seeding import episode_seeds
 
     starts = episode_seeds(5, 3)
     specs = [as_spec(o) for o in line_options()]
@@ -355,3 +356,40 @@ def test_demonstrations_at_the_given_starts_keep_the_successes_with_their_seeds(
     assert all(e.infos[PROGRESS_KEY][-1] == 1.0 for e in shown)
     # a demonstrator that never reaches the goal shows nothing
     assert demonstrations_at(line_env(), specs, lambda obs: "left", starts) == []
+
+
+class _Counting(gym.Wrapper):
+    """The line, counting the episodes run on it (the 'disturbed' one of the test)."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.resets = 0
+
+    def reset(self, **kwargs):
+        self.resets += 1
+        return self.env.reset(**kwargs)
+
+
+def test_a_share_of_the_rounds_own_episodes_rehearse_under_the_tasks_disturbance():
+    settings = ImprovementSettings(disturbed=0.5)
+    assert [settings.rehearses(s) for s in episode_seeds(0, 6)] == [False, True] * 3
+    assert not any(ImprovementSettings().rehearses(s) for s in episode_seeds(0, 6))
+    disturbed = _Counting(line_env())
+    run = replace(SMALL, improve_episodes=4, improve_explore=0.5, improve_disturbed=0.5)
+    res = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                       settings=run, disturbed_env=disturbed)
+    curve = res.summary["improvement"]
+    # half of the round's 4 measured and 4 exploring episodes, half of the check's 4
+    assert [c["disturbed_episodes"] for c in curve] == [4, 2]
+    assert disturbed.resets >= 6  # those episodes ran there (and the demonstrator, asked)
+    # off (the default), the rounds never touch it
+    untouched = _Counting(line_env())
+    plain = run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                         settings=replace(run, improve_disturbed=0.0), disturbed_env=untouched)
+    assert untouched.resets == 0
+    assert all("disturbed_episodes" not in c for c in plain.summary["improvement"])
+    with pytest.raises(DynoplanError, match="give the disturbed environment"):
+        run_pipeline(line_env(), line_options(), demonstrator=lambda obs: "right",
+                     settings=run)
+    with pytest.raises(DynoplanError, match=r"improve_disturbed must be in \[0, 1\]"):
+        replace(settings, disturbed=1.5).validate()

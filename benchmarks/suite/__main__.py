@@ -85,6 +85,8 @@ def run_one(entry: SuiteEntry, seed: int, episodes: int, sets: dict[str, Any],
         result = run_pipeline(task.make_env(), task.module.make_options(),
                               demonstrator=task.module.make_demonstrator(),
                               settings=settings, out=out, task=task.gym_task,
+                              disturbed_env=(task.make_env(disturbed=True)
+                                             if settings.improve_disturbed else None),
                               command=f"python -m benchmarks.suite ({entry.name}, seed {seed})")
         disturbed = evaluate_controllers(
             task.make_env(disturbed=True), result.options, result.models.goal,

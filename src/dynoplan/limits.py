@@ -57,6 +57,7 @@ SETTING_BOUNDS: dict[str, tuple[float, float]] = {
     "episodes": (1, EPISODES_MAX),
     "seed": (0, SEED_MAX), "improve": (0, 100), "improve_episodes": (1, EPISODES_MAX),
     "improve_explore": (0.0, 1.0), "improve_demos": (0, EPISODES_MAX),
+    "improve_disturbed": (0.0, 1.0),
     "fit.stride": (1, STRIDE_MAX), "fit.dynamics_members": (1, 100),
     "fit.dynamics_epochs": (1, EPOCHS_MAX), "fit.goal_hidden": (1, 100_000),
     "fit.goal_members": (1, 100), "fit.goal_epochs": (1, EPOCHS_MAX),

@@ -220,9 +220,15 @@ class GenericStages:
                  settings: PipelineSettings | None = None, state_fn: StateFn | None = None,
                  success: SuccessFn | None = None, fitter: DynamicsFitter | None = None,
                  command: str | None = None, task: Task | None = None,
-                 out: str | Path | None = None, workers: Workers = SERIAL) -> None:
+                 out: str | Path | None = None, workers: Workers = SERIAL,
+                 disturbed_env: gym.Env[Any, Any] | None = None) -> None:
         self.settings = settings or PipelineSettings()
         self.settings.validate()
+        if self.settings.improve_disturbed > 0.0 and self.settings.improve > 0 \
+                and disturbed_env is None:
+            raise DynoplanError("improve_disturbed rehearses the improvement rounds under the "
+                                "task's disturbance: give the disturbed environment "
+                                "(disturbed_env)")
         if workers.parallel and (task is None or out is None or fitter is not None
                                  or state_fn is not None or success is not None):
             raise DynoplanError("the pipeline on several workers needs a task and an output "
@@ -231,7 +237,7 @@ class GenericStages:
                                 "the controllers from files)")
         self.env, self.options, self.demonstrator, self.given = env, options, demonstrator, demos
         self.state_fn, self.success, self.fitter = state_fn, success, fitter
-        self.command, self.task = command, task
+        self.command, self.task, self.disturbed_env = command, task, disturbed_env
         self.starts: Episode | None = None  # the labelled start states (region_starts)
 
     def prepare(self, run: PipelineRun) -> None:
@@ -240,6 +246,8 @@ class GenericStages:
         env = self.env
         self.environment = task_env(make_env(env) if isinstance(env, str) else env,
                                     self.success, self.state_fn)
+        self.disturbed = (None if self.disturbed_env is None else
+                          task_env(self.disturbed_env, self.success, self.state_fn))
         self.specs = [as_spec(o) for o in self.options]
         self.seeds = run_seeds(self.settings.seed, self.settings.improve > 0)
         self.state_dim = probe_options(self.environment, self.options, flat_state,
@@ -315,9 +323,15 @@ class GenericStages:
         improvement = settings.improvement
         fit_demos, fit_transitions = list(self.demos), list(self.transitions)
 
+        def env(seed: EpisodeSeed) -> gym.Env[Any, Any]:
+            """Where own episode ``seed`` runs: under the task's disturbance when the
+            rounds rehearse it there."""
+            return (self.disturbed if self.disturbed is not None
+                    and improvement.rehearses(seed) else self.environment)
+
         def play(models: FittedModels, seeds: Sequence[EpisodeSeed],
                  explore: float) -> list[OwnEpisode]:
-            return own_episodes(self.environment, self._dynoplan(models), seeds, explore)
+            return own_episodes(env, self._dynoplan(models), seeds, explore)
 
         def refit(_: int, own: list[OwnEpisode]) -> FittedModels:
             fit_demos.extend(e.demonstration for e in own if e.demonstration is not None)
@@ -329,7 +343,11 @@ class GenericStages:
                               region_starts=self._region_starts())
 
         def demonstrate(seeds: Sequence[EpisodeSeed]) -> list[Episode]:
-            return demonstrations_at(self.environment, self.specs, self.demonstrator, seeds)
+            if not any(env(s) is not self.environment for s in seeds):
+                return demonstrations_at(self.environment, self.specs, self.demonstrator,
+                                         seeds)
+            return [d for s in seeds
+                    for d in demonstrations_at(env(s), self.specs, self.demonstrator, [s])]
 
         seeds = (episode_seeds(self.seeds["improve"], improvement.seeds)
                  if improvement.rounds else [])

@@ -196,12 +196,22 @@ class OwnEpisodesJob:
         return OwnEpisodeRunner(runner, self.option_names, self.explore)
 
 
-def own_episodes(env: gym.Env[Any, Any], controller: Controller,
-                 seeds: Sequence[EpisodeSeed], explore: float = 0.0) -> list[OwnEpisode]:
-    """The controller's episodes on ``seeds`` here, one after another
-    (:class:`OwnEpisodeRunner`, exploring with probability ``explore``)."""
-    runner = OwnEpisodeRunner(ControllerRunner(env, controller), explore=explore)
-    return [runner.episode(seed) for seed in seeds]
+def own_episodes(env_of: Callable[[EpisodeSeed], gym.Env[Any, Any]],
+                 controller: Controller, seeds: Sequence[EpisodeSeed],
+                 explore: float = 0.0) -> list[OwnEpisode]:
+    """The controller's episodes on ``seeds`` here, one after another, each on the
+    environment ``env_of(seed)`` (the task's, or the task's under its disturbance; one
+    :class:`OwnEpisodeRunner` per environment, exploring with probability ``explore``)."""
+    runners: dict[int, OwnEpisodeRunner] = {}
+    episodes = []
+    for seed in seeds:
+        env = env_of(seed)
+        runner = runners.get(id(env))
+        if runner is None:
+            runner = runners[id(env)] = OwnEpisodeRunner(ControllerRunner(env, controller),
+                                                         explore=explore)
+        episodes.append(runner.episode(seed))
+    return episodes
 
 
 IMPROVE_KEEP = ("last", "best")
@@ -240,6 +250,12 @@ class ImprovementSettings:
             default since the eighteenth round of the composition suite; 0: none). It
             asks the demonstrator for up to ``rounds * demos`` more episodes; a task with
             recorded demonstrations alone has no demonstrator to ask, and none is asked.
+        disturbed: the share of the rounds' own episodes (measured and exploring alike)
+            that run under the disturbance the task declares (its disturbed
+            environment), the demonstrator asked there under it too: a rehearsal of what
+            the task expects to meet, as domain randomisation trains on the perturbations
+            expected at run time (Tobin et al. 2017). Which episodes are is fixed by their
+            index in the seed stream (:meth:`rehearses`). 0, the default: none.
     """
 
     rounds: int = 1
@@ -248,6 +264,7 @@ class ImprovementSettings:
     keep: str = "best"
     explore: float = 0.2
     demos: int = 5
+    disturbed: float = 0.0
 
     def validate(self) -> None:
         if self.rounds < 0:
@@ -261,6 +278,17 @@ class ImprovementSettings:
             raise DynoplanError(f"improve_explore must be in [0, 1], got {self.explore}")
         if self.demos < 0:
             raise DynoplanError(f"improve_demos must be >= 0, got {self.demos}")
+        if not 0.0 <= self.disturbed <= 1.0:
+            raise DynoplanError(f"improve_disturbed must be in [0, 1], got {self.disturbed}")
+
+    def rehearses(self, seed: EpisodeSeed) -> bool:
+        """Whether own episode ``seed`` runs under the task's disturbance: a share
+        ``disturbed`` of the stream's episodes, spread evenly over it (every second one
+        at 0.5)."""
+        if self.disturbed == 0.0:
+            return False
+        i = seed.index
+        return int((i + 1) * self.disturbed) > int(i * self.disturbed)
 
     @property
     def batches(self) -> int:
@@ -297,13 +325,16 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
     demonstrator; ``None`` for a task with recorded demonstrations alone: none is asked),
     ``demonstrate(seeds)`` (its successful episodes with progress labels) runs from the
     seeds of the first ``settings.demos`` of the round's measured episodes that failed,
-    and its episodes join ``own`` as demonstrations.
+    and its episodes join ``own`` as demonstrations. Which of the seeds run under the
+    task's disturbance (``settings.disturbed``) is ``play``'s and ``demonstrate``'s to
+    honour (:meth:`ImprovementSettings.rehearses`); the curve counts them.
 
     Returns:
         The models ``settings.keep`` says and the learning curve: per batch ``round``,
         ``episodes``, ``success_rate`` (of the episodes without exploration) and
         ``demonstrations_added``, with ``explored_episodes`` where the round explored,
-        ``demonstrator_episodes`` where the demonstrator was asked, ``check`` on the batch
+        ``demonstrator_episodes`` where the demonstrator was asked,
+        ``disturbed_episodes`` where some ran under the disturbance, ``check`` on the batch
         that only measures the last refit, and ``kept`` on every entry when the best
         models are kept.
     """
@@ -318,12 +349,16 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
         own = play(models, batch, 0.0)
         success = float(np.mean([e.success for e in own]))
         candidates.append((success, models))
+        disturbed = sum(settings.rehearses(s) for s in batch)
         if last:
             curve.append({"round": r + 1, "episodes": n, "success_rate": success,
-                          "demonstrations_added": 0, "check": True})
+                          "demonstrations_added": 0, "check": True,
+                          **({"disturbed_episodes": disturbed} if disturbed else {})})
             break
-        explored = [] if settings.explore == 0.0 else play(
-            models, seeds[measured + r * n:measured + (r + 1) * n], settings.explore)
+        exploring = seeds[measured + r * n:measured + (r + 1) * n]
+        explored = [] if settings.explore == 0.0 else play(models, exploring,
+                                                           settings.explore)
+        disturbed += sum(settings.rehearses(s) for s in exploring) if explored else 0
         asked: list[EpisodeSeed] = []
         shown: list[OwnEpisode] = []
         if demonstrate is not None:  # the demonstrator at the batch's first failed starts
@@ -335,7 +370,8 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
         curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                       "demonstrations_added": sum(e.demonstration is not None for e in own),
                       **({"explored_episodes": len(explored)} if explored else {}),
-                      **({"demonstrator_episodes": len(asked)} if asked else {})})
+                      **({"demonstrator_episodes": len(asked)} if asked else {}),
+                      **({"disturbed_episodes": disturbed} if disturbed else {})})
         models = refit(r, own)
     if settings.batches > settings.rounds:  # the first of the models that succeeded most
         kept = max(range(len(candidates)), key=lambda i: (candidates[i][0], -i))

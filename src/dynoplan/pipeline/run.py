@@ -65,6 +65,7 @@ def run_pipeline(
     command: str | None = None,
     workers: Workers = SERIAL,
     task: Task | None = None,
+    disturbed_env: gym.Env[Any, Any] | None = None,
 ) -> PipelineResult: ...
 
 
@@ -90,6 +91,7 @@ def run_pipeline(
     command: str | None = None,
     workers: Workers = SERIAL,
     task: Task | None = None,
+    disturbed_env: gym.Env[Any, Any] | None = None,
     stages: TaskStages[Any, Any, Any, Any, Any] | None = None,
 ) -> Any:
     """Collect, fit, control and evaluate on any Gymnasium environment with a Box space,
@@ -123,6 +125,10 @@ def run_pipeline(
             rebuilds the controllers from ``task`` and ``out/models``, so both are needed
             (the results are the same as on one).
         task: the same environment and options as references workers can rebuild.
+        disturbed_env: the task's environment under a disturbance its user expects (a
+            push, an object moved), with ``env``'s success and state functions: where
+            the improvement rounds rehearse a share ``settings.improve_disturbed`` of
+            their own episodes (needed only then).
         stages: a task's own stages (:class:`~dynoplan.pipeline.task.TaskStages`), run
             into ``out`` on ``workers`` instead of the generic ones
             (:class:`~dynoplan.pipeline.generic_stages.GenericStages` of the arguments
@@ -144,10 +150,10 @@ def run_pipeline(
         if env is None:
             raise DynoplanError("give an environment and options, or a task's stages")
         stages = GenericStages(env, options, demonstrator, demos, settings, state_fn, success,
-                               fitter, command, task, out, workers)
+                               fitter, command, task, out, workers, disturbed_env)
     elif env is not None or options or any(
             given is not None for given in (demonstrator, demos, settings, state_fn, success,
-                                            fitter, command, task)):
+                                            fitter, command, task, disturbed_env)):
         raise DynoplanError("a task's stages come with their own environment, options, "
                             "demonstrations and settings: give only out, progress, status "
                             "and workers with them")

@@ -48,9 +48,10 @@ class PipelineSettings:
             demonstrations (:func:`~dynoplan.pipeline.fit_regions.start_regions`; 0:
             none, the regions fit the demonstrations alone).
         improve, improve_episodes, improve_regions, improve_keep, improve_explore,
-            improve_demos: how the run learns from DynoPlan's own episodes before the
-            evaluation (:mod:`~dynoplan.pipeline.improve`): the ``rounds``,
-            ``episodes``, ``regions``, ``keep``, ``explore`` and ``demos`` of
+            improve_demos, improve_disturbed: how the run learns from DynoPlan's own
+            episodes before the evaluation (:mod:`~dynoplan.pipeline.improve`): the
+            ``rounds``, ``episodes``, ``regions``, ``keep``, ``explore``, ``demos`` and
+            ``disturbed`` of
             :class:`~dynoplan.pipeline.improve.ImprovementSettings` (:attr:`improvement`).
     """
 
@@ -71,6 +72,7 @@ class PipelineSettings:
     improve_keep: str = ImprovementSettings.keep
     improve_explore: float = ImprovementSettings.explore
     improve_demos: int = ImprovementSettings.demos
+    improve_disturbed: float = ImprovementSettings.disturbed
 
     def validate(self) -> None:
         for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes"):
@@ -92,7 +94,7 @@ class PipelineSettings:
         """The improvement rounds' settings."""
         return ImprovementSettings(self.improve, self.improve_episodes, self.improve_regions,
                                    self.improve_keep, self.improve_explore,
-                                   self.improve_demos)
+                                   self.improve_demos, self.improve_disturbed)
 
 
 def starts_seed(demos_seed: int) -> int:
