@@ -1,11 +1,6 @@
 """``benchmarks/gear_controls.py``: its fit changes and its one error line."""
 
-import sys
-from pathlib import Path
-
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import gear_controls
 

@@ -1,12 +1,7 @@
 """``benchmarks/gear_own_state.py``: the insertion's dynamics on its own state against the
 planner state, on a gear run's option runs."""
 
-import sys
-from pathlib import Path
-
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import gear_own_state
 

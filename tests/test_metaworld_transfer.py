@@ -4,13 +4,9 @@ one line; with it, every task's demonstrator succeeds and the pooled environment
 reset is reproducible."""
 
 import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from benchmarks.transfer import metaworld_tasks as mw
 

@@ -1,13 +1,8 @@
 """The second worked example: user-written options on MountainCarContinuous-v0."""
 
-import sys
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from dynoplan.pipeline import (
     ControllerSettings,

@@ -2,12 +2,8 @@
 task whose package is missing is skipped with one line; a small run writes the table."""
 
 import json
-import sys
-from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from benchmarks.suite import __main__ as suite
 from benchmarks.suite import compare, regions, registry, rerun, trace

@@ -2,14 +2,10 @@
 balance (classic control), a panda-gym pick-and-place (third-party, PyBullet)."""
 
 import importlib.util
-import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 from dynoplan.pipeline import (
     ControllerSettings,
