@@ -378,3 +378,22 @@ def test_the_operator_demonstrates_from_the_starts_it_is_given(quick_gear_run: P
     assert all(set(e.infos) == {"option", "progress"} for e in shown)
     assert all(e.infos["progress"][-1] == 1.0 for e in shown)
     assert shown[0].observations.shape[1] == next(iter(demos)).observations.shape[1]
+
+
+def test_zero_oracle_or_ablation_episodes_leave_those_rows_out(tmp_path):
+    """``gear run --oracle-episodes 0 --ablation-episodes 0``: the evaluation has no
+    oracle and no ablation row (it used to end the whole run with 'no episodes to
+    summarise' after every stage had run)."""
+    from dynoplan.envs.gear.evaluation import ABLATION_ROWS, controller_rows
+    from dynoplan.pipeline.control_settings import ControllerSettings
+    from dynoplan.seeding import episode_seeds
+
+    seeds = episode_seeds(0, 3)
+    rows = controller_rows(tmp_path, seeds, ControllerSettings(), ablation=ABLATION_ROWS,
+                           oracle_episodes=0, ablation_episodes=0)
+    assert "oracle" not in rows and not set(ABLATION_ROWS) & set(rows)
+    assert rows and all(len(row[1]) == 3 for row in rows.values())
+    some = controller_rows(tmp_path, seeds, ControllerSettings(), ablation=ABLATION_ROWS,
+                           oracle_episodes=1, ablation_episodes=2)
+    assert len(some["oracle"][1]) == 1
+    assert all(len(some[name][1]) == 2 for name in ABLATION_ROWS)
