@@ -184,6 +184,23 @@ OPTIONS_MODULE = textwrap.dedent('''
 
     def broken(observation, info):
         raise ValueError("no goal here")
+
+
+    class Shoved(gym.Wrapper):
+        """The drift, counting its episodes (the test's 'disturbance')."""
+        resets = 0
+
+        def reset(self, **kwargs):
+            Shoved.resets += 1
+            return self.env.reset(**kwargs)
+
+
+    def shove(env):
+        return Shoved(env)
+
+
+    def not_a_wrapper(env):
+        return 3
 ''')
 SMALL_FLAGS = ["--demos", "2", "--explore", "4", "--episodes", "3", "--horizon", "5",
                "--samples", "8", "--dynamics-epochs", "5", "--dynamics-min-updates", "50",
@@ -301,3 +318,24 @@ def test_an_unknown_controller_is_one_line_before_any_work(tmp_path, monkeypatch
                           "dynoplan,option:nosuch", "--out", "out")
     assert_one_line_error(code, err, "unknown controller(s) option:nosuch", "option:right")
     assert not (tmp_path / "out").exists()
+
+
+def test_the_rounds_rehearse_under_the_disturbance_the_command_line_names(tmp_path, monkeypatch,
+                                                                           capsys):
+    task = ["--env", "TestDrift-v0", "--options", "drift_options:make_options",
+            "--success", "drift_options:reached", *SMALL_FLAGS, "--improve-episodes", "2"]
+    code, _, err = invoke(monkeypatch, capsys, tmp_path, *task, "--improve-disturbed", "0.5",
+                          "--out", "none")
+    assert_one_line_error(code, err, "improve_disturbed", "disturbed environment")
+    assert not (tmp_path / "none").exists()
+    code, _, err = invoke(monkeypatch, capsys, tmp_path, *task, "--improve-disturbed", "0.5",
+                          "--disturbance", "drift_options:not_a_wrapper", "--out", "bad")
+    assert_one_line_error(code, err, "drift_options:not_a_wrapper", "must return an environment")
+    code, _, err = invoke(monkeypatch, capsys, tmp_path, *task, "--improve-disturbed", "0.5",
+                          "--disturbance", "drift_options:shove", "--out", "shoved")
+    assert code == 0, err
+    import drift_options
+
+    assert drift_options.Shoved.resets >= 2  # a share of the round's episodes ran there
+    assert 'disturbance = "drift_options:shove"' in \
+        (tmp_path / "shoved" / "settings.toml").read_text()

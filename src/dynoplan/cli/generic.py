@@ -45,6 +45,10 @@ def pipeline(
         None, "--demonstrator",
         help="MODULE:FUNCTION returning the scripted demonstrator "
              "(default: make_demonstrator in the --options module)."),
+    disturbance: str | None = typer.Option(
+        None, "--disturbance",
+        help="MODULE:FUNCTION wrapping the environment in a disturbance you expect (env -> "
+             "env), where --improve-disturbed rehearses."),
     demo_dataset: Path | None = typer.Option(
         None, "--demo-dataset", callback=folder,
         help="Use recorded demonstrations (a dataset folder) instead."),
@@ -108,6 +112,10 @@ def pipeline(
         help="After each improvement round's own episodes, the demonstrator runs from the "
              "starts of up to this many of them that failed; its successes join the "
              "demonstrations [5]."),
+    improve_disturbed: float | None = typer.Option(
+        None, "--improve-disturbed", **_bounds("improve_disturbed"),
+        help="The share of the improvement rounds' own episodes that run under the "
+             "--disturbance (the demonstrator asked there too) [0]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),
@@ -346,7 +354,7 @@ def pipeline(
     for key in ("env", "options"):
         if not isinstance(task_refs[key], str) or not task_refs[key]:
             raise DynoplanError(f"give --{key} (or {key} = \"...\" in the --config file)")
-    for key in ("demonstrator", "demo_dataset", "success", "state_fn"):
+    for key in ("demonstrator", "demo_dataset", "success", "state_fn", "disturbance"):
         if task_refs[key] is not None and not isinstance(task_refs[key], str):
             raise DynoplanError(f"{config}: {key} must be a string, got {task_refs[key]!r}")
     env_id, options_ref = str(task_refs["env"]), str(task_refs["options"])
@@ -366,7 +374,7 @@ def pipeline(
                     "--demonstrator MODULE:FUNCTION or --demo-dataset PATH") from None
         demo_maker = call_factory(reference, "demonstrator")
     task = GymTask(env_id, options_ref, task_refs["success"], task_refs["state_fn"],
-                   reference)
+                   reference, task_refs["disturbance"])
     made = task.make_options()
     command = "dynoplan " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     with staged_folder(out) as staged, warnings_as_lines():
@@ -376,7 +384,10 @@ def pipeline(
                               progress=not quiet,
                               status=None if quiet else lambda m: typer.echo(f"-- {m}",
                                                                              err=True),
-                              command=command, workers=pool, task=task)
+                              command=command, workers=pool, task=task,
+                              disturbed_env=(task.make_env(disturbed=True)
+                                             if settings.improve_disturbed
+                                             and task.disturbance else None))
         write_text(staged / "settings.toml", settings_toml(task_refs, settings))
     typer.echo(result.table)
     typer.echo(result.admissibility_table)

@@ -45,7 +45,8 @@ from dynoplan.pipeline.control_settings import ControllerSettings
 from dynoplan.pipeline.fit import FitSettings
 from dynoplan.pipeline.run_settings import PipelineSettings
 
-TASK_KEYS = ("env", "options", "demonstrator", "demo_dataset", "success", "state_fn")
+TASK_KEYS = ("env", "options", "demonstrator", "demo_dataset", "success", "state_fn",
+             "disturbance")
 """Top-level keys that name the task: the Gymnasium id, ``MODULE:FUNCTION`` references
 and a dataset folder (``dynoplan pipeline``'s flags of the same names)."""
 UNUSED_CONTROL = ("oracle_horizon", "oracle_samples", "risk_level")

@@ -228,7 +228,7 @@ class GenericStages:
                 and disturbed_env is None:
             raise DynoplanError("improve_disturbed rehearses the improvement rounds under the "
                                 "task's disturbance: give the disturbed environment "
-                                "(disturbed_env)")
+                                "(disturbed_env=..., --disturbance on the command line)")
         if workers.parallel and (task is None or out is None or fitter is not None
                                  or state_fn is not None or success is not None):
             raise DynoplanError("the pipeline on several workers needs a task and an output "

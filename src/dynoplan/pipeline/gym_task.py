@@ -166,6 +166,9 @@ class GymTask:
             observation as it is, a ``Dict`` flattened).
         demonstrator: ``MODULE:FUNCTION`` returning the demonstrator, for its row of the
             evaluation on workers (``None``: no such row).
+        disturbance: ``MODULE:FUNCTION``, ``env -> env``: the environment wrapped in a
+            disturbance its user expects (a push, an object moved), where the improvement
+            rounds may rehearse (``improve_disturbed``; ``None``: none given).
     """
 
     env_id: str
@@ -173,22 +176,41 @@ class GymTask:
     success: str | None = None
     state_fn: str | None = None
     demonstrator: str | None = None
+    disturbance: str | None = None
 
     @property
     def name(self) -> str:
         return self.env_id
 
-    def make_env(self) -> gym.Env[Any, Any]:
+    def make_env(self, disturbed: bool = False) -> gym.Env[Any, Any]:
         """``gymnasium.make(env_id)``, after importing the options' module (which may
         register the environment: a worker process has not imported it yet), as the
-        pipeline runs it (:func:`task_env`)."""
+        pipeline runs it (:func:`task_env`); ``disturbed``: wrapped in the task's
+        ``disturbance`` first (so that it sees the raw observation).
+
+        Raises:
+            DynoplanError: ``disturbed`` without a ``disturbance``, or one that fails.
+        """
         from dynoplan.pipeline.collect import make_env
 
         load_object(self.options)
         success = None if self.success is None else load_function(self.success, "success")
         state_fn = None if self.state_fn is None else load_function(self.state_fn, "state_fn")
-        return task_env(make_env(self.env_id), success, state_fn, f"'{self.success}'",
-                        f"'{self.state_fn}'")
+        env = make_env(self.env_id)
+        if disturbed:
+            if self.disturbance is None:
+                raise DynoplanError(f"{self.env_id}: no disturbance given (--disturbance "
+                                    "MODULE:FUNCTION)")
+            wrap = load_function(self.disturbance, "disturbance")
+            try:
+                env = wrap(env)
+            except Exception as exc:
+                raise DynoplanError(f"'{self.disturbance}': wrapping the environment failed: "
+                                    f"{type(exc).__name__}: {exc}") from None
+            if not isinstance(env, gym.Env):
+                raise DynoplanError(f"'{self.disturbance}' must return an environment, got "
+                                    f"{type(env).__name__}")
+        return task_env(env, success, state_fn, f"'{self.success}'", f"'{self.state_fn}'")
 
     def make_options(self) -> list[OptionSpec]:
         made = call_factory(self.options, "options")
