@@ -318,6 +318,11 @@ def pipeline(
         help="Where a hold changed nothing and DynoPlan would hold again at a state whose "
              "goal heuristic is below this, the best option under its own set starts "
              "(0: no such rule) [0.5]."),
+    stall_forgets: bool | None = typer.Option(
+        None, "--stall-forgets/--no-stall-forgets",
+        help="Where DynoPlan held in place below --stall-progress and no option may start "
+             "at all, the options forget where their runs ended without effect and "
+             "DynoPlan chooses again [off]."),
     score_failures: bool | None = typer.Option(
         None, "--score-failures/--no-score-failures",
         help="DynoPlan weighs each option's imagined future by its chance not to end the "

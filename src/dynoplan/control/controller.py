@@ -174,6 +174,13 @@ class Controller:
             with ``loop_tolerance``, a loop bars the options whose runs in it lost progress
             (see above; ``None``: the options started where the loop began are not started
             there again).
+        stall_goal: the goal heuristic's mean at states, as ``progress``: given, where the
+            controller held, the hold left the state where it was, no option may start
+            at all and the goal heuristic there is below ``stall_progress``, the options
+            forget where their runs ended without effect (the no-effect and loop rules'
+            marks) and the chooser chooses again: those rules keep an option from
+            ending where it started again, not the episode from waiting forever
+            (``None``: the marks stay while the state does).
     """
 
     def __init__(
@@ -195,6 +202,7 @@ class Controller:
         stall_progress: float | None = None,
         progress: Callable[[FloatArray], FloatArray] | None = None,
         fallback_goes_on: bool = False,
+        stall_goal: Callable[[FloatArray], FloatArray] | None = None,
     ) -> None:
         self.options = list(options)
         if tuple(o.name for o in self.options) != tuple(chooser.option_names):
@@ -224,6 +232,7 @@ class Controller:
         self.loop_tolerance = loop_tolerance
         self.stall_progress = stall_progress
         self.progress = progress
+        self.stall_goal = stall_goal
 
     def run(self, env: gym.Env[Any, Any], rng: Generator, seed: int | None = None,
             reset_options: dict[str, Any] | None = None) -> EpisodeTrace:
@@ -250,6 +259,10 @@ class Controller:
             plan = self.chooser.choose(state, rng, running)
             if bars and not plan.admissible.any():
                 self._lift_bars(bars, None)
+                plan = self.chooser.choose(state, rng, running)
+            if not plan.admissible.any() and self._deadlocked(trace, state):
+                for o in self.options:
+                    o.runs.where = None
                 plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
             chosen = self._keep_running(plan, running, committed)
@@ -361,15 +374,31 @@ class Controller:
             self.options[i].runs.barred = False
             del bars[i]
 
+    def _held_in_place(self, trace: EpisodeTrace, state: FloatArray) -> bool:
+        """Whether the last decision held and the hold left ``state`` where it was
+        (every coordinate within ``no_effect_tolerance``; exactly, without one)."""
+        if not trace.decisions:
+            return False
+        last = trace.decisions[-1]
+        tolerance = 0.0 if self.no_effect_tolerance is None else self.no_effect_tolerance
+        return last.option is None and bool(np.all(np.abs(state - last.state) <= tolerance))
+
+    def _deadlocked(self, trace: EpisodeTrace, state: FloatArray) -> bool:
+        """Whether the options' no-effect marks are all that keeps the episode waiting
+        at ``state`` (``stall_goal``): it held in place, below ``stall_progress``, and
+        some option is marked."""
+        if (self.stall_goal is None or self.stall_progress is None
+                or not any(o.runs.where is not None for o in self.options)
+                or not self._held_in_place(trace, state)):
+            return False
+        return float(self.stall_goal(state[None])[0]) < self.stall_progress
+
     def _unstall(self, plan: Plan, trace: EpisodeTrace, state: FloatArray) -> int | None:
         """The best-scoring admissible option where the last decision held without moving
         the state and the chooser holds again below ``stall_progress``; else ``None``."""
         if (self.stall_progress is None or plan.gain_floor is None
-                or plan.gain_floor >= self.stall_progress or not trace.decisions):
-            return None
-        last = trace.decisions[-1]
-        tolerance = 0.0 if self.no_effect_tolerance is None else self.no_effect_tolerance
-        if last.option is not None or not np.all(np.abs(state - last.state) <= tolerance):
+                or plan.gain_floor >= self.stall_progress
+                or not self._held_in_place(trace, state)):
             return None
         finite = np.flatnonzero(np.isfinite(plan.scores))
         return int(finite[np.argmax(plan.scores[finite])]) if finite.size else None

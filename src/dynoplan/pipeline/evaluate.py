@@ -327,7 +327,8 @@ def make_controller(kind: str | ControllerVariant, options: Sequence[Option],
                       else settings.loop_share * np.asarray(state_scale, dtype=np.float64),
                       stall_progress=settings.stall_progress,
                       progress=goal_means(goal) if settings.loop_progress else None,
-                      fallback_goes_on=settings.fallback_own_sets and settings.fallback_goes_on)
+                      fallback_goes_on=settings.fallback_own_sets and settings.fallback_goes_on,
+                      stall_goal=goal_means(goal) if settings.stall_forgets else None)
 
 
 def goal_means(goal: GoalHeuristic) -> Callable[[FloatArray], FloatArray]:
