@@ -17,6 +17,7 @@ from dynoplan.options import (
     FunctionPolicy,
     InitiationFromCallable,
     Option,
+    OptionPolicy,
     TerminationFromCallable,
 )
 from dynoplan.pipeline.control_settings import ControllerSettings
@@ -549,3 +550,47 @@ def test_a_planners_copy_of_an_option_sees_where_its_run_ended_without_effect():
     assert admissible([copy], np.array([3.0])).tolist() == [False]
     stay.forget_runs()
     assert admissible([copy], np.array([3.0])).tolist() == [True]
+
+
+class _DoesNothingFirst(OptionPolicy):
+    """Its first run of the episode stands still for one step and stops (a run without
+    effect); later runs move x up by 1 per step."""
+
+    def __init__(self):
+        self.runs = self.steps = 0
+
+    def reset(self, observation, rng):
+        self.runs, self.steps = self.runs + 1, 0
+
+    def act(self, observation):
+        self.steps += 1
+        return np.array([0.0 if self.runs == 1 else 1.0])
+
+    def finished(self):
+        return self.runs == 1 and self.steps >= 1
+
+
+def test_a_stall_kept_only_by_the_no_effect_marks_forgets_them_with_stall_forgets():
+    # "up" ends its first run where it started: the no-effect rule marks the spot, no
+    # option may start there, and the hold does not move the line: without stall_forgets
+    # the episode waits to its end; with it, one hold in place at G = 0.2 < 0.5 forgets
+    # the mark and "up" runs again
+    from dynoplan.planning import OptionPlanner
+
+    def run(stall_goal):
+        up = Option("up", _DoesNothingFirst(), _Shift(1.0), ConstantTermination(0.0))
+        planner = OptionPlanner([up], _Progress())
+        return Controller([up], planner, max_decisions=20, hold_action=np.array([0.0]),
+                          no_effect_tolerance=0.01, stall_progress=0.5,
+                          stall_goal=stall_goal).run(Line(), np.random.default_rng(0),
+                                                     seed=0)
+
+    held = run(None)
+    assert not held.success and held.no_admissible == 19
+    assert [d.option for d in held.decisions[:3]] == ["up", None, None]
+    moved = run(lambda states: _Progress().mean_std(states)[0])
+    assert moved.success and moved.no_admissible == 1
+    assert [d.option for d in moved.decisions[:3]] == ["up", None, "up"]
+    # at the goal's side of stall_progress the marks stay: holding there is no stall
+    near_goal = run(lambda states: np.full(len(states), 0.9))
+    assert not near_goal.success and near_goal.no_admissible == 19
