@@ -15,7 +15,7 @@ from typing import Any
 import gymnasium as gym
 
 from dynoplan.errors import DynoplanError
-from dynoplan.pipeline import GymTask, task_env
+from dynoplan.pipeline import GymTask
 
 
 @dataclass(frozen=True)
@@ -72,16 +72,13 @@ class SuiteTask:
     def gym_task(self) -> GymTask:
         return GymTask(self.module.ENV_ID, self.ref("make_options") or "",
                        self.ref("success"), self.ref("state_fn"),
-                       self.ref("make_demonstrator"))
+                       self.ref("make_demonstrator"), self.ref("disturb"))
 
     def make_env(self, disturbed: bool = False) -> gym.Env[Any, Any]:
         """The environment with the task's success and state functions, under its
-        disturbance when ``disturbed`` (the disturbance wraps the environment itself, so
-        it sees the raw observation)."""
-        env = gym.make(self.module.ENV_ID)
-        if disturbed:
-            env = self.module.disturb(env)
-        return task_env(env, self.module.success, self.module.state_fn)
+        disturbance when ``disturbed`` (:meth:`~dynoplan.pipeline.GymTask.make_env`: the
+        disturbance wraps the environment itself, so it sees the raw observation)."""
+        return self.gym_task.make_env(disturbed)
 
 
 TASKS: tuple[SuiteEntry, ...] = (

@@ -261,8 +261,8 @@ class Controller:
                 self._lift_bars(bars, None)
                 plan = self.chooser.choose(state, rng, running)
             if not plan.admissible.any() and self._deadlocked(trace, state):
-                for o in self.options:
-                    o.runs.where = None
+                for o in self.options:  # no bar is left: lifted above where none is admissible
+                    o.forget_runs()
                 plan = self.chooser.choose(state, rng, running)
             latency = time.perf_counter() - t0
             chosen = self._keep_running(plan, running, committed)

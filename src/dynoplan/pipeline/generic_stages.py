@@ -343,10 +343,7 @@ class GenericStages:
                               region_starts=self._region_starts())
 
         def demonstrate(seeds: Sequence[EpisodeSeed]) -> list[Episode]:
-            if not any(env(s) is not self.environment for s in seeds):
-                return demonstrations_at(self.environment, self.specs, self.demonstrator,
-                                         seeds)
-            return [d for s in seeds
+            return [d for s in seeds  # the demonstrator is reset at every episode
                     for d in demonstrations_at(env(s), self.specs, self.demonstrator, [s])]
 
         seeds = (episode_seeds(self.seeds["improve"], improvement.seeds)
