@@ -322,7 +322,7 @@ def pipeline(
         None, "--stall-forgets/--no-stall-forgets",
         help="Where DynoPlan held in place below --stall-progress and no option may start "
              "at all, the options forget where their runs ended without effect and "
-             "DynoPlan chooses again [off]."),
+             "DynoPlan chooses again [on]."),
     score_failures: bool | None = typer.Option(
         None, "--score-failures/--no-score-failures",
         help="DynoPlan weighs each option's imagined future by its chance not to end the "

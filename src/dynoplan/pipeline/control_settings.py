@@ -100,9 +100,8 @@ class ControllerSettings:
         stall_forgets: where DynoPlan held in place below ``stall_progress`` and no
             option may start at all, the options forget where their runs ended without
             effect (the no-effect and loop rules' marks) and DynoPlan chooses again (the
-            controller's ``stall_goal``; ``False``, the default: it holds while the state
-            stays there; a named variant, the twenty-first round of the composition
-            suite).
+            controller's ``stall_goal``; the default since the twenty-second round of
+            the composition suite; ``False``: it holds while the state stays there).
         score_failures: DynoPlan weighs each rollout's goal score by its option's chance
             not to end the episode in failure from where it starts (the options'
             ``failure``, fitted where exploration runs failed; ``False``: a failing run is
@@ -140,7 +139,7 @@ class ControllerSettings:
     fallback_without_gain: bool = False
     regions_without_gain: bool = True
     stall_progress: float | None = 0.5
-    stall_forgets: bool = False
+    stall_forgets: bool = True
     score_failures: bool = True
 
     def validate(self) -> None:
