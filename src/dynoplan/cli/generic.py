@@ -116,6 +116,12 @@ def pipeline(
         None, "--improve-disturbed", **_bounds("improve_disturbed"),
         help="The share of the improvement rounds' own episodes that run under the "
              "--disturbance (the demonstrator asked there too) [0]."),
+    improve_takeover: bool | None = typer.Option(
+        None, "--improve-takeover/--no-improve-takeover",
+        help="The demonstrator asked about a failed own episode (--improve-demos) takes it "
+             "over where DynoPlan's goal heuristic rated its state highest, after "
+             "DynoPlan's actions up to there are replayed, instead of starting from its "
+             "start [off]."),
     controllers: str | None = typer.Option(
         None, "--controllers", help="Comma-separated controllers to evaluate: demonstrator, "
         "dynoplan, option:NAME, random [all]."),

@@ -73,6 +73,7 @@ from dynoplan.pipeline.run_settings import (
     run_seeds,
     starts_seed,
 )
+from dynoplan.pipeline.takeover import demonstrations_after
 from dynoplan.pipeline.task import PipelineRun, Task
 from dynoplan.seeding import EpisodeSeed, episode_seeds
 
@@ -331,7 +332,8 @@ class GenericStages:
 
         def play(models: FittedModels, seeds: Sequence[EpisodeSeed],
                  explore: float) -> list[OwnEpisode]:
-            return own_episodes(env, self._dynoplan(models), seeds, explore)
+            return own_episodes(env, self._dynoplan(models), seeds, explore,
+                                models.goal if improvement.takeover else None)
 
         def refit(_: int, own: list[OwnEpisode]) -> FittedModels:
             fit_demos.extend(e.demonstration for e in own if e.demonstration is not None)
@@ -346,11 +348,24 @@ class GenericStages:
             return [d for s in seeds  # the demonstrator is reset at every episode
                     for d in demonstrations_at(env(s), self.specs, self.demonstrator, [s])]
 
+        def take_over(seeds: Sequence[EpisodeSeed], own: Sequence[OwnEpisode]
+                      ) -> tuple[list[Episode], int]:
+            shown, unreplayed = [], 0
+            for s, e in zip(seeds, own, strict=True):  # each on its own environment
+                if e.takeover is None:
+                    raise DynoplanError("a failed own episode without its takeover point")
+                kept, missed = demonstrations_after(env(s), self.specs, self.demonstrator,
+                                                    [s], [e.takeover])
+                shown += kept
+                unreplayed += missed
+            return shown, unreplayed
+
         seeds = (episode_seeds(self.seeds["improve"], improvement.seeds)
                  if improvement.rounds else [])
         models, self.curve = improvement_rounds(
             models, improvement, seeds, play, refit, run.clock.switch,
-            demonstrate if self.demonstrator is not None else None)
+            demonstrate if self.demonstrator is not None else None,
+            take_over if self.demonstrator is not None else None)
         self.run_options, self.planner_options = models.build(self.specs)
         return models
 

@@ -42,8 +42,10 @@ from dynoplan.data.episodes import (
     Episode,
 )
 from dynoplan.errors import DynoplanError
+from dynoplan.models.goal import GoalHeuristic
 from dynoplan.pipeline.evaluate import ControllerRunner
 from dynoplan.pipeline.jobs import EpisodeJob
+from dynoplan.pipeline.takeover import Takeover, takeover
 from dynoplan.seeding import EpisodeSeed
 
 HOLD = -1
@@ -110,17 +112,23 @@ class OwnEpisode:
             piece reaches its end.
         demonstration: the whole episode with progress labels when it succeeded without
             holding, else ``None``.
+        takeover: where the demonstrator would take it over, when it failed and was cut
+            with a goal heuristic (:func:`~dynoplan.pipeline.takeover.takeover`), else
+            ``None``.
     """
 
     success: bool
     pieces: tuple[Episode, ...]
     demonstration: Episode | None
+    takeover: Takeover | None = None
 
 
 def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Sequence[str],
-                env_seed: int | None) -> OwnEpisode:
+                env_seed: int | None, goal: GoalHeuristic | None = None) -> OwnEpisode:
     """Cut the episode ``recorder`` holds (run by the controller that produced ``trace``)
-    into option pieces and, if it succeeded without holding, a demonstration."""
+    into option pieces and, if it succeeded without holding, a demonstration; if it
+    failed and ``goal`` is given, with the point the demonstrator would take it over at
+    (its state rated by ``goal``)."""
     labels = step_labels(trace, option_names)
     cut = interruptions(trace)
     observations = np.asarray(recorder.observations)
@@ -149,7 +157,11 @@ def own_episode(recorder: StepRecorder, trace: EpisodeTrace, option_names: Seque
                                 {OPTION_KEY: labels, INTERRUPTED_KEY: cut,
                                  PROGRESS_KEY: np.arange(1, t + 1, dtype=np.float64) / t},
                                 env_seed)
-    return OwnEpisode(trace.success, tuple(pieces), demonstration)
+    over = None
+    if goal is not None and not trace.success and trace.decisions \
+            and not any(d.plan.explored for d in trace.decisions):
+        over = takeover(trace, goal, observations, actions, labels, cut)
+    return OwnEpisode(trace.success, tuple(pieces), demonstration, over)
 
 
 class OwnEpisodeRunner:
@@ -158,10 +170,12 @@ class OwnEpisodeRunner:
     their option's index in ``option_names`` (default: the controller's options); with
     ``explore`` above 0, its controller explores around its chooser
     (:class:`~dynoplan.control.choosers.Exploring`; a copy of the controller: the runner
-    given is not changed)."""
+    given is not changed); with a ``goal``, its failed episodes carry their takeover
+    point (:func:`own_episode`)."""
 
     def __init__(self, runner: ControllerRunner,
-                 option_names: Sequence[str] | None = None, explore: float = 0.0) -> None:
+                 option_names: Sequence[str] | None = None, explore: float = 0.0,
+                 goal: GoalHeuristic | None = None) -> None:
         self.recorder = StepRecorder(runner.env)
         controller = runner.controller
         if explore > 0.0:
@@ -170,11 +184,13 @@ class OwnEpisodeRunner:
         self.runner = replace(runner, env=self.recorder, controller=controller)
         self.names = list(option_names if option_names is not None
                           else [o.name for o in runner.controller.options])
+        self.goal = goal
 
     def episode(self, seed: EpisodeSeed) -> OwnEpisode:
         """Episode ``seed`` (reset with its ``env_seed``, every other choice drawn from its
         ``rng``), cut for the fit."""
-        return own_episode(self.recorder, self.runner.run(seed), self.names, seed.env_seed)
+        return own_episode(self.recorder, self.runner.run(seed), self.names, seed.env_seed,
+                           self.goal)
 
 
 @dataclass(frozen=True)
@@ -198,10 +214,12 @@ class OwnEpisodesJob:
 
 def own_episodes(env_of: Callable[[EpisodeSeed], gym.Env[Any, Any]],
                  controller: Controller, seeds: Sequence[EpisodeSeed],
-                 explore: float = 0.0) -> list[OwnEpisode]:
+                 explore: float = 0.0, goal: GoalHeuristic | None = None
+                 ) -> list[OwnEpisode]:
     """The controller's episodes on ``seeds`` here, one after another, each on the
     environment ``env_of(seed)`` (the task's, or the task's under its disturbance; one
-    :class:`OwnEpisodeRunner` per environment, exploring with probability ``explore``)."""
+    :class:`OwnEpisodeRunner` per environment, exploring with probability ``explore``;
+    the failed ones with their takeover point by ``goal`` when given)."""
     runners: dict[int, OwnEpisodeRunner] = {}
     episodes = []
     for seed in seeds:
@@ -209,7 +227,7 @@ def own_episodes(env_of: Callable[[EpisodeSeed], gym.Env[Any, Any]],
         runner = runners.get(id(env))
         if runner is None:
             runner = runners[id(env)] = OwnEpisodeRunner(ControllerRunner(env, controller),
-                                                         explore=explore)
+                                                         explore=explore, goal=goal)
         episodes.append(runner.episode(seed))
     return episodes
 
@@ -256,6 +274,12 @@ class ImprovementSettings:
             the task expects to meet, as domain randomisation trains on the perturbations
             expected at run time (Tobin et al. 2017). Which episodes are is fixed by their
             index in the seed stream (:meth:`rehearses`). 0, the default: none.
+        takeover: the demonstrator asked about a failed episode (``demos``) takes it
+            over where DynoPlan's goal heuristic rated its state highest, after
+            DynoPlan's own actions up to there are replayed from the same reset
+            (:mod:`~dynoplan.pipeline.takeover`), instead of starting afresh from its
+            start: DAgger's expert labels on the states the learner reached (``False``,
+            the default: from the start).
     """
 
     rounds: int = 1
@@ -265,6 +289,7 @@ class ImprovementSettings:
     explore: float = 0.2
     demos: int = 5
     disturbed: float = 0.0
+    takeover: bool = False
 
     def validate(self) -> None:
         if self.rounds < 0:
@@ -313,7 +338,10 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
                        refit: Callable[[int, list[OwnEpisode]], Models],
                        say: Callable[[str], None],
                        demonstrate: Callable[[Sequence[EpisodeSeed]], list[Episode]] | None
-                       = None) -> tuple[Models, list[dict[str, Any]]]:
+                       = None,
+                       take_over: Callable[[Sequence[EpisodeSeed], Sequence[OwnEpisode]],
+                                           tuple[list[Episode], int]] | None = None
+                       ) -> tuple[Models, list[dict[str, Any]]]:
     """``settings.rounds`` rounds from ``models``: ``play(models, seeds, explore)`` runs
     DynoPlan on the models of the round on its ``settings.episodes`` of ``seeds``
     (``settings.seeds`` of them, a stream no other stage uses; ``explore``: the
@@ -327,17 +355,27 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
     seeds of the first ``settings.demos`` of the round's measured episodes that failed,
     and its episodes join ``own`` as demonstrations. Which of the seeds run under the
     task's disturbance (``settings.disturbed``) is ``play``'s and ``demonstrate``'s to
-    honour (:meth:`ImprovementSettings.rehearses`); the curve counts them.
+    honour (:meth:`ImprovementSettings.rehearses`); the curve counts them. With
+    ``settings.takeover``, ``take_over(seeds, episodes)`` asks the demonstrator instead,
+    given those failed episodes (``play``'s, with their :attr:`OwnEpisode.takeover`) to
+    take over; it returns the successes and how many episodes the environment did not
+    replay.
 
     Returns:
         The models ``settings.keep`` says and the learning curve: per batch ``round``,
         ``episodes``, ``success_rate`` (of the episodes without exploration) and
         ``demonstrations_added``, with ``explored_episodes`` where the round explored,
-        ``demonstrator_episodes`` where the demonstrator was asked,
-        ``disturbed_episodes`` where some ran under the disturbance, ``check`` on the batch
-        that only measures the last refit, and ``kept`` on every entry when the best
-        models are kept.
+        ``demonstrator_episodes`` where the demonstrator was asked, ``not_replayed``
+        where a takeover's environment did not replay, ``disturbed_episodes`` where
+        some ran under the disturbance, ``check`` on the batch that only measures the
+        last refit, and ``kept`` on every entry when the best models are kept.
+
+    Raises:
+        DynoplanError: ``settings.takeover`` where the task gives no ``take_over``.
     """
+    if settings.takeover and settings.demos and demonstrate is not None and take_over is None:
+        raise DynoplanError("this task's improvement rounds cannot hand its episodes to the "
+                            "demonstrator (improve_takeover); leave improve_takeover off")
     n = settings.episodes
     measured = settings.batches * n  # the exploring episodes' seeds come after these
     curve: list[dict[str, Any]] = []
@@ -361,16 +399,23 @@ def improvement_rounds(models: Models, settings: ImprovementSettings,
         disturbed += sum(settings.rehearses(s) for s in exploring) if explored else 0
         asked: list[EpisodeSeed] = []
         shown: list[OwnEpisode] = []
+        unreplayed = 0
         if demonstrate is not None:  # the demonstrator at the batch's first failed starts
-            asked = [seed for seed, e in zip(batch, own, strict=True) if not e.success]
-            asked = asked[:settings.demos]
-            shown = [OwnEpisode(True, (), episode) for episode in demonstrate(asked)] \
-                if asked else []
+            failed = [(seed, e) for seed, e in zip(batch, own, strict=True)
+                      if not e.success][:settings.demos]
+            asked = [seed for seed, _ in failed]
+            episodes: list[Episode] = []
+            if asked and settings.takeover and take_over is not None:
+                episodes, unreplayed = take_over(asked, [e for _, e in failed])
+            elif asked:
+                episodes = demonstrate(asked)
+            shown = [OwnEpisode(True, (), episode) for episode in episodes]
         own = own + explored + shown
         curve.append({"round": r + 1, "episodes": n, "success_rate": success,
                       "demonstrations_added": sum(e.demonstration is not None for e in own),
                       **({"explored_episodes": len(explored)} if explored else {}),
                       **({"demonstrator_episodes": len(asked)} if asked else {}),
+                      **({"not_replayed": unreplayed} if unreplayed else {}),
                       **({"disturbed_episodes": disturbed} if disturbed else {})})
         models = refit(r, own)
     if settings.batches > settings.rounds:  # the first of the models that succeeded most

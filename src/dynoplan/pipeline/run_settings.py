@@ -48,10 +48,10 @@ class PipelineSettings:
             demonstrations (:func:`~dynoplan.pipeline.fit_regions.start_regions`; 0:
             none, the regions fit the demonstrations alone).
         improve, improve_episodes, improve_regions, improve_keep, improve_explore,
-            improve_demos, improve_disturbed: how the run learns from DynoPlan's own
-            episodes before the evaluation (:mod:`~dynoplan.pipeline.improve`): the
-            ``rounds``, ``episodes``, ``regions``, ``keep``, ``explore``, ``demos`` and
-            ``disturbed`` of
+            improve_demos, improve_disturbed, improve_takeover: how the run learns from
+            DynoPlan's own episodes before the evaluation
+            (:mod:`~dynoplan.pipeline.improve`): the ``rounds``, ``episodes``,
+            ``regions``, ``keep``, ``explore``, ``demos``, ``disturbed`` and ``takeover`` of
             :class:`~dynoplan.pipeline.improve.ImprovementSettings` (:attr:`improvement`).
     """
 
@@ -73,6 +73,7 @@ class PipelineSettings:
     improve_explore: float = ImprovementSettings.explore
     improve_demos: int = ImprovementSettings.demos
     improve_disturbed: float = ImprovementSettings.disturbed
+    improve_takeover: bool = ImprovementSettings.takeover
 
     def validate(self) -> None:
         for name in ("demos", "exploration_episodes", "exploration_option_steps", "episodes"):
@@ -94,7 +95,8 @@ class PipelineSettings:
         """The improvement rounds' settings."""
         return ImprovementSettings(self.improve, self.improve_episodes, self.improve_regions,
                                    self.improve_keep, self.improve_explore,
-                                   self.improve_demos, self.improve_disturbed)
+                                   self.improve_demos, self.improve_disturbed,
+                                   self.improve_takeover)
 
 
 def starts_seed(demos_seed: int) -> int:
