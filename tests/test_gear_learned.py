@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from dynoplan.cli.main import app
-from dynoplan.envs.gear.controllers import INITIATION_SETS, gear_options, option_fallback
+from dynoplan.envs.gear.controllers import INITIATION_SETS, gear_options, own_sets
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.models_folder import load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names, policy_factories
@@ -50,21 +50,22 @@ def test_outcome_initiation_and_the_variant_rows_reach_results_csv(quick_gear_ru
 
 def test_gear_options_fall_back_to_their_own_sets():
     """Where no option may start under its sets, a gear option may start under its own
-    set, as every task's option does: everywhere without hand-written conditions, its
-    registered conditions under ``rules``."""
+    set, as every task's option does (``FittedModels.build`` makes it the fallback):
+    everywhere without hand-written conditions, its registered conditions under
+    ``rules``."""
     states = np.random.default_rng(0).normal(0.0, 0.5, size=(500, STATE_DIM))
     for name in gear_option_names():
         own = gear_option(name).sets()[0].contains(states)
         assert 0 < own.sum() < len(states) or isinstance(gear_option(name).sets()[0],
                                                         Everywhere)
         for sets in INITIATION_SETS:
-            fallback = option_fallback(name, sets)
+            fallback = own_sets(name, sets)[0]
             if sets == "rules":
                 assert np.array_equal(fallback.contains(states), own)
             else:
                 assert isinstance(fallback, Everywhere)
     with pytest.raises(DynoplanError, match="unknown initiation sets"):
-        option_fallback("pick", "learnt")
+        own_sets("pick", "learnt")
 
 
 @pytest.mark.slow
@@ -82,5 +83,15 @@ def test_dynoplan_starts_an_option_where_no_learned_region_holds(quick_gear_run:
         assert not models.regions.contains_all(far[None]).any()
         assert not any(o.may_run(far, False) for o in options)
         assert admissible(options, far).all()
+        # on every variant's sets, built as every task's options are: their own sets
+        # as the fallback, and a region's likelihood wherever a region is used
+        states = PlannerState()(obs[None]) + np.random.default_rng(0).normal(
+            0.0, 0.05, size=(200, STATE_DIM))
+        for sets in INITIATION_SETS:
+            for o in gear_options(env, models, policy_factories(models_dir), sets):
+                assert np.array_equal(o.fallback.contains(states),
+                                      own_sets(o.name, sets)[0].contains(states))
+                assert (o.likelihood is None) == (sets == "everywhere"
+                                                  or models.region(o.name) is None)
     finally:
         env.close()

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.arm_points import arm_points
 from dynoplan.envs.gear.env import CONTROL_DT, OBS_SLICES, GearAssemblyEnv
 from dynoplan.envs.gear.options.base import GearPolicyFactory, gripper_as_it_is
@@ -63,7 +64,6 @@ from dynoplan.envs.gear.options.preconditions import (
 )
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_SLICES, PlannerState
 from dynoplan.errors import DynoplanError
-from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.goal import GoalHeuristic
 from dynoplan.options.initiation import Everywhere, Initiation, Nowhere
 from dynoplan.options.option import Option
@@ -80,7 +80,7 @@ CONTROLLERS = ("dynoplan", "random", "oracle", "fixed_script")
 parts only (the flat PPO policy and the variant rows are run beside them)."""
 
 INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
-"""Where the options may start and go on (:func:`option_sets`):
+"""Where the options may start and go on (:func:`gear_options`):
 
 - ``rules``: each option's own hand-written conditions (its registry record) intersected
   with its learned Eq. 5 region (:func:`preconditions`);
@@ -94,7 +94,8 @@ INITIATION_SETS = ("rules", "learned", "regions", "everywhere")
   policies is R^12").
 
 Where no option may start under its sets, each may start under its own set
-(:func:`option_fallback`), the options' fallback of every task."""
+(:func:`own_sets`), the options' fallback of every task
+(:meth:`~dynoplan.pipeline.fit.FittedModels.build`)."""
 
 
 VARIANTS: dict[str, ControllerVariant] = {
@@ -187,27 +188,46 @@ def gear_options(env: GearAssemblyEnv, models: FittedModels,
                  factories: Mapping[str, GearPolicyFactory], sets: str = "rules"
                  ) -> list[Option]:
     """The options in ``models.option_names`` order, their policies bound to ``env``, each
-    with its own termination ``beta_w`` and its initiation, continuation and fallback sets
-    under ``sets`` (one of :data:`INITIATION_SETS`), and what every task's fitted options
-    carry (:meth:`~dynoplan.pipeline.fit.FittedModels.build`): whether the demonstrations
-    ran it, its region's likelihood (none under ``everywhere``, which uses no region) and
-    its own state (:func:`option_state_map`)."""
+    with its own termination ``beta_w`` and its own sets under ``sets`` (one of
+    :data:`INITIATION_SETS`, :func:`own_sets`), built as every task's fitted options are
+    (:meth:`~dynoplan.pipeline.fit.FittedModels.build`): their sets with what was learned
+    (:func:`fitted_for` says what ``sets`` uses), their own sets as the fallback, whether
+    the demonstrations ran them, their region's likelihood and their own state
+    (:func:`option_state_map`). Under ``learned`` an option without a region (the
+    demonstrations do not show it) starts only where its outcomes say, and nowhere
+    without them (the generic pipeline gives such an option a region that holds nowhere,
+    ``region_undemonstrated="none"``)."""
     missing = [n for n in models.option_names if n not in factories]
     if missing:
         raise DynoplanError(f"no policy for option(s) {', '.join(missing)}")
-    options = []
+    specs = []
     for name in models.option_names:
         policy = factories[name](env)
-        dynamics: DynamicsModel = models.dynamics[name]
-        initiation, continuation = option_sets(name, models, sets)
-        options.append(Option(name, policy, dynamics, termination=policy.termination(),
-                              initiation=initiation, continuation=continuation,
-                              fallback=option_fallback(name, sets),
-                              state_map=option_state_map(name, models),
-                              demonstrated=models.demonstrated(name),
-                              likelihood=None if sets == "everywhere"
-                              else models.likelihood(name)))
-    return options
+        own, own_continuation = own_sets(name, sets)
+        specs.append(OptionSpec(name, policy, policy.termination(), own, own_continuation,
+                                state_map=option_state_map(name, models)))
+    fitted = fitted_for(models, sets)
+    options, _ = fitted.build(specs)
+    return [replace(o, initiation=Nowhere(), continuation=None)
+            if sets == "learned" and fitted.region(o.name) is None
+            and fitted.outcome(o.name) is None else o for o in options]
+
+
+def fitted_for(models: FittedModels, sets: str) -> FittedModels:
+    """What of ``models`` the options' sets use under ``sets`` (one of
+    :data:`INITIATION_SETS`): everything under ``learned``; the regions without the
+    initiation learned from outcomes under ``rules`` and ``regions``; nothing learned
+    under ``everywhere``.
+
+    Raises:
+        DynoplanError: unknown ``sets``, or learned sets without regions.
+    """
+    check_sets(sets)
+    if sets == "everywhere":
+        return replace(models, use_regions=False, learned_initiation=None)
+    if models.regions is None:
+        raise DynoplanError("the gear's options need the learned safety regions")
+    return models if sets == "learned" else replace(models, learned_initiation=None)
 
 
 def option_state_map(name: str, models: FittedModels) -> StateMap | None:
@@ -231,25 +251,12 @@ def option_state_map(name: str, models: FittedModels) -> StateMap | None:
     return state_map
 
 
-def option_sets(name: str, models: FittedModels,
-                sets: str) -> tuple[Initiation, Initiation | None]:
-    """Option ``name``'s initiation and continuation sets (``None``: the same as its
-    initiation) under ``sets`` (one of :data:`INITIATION_SETS`): its own sets
-    (:func:`own_sets`) with what was learned, by every task's rule
-    (:meth:`~dynoplan.pipeline.fit.FittedModels.sets`); ``rules`` and ``regions`` leave
-    out the initiation learned from outcomes. Under ``learned`` an option without a
-    region (the demonstrations do not show it) starts only where its outcomes say, and
-    nowhere without them (the generic pipeline gives such an option a region that holds
-    nowhere, ``region_undemonstrated="none"``)."""
-    own, own_continuation = own_sets(name, sets)
-    if sets == "everywhere":
-        return own, own_continuation
-    if models.regions is None:
-        raise DynoplanError("the gear's options need the learned safety regions")
-    if sets == "learned" and models.region(name) is None and models.outcome(name) is None:
-        return Nowhere(), None
-    fitted = models if sets == "learned" else replace(models, learned_initiation=None)
-    return fitted.sets(name, own, own_continuation)
+def check_sets(sets: str) -> None:
+    """Raises :class:`~dynoplan.errors.DynoplanError` unless ``sets`` is one of
+    :data:`INITIATION_SETS`."""
+    if sets not in INITIATION_SETS:
+        raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
+                            f"{', '.join(INITIATION_SETS)}")
 
 
 def own_sets(name: str, sets: str) -> tuple[Initiation, Initiation | None]:
@@ -257,23 +264,8 @@ def own_sets(name: str, sets: str) -> tuple[Initiation, Initiation | None]:
     :data:`INITIATION_SETS`), without anything learned: its hand-written conditions (its
     registry record) under ``rules``; everywhere under the other sets, which use no
     hand-written condition."""
-    if sets not in INITIATION_SETS:
-        raise DynoplanError(f"unknown initiation sets {sets!r}; expected one of "
-                            f"{', '.join(INITIATION_SETS)}")
+    check_sets(sets)
     return gear_option(name).sets() if sets == "rules" else (Everywhere(), None)
-
-
-def option_fallback(name: str, sets: str) -> Initiation:
-    """Where option ``name`` may start when no option may under ``sets``
-    (:attr:`~dynoplan.options.option.Option.fallback`): its own set (:func:`own_sets`), as
-    every task's option falls back to its own set
-    (:meth:`~dynoplan.pipeline.fit.FittedModels.build`, ``fallback_own_sets``).
-
-    Measured on the models of ``gear run --seed 0, 1, 2`` at 0328aa7 (100 episodes each,
-    ``docs/gear-options.md``, "The options' own sets as the fallback"): where the learned
-    regions miss a start state, DynoPlan now starts the best option that gains rather
-    than holding for good."""
-    return own_sets(name, sets)[0]
 
 
 def gear_control(env: GearAssemblyEnv, factories: Mapping[str, GearPolicyFactory]
@@ -376,6 +368,8 @@ __all__ = [
     "FarFromGoal",
     "HoldStill",
     "StopWhereItIs",
+    "check_sets",
+    "fitted_for",
     "gear_control",
     "gear_options",
     "gear_oracle",
@@ -384,8 +378,6 @@ __all__ = [
     "hand_near_tool",
     "holding_gear",
     "not_carried",
-    "option_fallback",
-    "option_sets",
     "option_state_map",
     "own_sets",
 ]
