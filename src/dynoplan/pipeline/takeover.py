@@ -90,6 +90,9 @@ def takeover(trace: EpisodeTrace, goal: GoalHeuristic, observations: np.ndarray,
     ``labels`` ``(T,)`` and the runs the controller cut at a replan, ``cut`` ``(T,)``."""
     i = takeover_point(trace, goal)
     step = trace.decisions[i].env_step
+    if (np.asarray(labels[:step]) < 0).any():
+        raise DynoplanError("a takeover's replayed steps must all be option steps (the "
+                            "takeover point comes before the first hold)")
     interrupted = np.array(cut[:step], dtype=bool)
     if step and trace.decisions[i - 1].stop_reason != "terminated":
         interrupted[-1] = True  # the takeover cuts the run that was going on
