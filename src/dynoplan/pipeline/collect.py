@@ -302,7 +302,37 @@ def random_admissible(specs: Sequence[OptionSpec], state: FloatArray, rng: Gener
     return int(rng.choice(admissible or list(range(len(specs)))))
 
 
-class Detour(Demonstrator):
+class Steering(Demonstrator):
+    """A demonstrator that may act instead of the one it wraps (:meth:`instead`). The one
+    it wraps is asked at every step all the same, and told every ``observe``, so that a
+    script that keeps track of the episode keeps track of it."""
+
+    def __init__(self, demonstrator: Any) -> None:
+        self.demonstrator = demonstrator_from(demonstrator)
+        self._t = 0
+
+    def reset(self, observation: Any, rng: Generator) -> None:
+        self.demonstrator.reset(observation, rng)
+        self._t = 0
+
+    def observe(self, info: dict[str, Any]) -> None:
+        observe = getattr(self.demonstrator, "observe", None)
+        if observe is not None:
+            observe(info)
+
+    def choose(self, observation: Any) -> "str | Decision | None":
+        choice = self.demonstrator.choose(observation)
+        t, self._t = self._t, self._t + 1
+        return self.instead(t, observation, choice)
+
+    def instead(self, t: int, observation: Any, choice: "str | Decision | None"
+                ) -> "str | Decision | None":
+        """What acts at step ``t`` (0-based) of the episode, where the wrapped
+        demonstrator chose ``choice`` (default: that choice)."""
+        return choice
+
+
+class Detour(Steering):
     """A demonstrator with one detour per episode: DART's idea (Laskey et al., CoRL
     2017: disturb the supervisor while it demonstrates, so that the data show it
     recovering) at the level of options.
@@ -311,8 +341,7 @@ class Detour(Demonstrator):
     random (:func:`random_admissible`, the distractors too) acts instead of the
     demonstrator's choice until it stops as an exploring run stops (:func:`run_stops`,
     at most ``max_steps``). Then the demonstrator goes on from wherever the detour left
-    the task. It is asked at every step, the detour's too, so that a script that keeps
-    track of the episode keeps track of it.
+    the task (asked at every step, the detour's too: :class:`Steering`).
 
     Attributes:
         steps: the detour's steps (0-based) in this episode.
@@ -325,14 +354,13 @@ class Detour(Demonstrator):
         if within < 2 or max_steps < 1:
             raise DynoplanError(f"a detour needs within >= 2 and max_steps >= 1, got "
                                 f"{within} and {max_steps}")
-        self.demonstrator = demonstrator_from(demonstrator)
+        super().__init__(demonstrator)
         self.specs = list(specs)
         self.state_fn = state_fn
         self.within = within
         self.max_steps = max_steps
         self._rng: Generator = np.random.default_rng(0)
         self._at = 1
-        self._t = 0
         self._current: int | None = None
         self._over = False
         self.steps: list[int] = []
@@ -349,23 +377,16 @@ class Detour(Demonstrator):
                    max(1, int(np.median(runs))))
 
     def reset(self, observation: Any, rng: Generator) -> None:
-        self.demonstrator.reset(observation, rng)
+        super().reset(observation, rng)
         self._rng = rng
         self._at = int(rng.integers(1, self.within))
-        self._t = 0
         self._current = None
         self._over = False
         self.steps = []
         self.cut = False
 
-    def observe(self, info: dict[str, Any]) -> None:
-        observe = getattr(self.demonstrator, "observe", None)
-        if observe is not None:
-            observe(info)
-
-    def choose(self, observation: Any) -> "str | Decision | None":
-        choice = self.demonstrator.choose(observation)
-        t, self._t = self._t, self._t + 1
+    def instead(self, t: int, observation: Any, choice: "str | Decision | None"
+                ) -> "str | Decision | None":
         if self._over or t < self._at:
             return choice
         s = self.state_fn(observation)[None]

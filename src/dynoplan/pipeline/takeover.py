@@ -34,13 +34,7 @@ from dynoplan.control.controller import EpisodeTrace
 from dynoplan.data.episodes import DETOUR_KEY, INTERRUPTED_KEY, Episode
 from dynoplan.errors import DynoplanError
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.pipeline.collect import (
-    Decision,
-    Demonstrator,
-    demonstrator_from,
-    record_episode,
-    with_progress,
-)
+from dynoplan.pipeline.collect import Decision, Steering, record_episode, with_progress
 from dynoplan.seeding import EpisodeSeed
 from dynoplan.types import Generator
 
@@ -100,33 +94,25 @@ def takeover(trace: EpisodeTrace, goal: GoalHeuristic, observations: np.ndarray,
                     interrupted, np.asarray(observations[step]))
 
 
-class TakeOver(Demonstrator):
+class TakeOver(Steering):
     """The controller's actions of ``takeover`` replayed, then ``demonstrator``'s choices
-    (it is asked at every step, the replayed ones too, so that a script that keeps track
-    of the episode keeps track of it). ``replayed`` says whether the replay reached the
-    recorded observation (checked when the takeover step comes)."""
+    (asked at every step, the replayed ones too: :class:`~dynoplan.pipeline.collect.
+    Steering`). ``replayed`` says whether the replay reached the recorded observation
+    (checked when the takeover step comes)."""
 
     def __init__(self, demonstrator: Any, takeover: Takeover, option_names: Sequence[str]
                  ) -> None:
-        self.demonstrator = demonstrator_from(demonstrator)
+        super().__init__(demonstrator)
         self.takeover = takeover
         self.names = list(option_names)
-        self._t = 0
         self.replayed = takeover.step == 0
 
     def reset(self, observation: Any, rng: Generator) -> None:
-        self.demonstrator.reset(observation, rng)
-        self._t = 0
+        super().reset(observation, rng)
         self.replayed = self.takeover.step == 0
 
-    def observe(self, info: dict[str, Any]) -> None:
-        observe = getattr(self.demonstrator, "observe", None)
-        if observe is not None:
-            observe(info)
-
-    def choose(self, observation: Any) -> "str | Decision | None":
-        choice = self.demonstrator.choose(observation)
-        t, self._t = self._t, self._t + 1
+    def instead(self, t: int, observation: Any, choice: "str | Decision | None"
+                ) -> "str | Decision | None":
         over = self.takeover
         if t == over.step and over.step:
             recorded = np.asarray(over.observation, dtype=np.float64)
