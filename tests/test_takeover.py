@@ -54,8 +54,8 @@ def test_a_takeover_replays_dynoplans_steps_then_the_demonstrator_reaches_the_go
     over = Takeover(3, actions, np.array([1, 1, 1]), np.array([False, False, True]),
                     observations[3])
     specs = [as_spec(o) for o in line_options()]
-    shown, unreplayed = demonstrations_after(line_env(), specs, lambda obs: "right", [seed],
-                                             [over])
+    shown, unreplayed = demonstrations_after(lambda s: line_env(), specs, lambda obs: "right",
+                                             [seed], [over])
     assert unreplayed == 0 and len(shown) == 1
     demo = shown[0]
     np.testing.assert_array_equal(demo.observations[:4], observations)  # the same steps
@@ -74,7 +74,7 @@ def test_an_environment_that_does_not_replay_gives_no_demonstration():
     elsewhere = Takeover(3, actions, np.array([1, 1, 1]), np.zeros(3, bool),
                          observations[3] + 0.5)
     specs = [as_spec(o) for o in line_options()]
-    assert demonstrations_after(line_env(), specs, lambda obs: "right", [seed],
+    assert demonstrations_after(lambda s: line_env(), specs, lambda obs: "right", [seed],
                                 [elsewhere]) == ([], 1)
 
 
@@ -108,9 +108,9 @@ def test_a_pipeline_run_takes_over_the_episodes_its_round_failed(monkeypatch):
 
     steps = []
 
-    def spy(env, specs, demonstrator, seeds, takeovers, max_steps=None):
+    def spy(env_of, specs, demonstrator, seeds, takeovers, max_steps=None):
         steps.extend(t.step for t in takeovers)
-        return demonstrations_after(env, specs, demonstrator, seeds, takeovers, max_steps)
+        return demonstrations_after(env_of, specs, demonstrator, seeds, takeovers, max_steps)
 
     monkeypatch.setattr(stages, "demonstrations_after", spy)
     # two decisions of two steps: every own episode fails short of the goal

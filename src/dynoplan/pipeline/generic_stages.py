@@ -350,15 +350,11 @@ class GenericStages:
 
         def take_over(seeds: Sequence[EpisodeSeed], own: Sequence[OwnEpisode]
                       ) -> tuple[list[Episode], int]:
-            shown, unreplayed = [], 0
-            for s, e in zip(seeds, own, strict=True):  # each on its own environment
-                if e.takeover is None:
-                    raise DynoplanError("a failed own episode without its takeover point")
-                kept, missed = demonstrations_after(env(s), self.specs, self.demonstrator,
-                                                    [s], [e.takeover])
-                shown += kept
-                unreplayed += missed
-            return shown, unreplayed
+            takeovers = [e.takeover for e in own]
+            if any(t is None for t in takeovers):
+                raise DynoplanError("a failed own episode without its takeover point")
+            return demonstrations_after(env, self.specs, self.demonstrator, seeds,
+                                        [t for t in takeovers if t is not None])
 
         seeds = (episode_seeds(self.seeds["improve"], improvement.seeds)
                  if improvement.rounds else [])

@@ -22,7 +22,7 @@ A task whose environment does not replay (the observation after the replayed act
 differs from the recorded one) gets no demonstration from that episode.
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -126,12 +126,13 @@ class TakeOver(Steering):
         return choice
 
 
-def demonstrations_after(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
-                         demonstrator: Any, seeds: Sequence[EpisodeSeed],
-                         takeovers: Sequence[Takeover], max_steps: int | None = None
-                         ) -> tuple[list[Episode], int]:
+def demonstrations_after(env_of: Callable[[EpisodeSeed], gym.Env[Any, Any]],
+                         specs: Sequence[OptionSpec], demonstrator: Any,
+                         seeds: Sequence[EpisodeSeed], takeovers: Sequence[Takeover],
+                         max_steps: int | None = None) -> tuple[list[Episode], int]:
     """The demonstrator's episodes taking over the controller's episodes ``seeds`` at
-    ``takeovers`` (:class:`TakeOver`), its successes only, in order, with progress
+    ``takeovers`` (:class:`TakeOver`), each on the environment ``env_of(seed)`` the
+    controller's ran on, its successes only, in order, with progress
     labels over the whole episode, the replayed steps marked as a detour
     (``infos["detour"]``) and their cut runs (``infos["interrupted"]``).
 
@@ -142,7 +143,8 @@ def demonstrations_after(env: gym.Env[Any, Any], specs: Sequence[OptionSpec],
     kept, unreplayed = [], 0
     for seed, over in zip(seeds, takeovers, strict=True):
         demo = TakeOver(demonstrator, over, names)
-        recording = record_episode(env, specs, demo, seed.env_seed, seed.rng(), max_steps)
+        recording = record_episode(env_of(seed), specs, demo, seed.env_seed, seed.rng(),
+                                   max_steps)
         if not demo.replayed:
             unreplayed += 1
             continue
