@@ -20,8 +20,8 @@ def main() -> None:
     """Console entry point: one line per user error, exit status 2; ``dynoplan: aborted``
     and status 130 (SIGINT, Ctrl-C) or 143 (SIGTERM) when interrupted, also while modules
     import and while the interpreter shuts down."""
-    interrupts.install()
-    try:
+    try:  # a signal may land while the handlers are installed: inside the try too
+        interrupts.install()
         code = _run()
     except SystemExit:  # aborted() in _run
         raise
