@@ -190,13 +190,14 @@ def gear_models(tmp_path_factory) -> Path:
     """A tiny but valid gear models folder (untrained widths of 4; loads, never runs)."""
     from dynoplan.envs.gear.features import feature_map
     from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
-    from dynoplan.envs.gear.models_folder import gear_models, load_gear_models
+    from dynoplan.envs.gear.models_folder import TASK_NAME, load_gear_models
     from dynoplan.envs.gear.options.catalog import gear_option_names
-    from dynoplan.envs.gear.state import STATE_DIM
+    from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
     from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
     from dynoplan.models.goal_network import GoalNetwork
     from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
     from dynoplan.models.regions import SafetyRegions
+    from dynoplan.pipeline.fit import FittedModels
 
     folder = tmp_path_factory.mktemp("models") / "models"
     folder.mkdir()
@@ -210,8 +211,9 @@ def gear_models(tmp_path_factory) -> Path:
     regions = feature_map(QUICK_SETTINGS.region_features or "")
     fitted = SafetyRegions.fit(regions(x), labels, names, n_components=len(names))
     dynamics = {name: MLPEnsembleDynamics(STATE_DIM, [4], 1, option=name) for name in names}
-    gear_models(dynamics, GoalOnFeatures(goal, goal_map), RegionsOnFeatures(fitted, regions),
-                0, QUICK_SETTINGS, x.std(axis=0)).write(folder)
+    FittedModels(names, dynamics, GoalOnFeatures(goal, goal_map),
+                 RegionsOnFeatures(fitted, regions), DECISION_STEPS,
+                 {"state_scale": x.std(axis=0).tolist()}, True, TASK_NAME).write(folder)
     load_gear_models(folder)  # valid as made
     return folder
 

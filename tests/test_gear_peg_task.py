@@ -13,10 +13,10 @@ from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.envs.gear.env import GearAssemblyEnv
 from dynoplan.envs.gear.features import FEATURE_MAPS, PEG_OBJECTS
 from dynoplan.envs.gear.learning.settings import QUICK_SETTINGS
-from dynoplan.envs.gear.models_folder import gear_models, load_gear_models
+from dynoplan.envs.gear.models_folder import TASK_NAME, load_gear_models
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.peg_pose import PEG_TASK_NAME, PEG_WORKSPACE, GearPegPoseEnv
-from dynoplan.envs.gear.state import STATE_DIM, PlannerState
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.models.folder import file_sha256, read_manifest
 from dynoplan.pipeline.fit import FittedModels
@@ -79,12 +79,9 @@ def _options_folder(root: Path, names: list[str]) -> Path:
     fitted = SafetyRegions.fit(regions(x), np.repeat(np.arange(len(names)), 20), names,
                                n_components=len(names))
     dynamics = {n: MLPEnsembleDynamics(STATE_DIM, [4], 1, option=n) for n in names}
-    everyone = list(gear_option_names())
-    models = gear_models({n: dynamics.get(n, dynamics[names[0]]) for n in everyone},
-                         GoalOnFeatures(goal, goal_map), RegionsOnFeatures(fitted, regions), 0,
-                         QUICK_SETTINGS, x.std(axis=0))
-    FittedModels(names, dynamics, models.goal, models.regions, models.stride, models.report,
-                 True, models.task, models.extra).write(folder)
+    FittedModels(names, dynamics, GoalOnFeatures(goal, goal_map),
+                 RegionsOnFeatures(fitted, regions), DECISION_STEPS,
+                 {"state_scale": x.std(axis=0).tolist()}, True, TASK_NAME).write(folder)
     return root
 
 

@@ -28,7 +28,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -49,7 +49,7 @@ from dynoplan.models.folder import (
     read_manifest,
     write_manifest,
 )
-from dynoplan.models.goal_network import GoalNetwork
+from dynoplan.models.goal_network import GoalNetwork, GoalTrainingReport
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.outcome_initiation import (
     OutcomeInitiation,
@@ -59,10 +59,11 @@ from dynoplan.models.outcome_initiation import (
 from dynoplan.models.regions import SafetyRegions
 from dynoplan.options.initiation import AllOf, Everywhere, Initiation, InRegion
 from dynoplan.options.option import Option
-from dynoplan.options.state_map import on_option_state, planner_dynamics
+from dynoplan.options.state_map import StateMap, on_option_state, planner_dynamics
 from dynoplan.pipeline.collect import ObservationFn
 from dynoplan.pipeline.diagnostics import constant_dimensions, constant_dimensions_warning
 from dynoplan.pipeline.fit_data import (
+    decision_runs,
     episode_states,
     labelled_states,
     option_end_pairs,
@@ -74,6 +75,7 @@ from dynoplan.pipeline.fit_dynamics import (
     DYNAMICS_BATCH,
     DynamicsFitter,
     StridedTermination,
+    calibration_split,
     dynamics_epochs,
     ensemble_fitter,
     fit_dynamics,
@@ -416,7 +418,19 @@ def _unwrap_regions(regions: RegionsModel) -> tuple[SafetyRegions, str | None]:
     return regions, None
 
 
-def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
+class OptionToFit(Protocol):
+    """What :func:`fit_models` reads of an option: its name and its own state
+    (``None``: the planner state). An :class:`~dynoplan.adapters.spec.OptionSpec` is one,
+    and so is a task's own record of an option (the gear's registry entries)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def state_map(self) -> StateMap | None: ...
+
+
+def fit_models(specs: Sequence[OptionToFit], transitions: Sequence[Episode],
                demos: Sequence[Episode], settings: FitSettings, seed: int,
                state_fn: ObservationFn = flat_state,
                fitter: DynamicsFitter | None = None,
@@ -424,10 +438,14 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
                task: str = "",
                feature_maps: Mapping[str, FeatureMap] | None = None,
                region_demos: Sequence[Episode] | None = None,
-               region_starts: Sequence[Episode] = ()) -> FittedModels:
+               region_starts: Sequence[Episode] = (),
+               dynamics_runs: Sequence[Episode] | None = None,
+               goal_training: list[GoalTrainingReport] | None = None) -> FittedModels:
     """Fit dynamics (on transitions and demonstrations), goal and regions (on demonstrations).
 
     Args:
+        transitions: the options' runs at the environment's rate (exploration episodes,
+            option runs), labelled by the option that acted.
         progress: called with a short message before each stage (for a status line).
         task: the task's name, recorded in the models folder.
         feature_maps: the task's named feature maps (for ``settings.goal_features`` and
@@ -437,6 +455,18 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
         region_starts: start states labelled by the demonstrator's first choice, which
             widen the regions where the options start the task
             (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`).
+        dynamics_runs: for a task that records its option runs at the decision rate
+            (one episode per run of one option, each step one model step: the gear's),
+            those runs: the dynamics, their end gaps and the state scale read them in
+            place of ``transitions`` and ``demos`` at every ``stride``-th step (the
+            goal's off-demonstration states and the regions still read ``transitions``).
+        goal_training: when given, receives the goal network's training report.
+
+    With ``settings.dynamics_calibration`` each option's runs (``dynamics_runs``, else
+    :func:`~dynoplan.pipeline.fit_data.decision_runs` of the transitions and
+    demonstrations) are split into those its model is fitted on and those that
+    calibrate its spread (the report's ``dynamics.<option>.std_scale`` and
+    ``calibration_runs``).
     """
     settings.validate()
     goal_map = named_feature_map(settings.goal_features, feature_maps)
@@ -444,19 +474,24 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     names = [s.name for s in specs]
     say = progress or (lambda _msg: None)
     say("dynamics")
-    pairs = (option_end_pairs([*transitions, *demos], names, state_fn)
-             if settings.option_model == "end" else
-             option_transitions([*transitions, *demos], names, state_fn, settings.stride))
     maps = {s.name: s.state_map for s in specs if s.state_map is not None}
-    for name, state_map in maps.items():  # each such option's dynamics on its own state
-        pairs[name] = on_option_state(pairs[name], state_map)
-    dynamics, dyn_report = fit_dynamics(pairs, seed, fitter or ensemble_fitter(settings))
+    data, stride = (([*transitions, *demos], settings.stride) if dynamics_runs is None
+                    else (list(dynamics_runs), 1))
+    pairs, held_back = _dynamics_pairs(data, stride, names, maps, settings, seed, state_fn)
+    dynamics, dyn_report = fit_dynamics(
+        pairs, seed, fitter or ensemble_fitter(settings),
+        calibration=None if held_back is None else held_back[0],
+        remedy="collect more episodes or lower the stride" if dynamics_runs is None
+        else "record more runs of it")
+    if held_back is not None:
+        for name, runs in held_back[1].items():
+            dyn_report[name]["calibration_runs"] = runs
     say("goal heuristic")
-    goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map, transitions)
+    goal, goal_report = fit_goal(demos, settings, seed, state_fn, goal_map, transitions,
+                                 training=goal_training)
     goal_report["end_gap"] = goal_end_gaps(
         {n: planner_dynamics(m, maps.get(n)) for n, m in dynamics.items()}, goal,
-        [*transitions, *demos], state_fn, settings.stride, seed,
-        to_end=settings.option_model == "end")
+        data, state_fn, stride, seed, to_end=settings.option_model == "end")
     regions = None
     region_report: dict[str, Any] | None = None
     if settings.regions:
@@ -479,7 +514,9 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
         say("undemonstrated options' initiation")
         learned, outcome_report = fit_undemonstrated_initiation(
             transitions, names, by_outcomes, goal, settings, seed, state_fn)
-    every_state = np.concatenate([episode_states(e, state_fn) for e in [*transitions, *demos]])
+    every_state = np.concatenate([episode_states(e, state_fn) for e in
+                                  [*(transitions if dynamics_runs is None else dynamics_runs),
+                                   *demos]])
     constant = constant_dimensions(every_state)
     note = constant_dimensions_warning(constant, every_state.shape[1],
                                        settings.constant_dimensions_still)
@@ -494,6 +531,38 @@ def fit_models(specs: Sequence[OptionSpec], transitions: Sequence[Episode],
     extra = {OPTION_STATE_DIMS: {n: m.option_dim for n, m in maps.items()}} if maps else {}
     return FittedModels(names, dynamics, goal, regions, settings.stride, report,
                         settings.regions, task, extra, learned, failure)
+
+
+Pairs = dict[str, tuple[FloatArray, FloatArray]]
+
+
+def _dynamics_pairs(episodes: Sequence[Episode], stride: int, names: Sequence[str],
+                    maps: Mapping[str, StateMap], settings: FitSettings, seed: int,
+                    state_fn: ObservationFn
+                    ) -> tuple[Pairs, tuple[Pairs, dict[str, int]] | None]:
+    """Per option the pairs its dynamics are fitted on (:func:`fit_models`), on its own
+    state where ``maps`` holds one; with ``settings.dynamics_calibration`` also the pairs
+    held back to calibrate its spread and the number of runs they come from (else
+    ``None``)."""
+    if settings.option_model == "end":
+        pairs = option_end_pairs(episodes, names, state_fn)
+        held = None
+    elif not settings.dynamics_calibration:
+        pairs = option_transitions(episodes, names, state_fn, stride)
+        held = None
+    else:
+        runs = episodes if stride == 1 else decision_runs(episodes, stride)
+        split = calibration_split(runs, names, settings.dynamics_calibration, seed)
+        pairs = {n: option_transitions(kept, names, state_fn)[n]
+                 for n, (kept, _) in split.items()}
+        held = ({n: option_transitions(back, names, state_fn)[n]
+                 for n, (_, back) in split.items() if back},
+                {n: len(back) for n, (_, back) in split.items()})
+    for name, state_map in maps.items():  # each such option's dynamics on its own state
+        pairs[name] = on_option_state(pairs[name], state_map)
+        if held is not None and name in held[0]:
+            held[0][name] = on_option_state(held[0][name], state_map)
+    return pairs, held
 
 
 def named_feature_map(name: str | None,
@@ -520,6 +589,7 @@ __all__ = [
     "FitSettings",
     "FittedModels",
     "GoalModel",
+    "OptionToFit",
     "OutcomeModel",
     "RegionsModel",
     "StridedTermination",

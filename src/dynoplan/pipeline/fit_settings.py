@@ -37,6 +37,12 @@ class FitSettings:
             bound): 30 epochs of 264 transitions are 30 steps of 256 rows, and leave an
             option model hardly better than "no change" (the hold-out still picks the
             epoch kept; ``docs/suite.md``).
+        dynamics_calibration: share of each option's runs, grouped by their ``seed``,
+            held back from its fit to calibrate the predicted spread on
+            (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`,
+            :meth:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics.calibrate`); an
+            option whose runs come from fewer than 4 seeds is not calibrated (0, the
+            default: none). Only with ``option_model="step"``.
         goal_hidden: hidden width of the goal network.
         goal_members: goal ensemble size.
         goal_epochs: training epochs of the goal network.
@@ -118,6 +124,7 @@ class FitSettings:
     dynamics_epochs: int = 30
     dynamics_max_updates: int | None = None
     dynamics_min_updates: int | None = 1000
+    dynamics_calibration: float = 0.0
     goal_hidden: int = 64
     goal_members: int = 1
     goal_epochs: int = 150
@@ -165,6 +172,12 @@ class FitSettings:
         if self.dynamics_max_updates is not None and self.dynamics_max_updates < 1:
             raise DynoplanError(f"dynamics_max_updates must be >= 1 or None, got "
                                 f"{self.dynamics_max_updates}")
+        if not 0.0 <= self.dynamics_calibration < 1.0:
+            raise DynoplanError(f"dynamics_calibration must be in [0, 1), got "
+                                f"{self.dynamics_calibration}")
+        if self.dynamics_calibration and self.option_model != "step":
+            raise DynoplanError("dynamics_calibration needs option_model='step' (a model to "
+                                "an option's end is calibrated on no held-back runs)")
         if self.goal_hidden < 1 or self.goal_members < 1 or self.goal_epochs < 1:
             raise DynoplanError("goal_hidden, goal_members and goal_epochs must be positive")
         if not self.goal_ranking >= 0.0:

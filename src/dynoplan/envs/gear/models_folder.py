@@ -2,9 +2,9 @@
 
 :func:`~dynoplan.envs.gear.learning.training.train_gear_models` writes ``metrics.json``
 and, through the pipeline's :meth:`~dynoplan.pipeline.fit.FittedModels.write`, one
-safetensors file per model and the manifest ``models.json`` (:func:`gear_models`: the
-library's format, with the gear's feature maps named, the training seed and settings as
-extra fields, and the state scale a pipeline fit records). :func:`load_gear_models`
+safetensors file per model and the manifest ``models.json`` (the library's format, with
+the gear's feature maps named, the fit's report and settings, and the training seed and
+the planner state's names as extra fields). :func:`load_gear_models`
 reads the folder back as :class:`~dynoplan.pipeline.fit.FittedModels` and checks that it
 fits this version's gear assembly, so a missing, truncated, modified or mismatched file
 is rejected with one error line.
@@ -15,64 +15,21 @@ The goal heuristic and the regions read named feature maps of the planner state
 """
 
 import os
-from collections.abc import Mapping
-from dataclasses import asdict
 from pathlib import Path
-
-import numpy as np
 
 from dynoplan.envs.gear.features import FEATURE_MAPS
 from dynoplan.envs.gear.options.catalog import gear_option_names
-from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES
+from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.errors import DynoplanError
-from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.folder import MANIFEST_FILE
 from dynoplan.pipeline.fit import (
-    OPTION_STATE_DIMS,
-    FitSettings,
     FittedModels,
-    GoalModel,
-    RegionsModel,
 )
-from dynoplan.types import FloatArray
 
 TASK_NAME = "gear_assembly"
 METRICS_FILE = "metrics.json"
 HELDOUT_DIR = "heldout-demos"
 RETRAIN = "train them with 'dynoplan gear train' or 'dynoplan gear run'"
-
-
-def gear_models(dynamics: Mapping[str, DynamicsModel], goal: GoalModel,
-                regions: RegionsModel, seed: int, settings: FitSettings,
-                state_scale: FloatArray,
-                option_state_dims: Mapping[str, int] | None = None) -> FittedModels:
-    """The gear's fitted models in the pipeline's one in-memory form, which
-    :meth:`~dynoplan.pipeline.fit.FittedModels.write` writes as a models folder.
-
-    Args:
-        dynamics: every registered option's ``D_w`` on planner states ``(batch, 22)``,
-            one step per decision (:data:`~dynoplan.envs.gear.state.DECISION_STEPS`
-            environment steps).
-        goal, regions: the goal heuristic and the demonstrated options' regions, each on
-            a named feature map of the planner state (:mod:`dynoplan.envs.gear.features`).
-        seed, settings: what trained them, recorded in the manifest beside the state's
-            names (the gear's fit report is ``metrics.json``, not the manifest).
-        state_scale: ``(22,)`` the spread (standard deviation) of every planner-state
-            coordinate over the fitted data, as a pipeline fit records it
-            (:attr:`~dynoplan.pipeline.fit.FittedModels.state_scale`: the controller's
-            ``no_effect_share`` and ``loop_share`` scale by it).
-        option_state_dims: per option fitted on its own state, that state's size
-            (:attr:`~dynoplan.pipeline.fit.FittedModels.option_state_dims`; none: every
-            option on the planner state).
-    """
-    names = list(gear_option_names())
-    return FittedModels(names, {name: dynamics[name] for name in names}, goal, regions,
-                        DECISION_STEPS, {"state_scale": np.asarray(state_scale).tolist()},
-                        True, TASK_NAME,
-                        {"state_names": list(STATE_NAMES), "seed": seed,
-                         "settings": asdict(settings),
-                         **({OPTION_STATE_DIMS: dict(option_state_dims)}
-                            if option_state_dims else {})})
 
 
 def load_gear_models(folder: str | os.PathLike[str], task: str = TASK_NAME) -> FittedModels:
@@ -106,4 +63,4 @@ def load_gear_models(folder: str | os.PathLike[str], task: str = TASK_NAME) -> F
 
 
 __all__ = ["HELDOUT_DIR", "METRICS_FILE", "RETRAIN", "TASK_NAME",
-           "gear_models", "load_gear_models"]
+           "load_gear_models"]

@@ -19,7 +19,8 @@ DEFAULT_SETTINGS = FitSettings(
     goal_epochs=150, goal_features=OBJECTS.name, region_features=RELATIVE.name,
     region_fit="cv", region_coverage=0.99, region_cv_coverage=0.97, region_reg_covar=3e-3,
     region_max_components=8, region_undemonstrated="everywhere", option_model="step",
-    goal_off_demos=False, constant_dimensions_still=False, dynamics_min_updates=None)
+    goal_off_demos=False, constant_dimensions_still=False, dynamics_min_updates=None,
+    dynamics_calibration=0.15)
 """The gear's models, one step per decision:
 
 - the goal heuristic reads the ``objects`` features (the gripper, the tool relative to
@@ -40,7 +41,9 @@ DEFAULT_SETTINGS = FitSettings(
   pipeline's remedies of the composition suite, measured on the gear's three seeds
   (``docs/suite.md``, the eighth round), cost its seed 1 eight points and lengthened
   its episodes, so its fit keeps these (and a model to an option's end needs option
-  runs that record where they were cut)."""
+  runs that record where they were cut);
+- each option's spread calibrated on 15 % of its runs held back from its fit
+  (``dynamics_calibration``)."""
 
 QUICK_SETTINGS = replace(DEFAULT_SETTINGS, goal_hidden=32, goal_epochs=40,
                          region_max_components=4, dynamics_hidden=(64, 64), dynamics_epochs=15)
@@ -55,10 +58,6 @@ class GearMetricsSettings:
         dynamics_heldout_fraction: share of each option's transition episodes (grouped by
             their ``seed``) held out for the dynamics report, when option transitions are
             given.
-        dynamics_calibration_fraction: share of the remaining runs (grouped the same way)
-            kept out of the fit to calibrate the predicted spread
-            (:meth:`~dynoplan.models.neural_dynamics.MLPEnsembleDynamics.calibrate`);
-            options with runs from fewer than 4 seeds are not calibrated.
         n_step, rollouts: decision steps and Monte-Carlo rollouts per start state of the
             n-step report (and of the goal's end gap).
         end_gap_horizon: the most decision steps each held-out run of an option is
@@ -71,7 +70,6 @@ class GearMetricsSettings:
     """
 
     dynamics_heldout_fraction: float = 0.2
-    dynamics_calibration_fraction: float = 0.15
     n_step: int = 3
     rollouts: int = 32
     end_gap_horizon: int = 10

@@ -1,28 +1,26 @@
 """Learned models of the gear assembly (issue 5): goal heuristic, safety regions, dynamics.
 
-:func:`train_gear_models` fits, from the project's own data, everything DynoPlan plans
-with, and measures it on held-out data:
+:func:`train_gear_models` fits everything DynoPlan plans with by the pipeline's one fit,
+:func:`~dynoplan.pipeline.fit.fit_models` (as every task's models are fitted), on the
+gear's data and with the gear's :class:`~dynoplan.pipeline.fit.FitSettings`
+(:data:`~dynoplan.envs.gear.learning.settings.DEFAULT_SETTINGS`), and measures it on
+held-out trials (``metrics.json``):
 
 - the goal heuristic ``G`` (:class:`~dynoplan.models.goal_network.GoalNetwork`, a Beta
   over progress) on every demonstration state, target = the demonstration's normalised
-  time ``t / T`` (what ``infos["progress"]`` records; ``0`` for the reset observation),
-  fitted by the pipeline's :func:`~dynoplan.pipeline.fit_goal.fit_goal`;
-- the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`): a
-  Gaussian mixture with ``M`` chosen by BIC on the demonstration states, components
-  assigned to options by their states' labels, and per-option thresholds calibrated on
-  the demonstrations by leave-one-demonstration-out
-  (:func:`~dynoplan.pipeline.fit.fit_regions_cross_validated`),
-  for the options the demonstrations show, by the pipeline's
-  :func:`~dynoplan.pipeline.fit_regions.fit_option_regions` (an option registered after
-  the paper's four has no region unless demonstrated);
+  time ``t / T`` (what ``infos["progress"]`` records; ``0`` for the reset observation);
+- the safety regions of Eq. 5 (:class:`~dynoplan.models.regions.SafetyRegions`) of the
+  options the demonstrations show: a Gaussian mixture with ``M`` chosen by BIC on the
+  demonstration states, components assigned to options by their states' labels, and
+  per-option thresholds calibrated by leaving demonstrations out (``region_fit="cv"``);
+  an option registered after the paper's four has no region unless demonstrated;
 - one dynamics model ``D_w`` per registered option (:class:`~dynoplan.models.neural_dynamics.
-  MLPEnsembleDynamics`) on transitions at the decision rate (one step =
-  :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps), from the option
-  transitions collected by ``dynoplan gear collect`` or, without them, from the
-  demonstrations subsampled (:func:`~dynoplan.pipeline.fit_data.decision_runs`), fitted by the
-  pipeline's :func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`, each option's spread
-  calibrated on runs held back from its fit
-  (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`).
+  MLPEnsembleDynamics`) on its runs at the decision rate (one step =
+  :data:`~dynoplan.envs.gear.state.DECISION_STEPS` environment steps: ``fit_models``'
+  ``dynamics_runs``), from the option transitions collected by ``dynoplan gear collect``
+  or, without them, from the demonstrations subsampled
+  (:func:`~dynoplan.pipeline.fit_data.decision_runs`), each option's spread calibrated
+  on runs held back from its fit (``FitSettings.dynamics_calibration``).
 
 The goal heuristic and the regions read named feature maps
 (:mod:`dynoplan.envs.gear.features`; ``objects`` and ``relative`` by default, the same
@@ -35,19 +33,19 @@ that reads the joints scores an imagined insertion far below what really comes o
 through the dynamics models (which predict all 22 columns), the terminations and the
 regions' capped distance.
 
-This module reads the data, calls the pipeline's three fits and writes their models with
-the pipeline's :meth:`~dynoplan.pipeline.fit.FittedModels.write`; what is the gear's own
-is the held-out measurement of ``metrics.json``. The rest lives in :mod:`.settings` (the
-:class:`~dynoplan.pipeline.fit.FitSettings` of the gear and
+What is the gear's own here is reading its datasets and the held-out measurement of
+``metrics.json``; the models folder is the pipeline's
+(:meth:`~dynoplan.pipeline.fit.FittedModels.write`, with the seed and the state's names
+in its manifest; :func:`~dynoplan.envs.gear.models_folder.load_gear_models` reads it).
+The rest lives in :mod:`.settings` (the gear's
+:class:`~dynoplan.pipeline.fit.FitSettings` and
 :class:`~dynoplan.envs.gear.learning.settings.GearMetricsSettings`), :mod:`.data`
-(datasets to arrays), :mod:`.metrics` (far-away states) and :mod:`.files`
-(:func:`~dynoplan.envs.gear.models_folder.gear_models` and
-:func:`~dynoplan.envs.gear.models_folder.load_gear_models`).
+(datasets to arrays) and :mod:`.metrics` (far-away states).
 """
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -55,7 +53,7 @@ import numpy as np
 from scipy import stats
 
 from dynoplan.data import Episode
-from dynoplan.envs.gear.features import FeatureMap, feature_map
+from dynoplan.envs.gear.features import FEATURE_MAPS, FeatureMap, feature_map
 from dynoplan.envs.gear.learning.data import (
     CAUTIOUS,
     check_disjoint,
@@ -72,12 +70,11 @@ from dynoplan.envs.gear.learning.settings import (
     QUICK_SETTINGS,
     GearMetricsSettings,
 )
-from dynoplan.envs.gear.models_folder import METRICS_FILE, gear_models
+from dynoplan.envs.gear.models_folder import METRICS_FILE, TASK_NAME
 from dynoplan.envs.gear.options.catalog import gear_option, gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM, STATE_NAMES, PlannerState
 from dynoplan.errors import DynoplanError
 from dynoplan.io import ensure_writable_dir, write_json
-from dynoplan.models.dynamics import DynamicsModel
 from dynoplan.models.evaluation import (
     EnsembleModel,
     calibration,
@@ -87,7 +84,6 @@ from dynoplan.models.evaluation import (
 )
 from dynoplan.models.features import GoalOnFeatures, RegionsOnFeatures
 from dynoplan.models.folder import MANIFEST_FILE
-from dynoplan.models.goal import GoalHeuristic
 from dynoplan.models.goal_network import GoalTrainingReport, evaluate_goal
 from dynoplan.models.neural_dynamics import MLPEnsembleDynamics
 from dynoplan.models.trainer import TrainingReport, deterministic_training
@@ -95,23 +91,22 @@ from dynoplan.options.state_map import (
     CoordinateMap,
     MappedDynamics,
     StateMap,
-    on_option_state,
 )
-from dynoplan.pipeline.fit import FitSettings, dynamics_epochs, fit_goal
+from dynoplan.pipeline.fit import (
+    FitSettings,
+    FittedModels,
+    GoalModel,
+    RegionsModel,
+    dynamics_epochs,
+    fit_models,
+)
 from dynoplan.pipeline.fit_data import (
     decision_runs,
-    episode_states,
     labelled_states,
     option_transitions,
     split_runs,
 )
-from dynoplan.pipeline.fit_dynamics import (
-    CALIBRATION_LEVEL,
-    calibration_split,
-    ensemble_fitter,
-    fit_dynamics,
-)
-from dynoplan.pipeline.fit_regions import fit_option_regions
+from dynoplan.pipeline.fit_dynamics import CALIBRATION_LEVEL, ensemble_fitter
 from dynoplan.progress import track
 from dynoplan.timing import StageClock
 from dynoplan.types import FloatArray, IntArray
@@ -169,7 +164,6 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
             unwritable ``out``.
     """
     cfg = settings or (QUICK_SETTINGS if quick else DEFAULT_SETTINGS)
-    cfg.validate()
     if cfg.region_undemonstrated != "everywhere" or cfg.outcome_initiation:
         raise DynoplanError("the gear's models leave undemonstrated options without a region "
                             "(region_undemonstrated='everywhere') and learn initiation from "
@@ -178,6 +172,7 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
         raise DynoplanError("the gear's dynamics predict one decision ahead "
                             "(option_model='step'): its option runs do not record where a "
                             "run was cut short, which an option model to the end needs")
+    cfg.validate()
     measure = measures or (QUICK_METRICS if quick else DEFAULT_METRICS)
     started = time.perf_counter()
     out = ensure_writable_dir(out)
@@ -209,41 +204,46 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
     # a folder half-rewritten by a failed run must not load as a set of models
     for stale in (MANIFEST_FILE, METRICS_FILE):
         (out / stale).unlink(missing_ok=True)
-    results: dict[str, Any] = {}
-    fitted: dict[str, Any] = {}  # the goal, the regions and the dynamics, by what they are
-
-    def fit_goal() -> None:
-        results["goal"], fitted["goal"] = _train_goal(list(train_set), held, cfg, seed,
-                                                      planner, dyn_train)
-
-    def fit_regions() -> None:
-        results["regions"], fitted["regions"] = _train_regions(
-            list(region_set), list(held_set), planner, cfg, measure, seed, start_set)
-
-    dyn_reports: dict[str, Any] = {}
-
     maps = gear_state_maps() if own_states else {}
+    options = [replace(gear_option(n), state_map=maps.get(n)) for n in gear_option_names()]
+    goal_training: list[GoalTrainingReport] = []
+    dynamics_training: dict[str, TrainingReport] = {}
+    done: dict[str, Any] = {}
 
-    def fit_option_dynamics() -> None:
-        fitted["dynamics"] = _train_dynamics(dyn_train, dyn_held, planner, cfg, measure,
-                                             seed, fitted["goal"], dyn_reports, maps)
+    def fit() -> None:  # the pipeline's fit, then the folder the gear's controllers read
+        fitted = fit_models(options, dyn_train, list(train_set), cfg, seed, planner,
+                            ensemble_fitter(cfg, dynamics_training), task=TASK_NAME,
+                            feature_maps=FEATURE_MAPS, region_demos=region_set,
+                            region_starts=start_set, dynamics_runs=dyn_train,
+                            goal_training=goal_training)
+        done["models"] = replace(fitted, extra={**fitted.extra, "seed": seed,
+                                                "state_names": list(STATE_NAMES)})
+        done["models"].write(out)
+
+    def goal_metrics() -> None:
+        done["goal"] = _goal_report(done["models"].goal, goal_training[0],
+                                    done["models"].report["goal"], held)
+
+    def region_metrics() -> None:
+        done["regions"] = _regions_report(done["models"].regions,
+                                          done["models"].report["regions"], region_set,
+                                          list(held_set), planner, cfg, measure, seed)
+
+    def dynamics_metrics() -> None:
+        done["dynamics"] = _dynamics_reports(done["models"], dynamics_training, dyn_held,
+                                             planner, cfg, measure, seed, maps)
 
     stages: list[tuple[str, Callable[[], None]]] = [
-        ("goal", fit_goal), ("regions", fit_regions), ("dynamics", fit_option_dynamics)]
+        ("fit", fit), ("goal metrics", goal_metrics), ("region metrics", region_metrics),
+        ("dynamics metrics", dynamics_metrics)]
     with deterministic_training():  # the same files whatever threads the caller set
         for name, run in track(stages, "gear models", total=len(stages), enabled=progress):
             clock.stage(name, run)
-
-    # the spread of every coordinate over the fitted data, as fit_models records it
-    state_scale = np.concatenate([episode_states(e, planner)
-                                  for e in [*dyn_train, *train_set]]).std(axis=0)
-    gear_models(fitted["dynamics"], fitted["goal"], fitted["regions"], seed, cfg,
-                state_scale, {n: m.option_dim for n, m in maps.items()}).write(out)
+    goal, regions, dyn_reports = done["goal"], done["regions"], done["dynamics"]
     # coverage over all held-out transitions (options without any do not count)
     dyn_rows = [r for r in dyn_reports.values() if r["coverage_90"] is not None]
     held_rows = np.array([r["transitions_heldout"] for r in dyn_rows], dtype=np.float64)
     coverages = np.array([r["coverage_90"] for r in dyn_rows], dtype=np.float64)
-    goal, regions = results["goal"], results["regions"]
     seconds = {**clock.rounded(2), "total": round(time.perf_counter() - started, 2)}
     metrics: dict[str, Any] = {
         "goal_spearman": goal["spearman"],
@@ -284,21 +284,16 @@ def gear_features(name: str | None) -> FeatureMap:
     return feature_map(name)
 
 
-def _train_goal(train_set: Sequence[Episode],
-                held: Sequence[tuple[FloatArray, FloatArray, IntArray]],
-                cfg: FitSettings, seed: int, planner: PlannerState,
-                runs: Sequence[Episode]) -> tuple[dict[str, Any], GoalOnFeatures]:
-    """The goal heuristic on the gear's goal features, fitted by the pipeline
-    (:func:`~dynoplan.pipeline.fit_goal.fit_goal`: on the demonstrations' states and their
-    progress ``t / T``, which ``infos["progress"]`` records too, and with
-    ``cfg.goal_off_demos`` on the states of the option runs ``runs``, the dynamics'
-    training data, too); the report of ``metrics.json``'s ``goal``, measured on the
-    held-out trials ``held``, and the goal heuristic on planner states."""
-    f = gear_features(cfg.goal_features)
-    training: list[GoalTrainingReport] = []
-    goal, fit_report = fit_goal(train_set, cfg, seed, planner, f, off=runs, training=training)
-    assert isinstance(goal, GoalOnFeatures)  # fitted on a feature map
-    network, report = goal.network, training[0]
+def _goal_report(goal: GoalModel, training: GoalTrainingReport,
+                 fit_report: Mapping[str, Any],
+                 held: Sequence[tuple[FloatArray, FloatArray, IntArray]]) -> dict[str, Any]:
+    """``metrics.json``'s ``goal``: the goal heuristic fitted by
+    :func:`~dynoplan.pipeline.fit.fit_models` (on the demonstrations' states and their
+    progress ``t / T``, which ``infos["progress"]`` records too; ``training`` and
+    ``fit_report`` its network's training and the fit's report) measured on the held-out
+    trials ``held``."""
+    assert isinstance(goal, GoalOnFeatures)  # the gear's goal reads a feature map
+    f, network = goal.features, goal.network
     xh = np.concatenate([f(s) for s, _, _ in held])
     yh = np.concatenate([p for _, p, _ in held])
     pooled = evaluate_goal(network, xh, yh)
@@ -323,7 +318,7 @@ def _train_goal(train_set: Sequence[Episode],
         "per_trial_mae": per_trial_mae,
         "per_trial_interrupted": interrupted.tolist(),
         "uninterrupted": calm_metrics,
-        "train_loss_first_last": [report.train_loss[0], report.train_loss[-1]],
+        "train_loss_first_last": [training.train_loss[0], training.train_loss[-1]],
         "train_states": fit_report["states"],
         "off_demo_states": fit_report["off_demo_states"],
         "note": "truth = the trial's normalised time (infos['progress']); spearman and "
@@ -333,22 +328,20 @@ def _train_goal(train_set: Sequence[Episode],
                 "different normalised times in trials of different lengths. Trials "
                 "'interrupted' had cautious_move steps (the expert slowed, waited or "
                 "backed away for the human), where time advances but the state does not",
-    }, goal
+    }
 
 
-def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
-                   planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
-                   seed: int, starts: Sequence[Episode] = ()
-                   ) -> tuple[dict[str, Any], RegionsOnFeatures]:
-    """The regions of the demonstrated options, fitted by the pipeline
-    (:func:`~dynoplan.pipeline.fit_regions.fit_option_regions`, widened by the labelled
-    start states ``starts``; undemonstrated options get none); the report of
-    ``metrics.json``'s ``regions`` and the regions."""
-    features = gear_features(cfg.region_features)
+def _regions_report(regions: RegionsModel | None, info: Mapping[str, Any],
+                    train_set: Sequence[Episode], held_set: Sequence[Episode],
+                    planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
+                    seed: int) -> dict[str, Any]:
+    """``metrics.json``'s ``regions``: the demonstrated options' regions fitted by
+    :func:`~dynoplan.pipeline.fit.fit_models` on ``train_set`` (``info`` its report;
+    undemonstrated options get none) measured on the held-out trials ``held_set`` and
+    on states far from every demonstration."""
+    assert isinstance(regions, RegionsOnFeatures)  # the gear's regions read a feature map
+    features = regions.features
     names = gear_option_names()
-    regions, info = fit_option_regions(train_set, (), names, cfg, seed, state_fn=planner,
-                                       features=features, starts=starts)
-    assert isinstance(regions, RegionsOnFeatures)  # fitted on a feature map
     fitted = regions.regions
     s, y, _ = labelled_states(train_set, len(names), planner)
     # ``column`` maps an option's label to its region, -1 for none
@@ -378,7 +371,7 @@ def _train_regions(train_set: Sequence[Episode], held_set: Sequence[Episode],
         "heldout_states": len(yh),
         **info,
         "members": fitted.members.astype(int).tolist(),
-    }, regions
+    }
 
 
 def gear_state_maps() -> dict[str, StateMap]:
@@ -396,40 +389,31 @@ def _state_names(state_map: StateMap) -> list[str]:
     return [f"z{i}" for i in range(state_map.option_dim)]
 
 
-def _train_dynamics(train_eps: Sequence[Episode], held_eps: Sequence[Episode],
-                    planner: PlannerState, cfg: FitSettings, measure: GearMetricsSettings,
-                    seed: int, goal: GoalHeuristic, reports: dict[str, Any],
-                    maps: Mapping[str, StateMap]) -> dict[str, DynamicsModel]:
-    """Every registered option's dynamics, fitted by the pipeline
-    (:func:`~dynoplan.pipeline.fit_dynamics.fit_dynamics`) on its runs among ``train_eps``
-    but those held back to calibrate its spread
-    (:func:`~dynoplan.pipeline.fit_dynamics.calibration_split`), on its own state when
-    ``maps`` holds one; each option's report of ``metrics.json``'s ``dynamics`` goes into
-    ``reports``, measured on ``held_eps`` in the planner state."""
+def _dynamics_reports(fitted: FittedModels, training: Mapping[str, TrainingReport],
+                      held_eps: Sequence[Episode], planner: PlannerState, cfg: FitSettings,
+                      measure: GearMetricsSettings, seed: int,
+                      maps: Mapping[str, StateMap]) -> dict[str, Any]:
+    """``metrics.json``'s ``dynamics``: every registered option's dynamics, fitted by
+    :func:`~dynoplan.pipeline.fit.fit_models` (on its own state when ``maps`` holds one;
+    ``training`` their training reports), measured on ``held_eps`` in the planner
+    state."""
     names = gear_option_names()
-    split = calibration_split(train_eps, names, measure.dynamics_calibration_fraction, seed)
-    pairs = {n: on_option_state(option_transitions(runs, names, planner)[n], maps.get(n))
-             for n, (runs, _) in split.items()}
-    held_back = {n: on_option_state(option_transitions(back, names, planner)[n], maps.get(n))
-                 for n, (_, back) in split.items() if back}
-    training: dict[str, TrainingReport] = {}
-    models, rows = fit_dynamics(
-        pairs, seed, ensemble_fitter(cfg, training), calibration=held_back,
-        remedy="record more episodes (an option the demonstrations do not show needs "
-               "`dynoplan gear collect`)")
+    goal = fitted.goal
 
     def score(states: FloatArray) -> FloatArray:
         return goal.mean_std(states)[0]
 
+    reports: dict[str, Any] = {}
     for k, name in enumerate(names):
-        model = models[name]
+        model = fitted.dynamics[name]
         assert isinstance(model, MLPEnsembleDynamics)  # the default fitter's
         own = maps.get(name)
+        row = fitted.report["dynamics"][name]
         reports[name] = _dynamics_report(
             k, name, model if own is None else MappedDynamics(model, own), training[name],
-            rows[name], len(split[name][1]), held_eps, planner, cfg, measure, seed, score,
-            STATE_NAMES if own is None else _state_names(own))
-    return models
+            row, row.get("calibration_runs", 0), held_eps, planner, cfg, measure, seed,
+            score, STATE_NAMES if own is None else _state_names(own))
+    return reports
 
 
 def _dynamics_report(k: int, name: str, model: EnsembleModel, report: TrainingReport,
