@@ -66,6 +66,7 @@ SETTING_BOUNDS: dict[str, tuple[float, float]] = {
     "fit.region_folds": (2, 1000), "fit.region_reg_covar": (0.0, math.inf),
     "fit.outcome_min_gain": (-math.inf, math.inf),
     "fit.dynamics_max_updates": (1, 10**9), "fit.dynamics_min_updates": (1, 10**9),
+    "fit.dynamics_calibration": (0.0, 1.0),
     "fit.goal_ranking": (0.0, math.inf), "fit.goal_off_radius": (0.01, 1e6),
     "fit.goal_off_around": (0, 100),
     "fit.region_cv_coverage": (0.0, 1.0),

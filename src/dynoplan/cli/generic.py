@@ -150,6 +150,10 @@ def pipeline(
         None, "--dynamics-min-updates", **_bounds("fit.dynamics_min_updates"),
         help="More epochs when an option has so few transitions that --dynamics-epochs "
              "would take fewer gradient steps than this [1000]."),
+    dynamics_calibration: float | None = typer.Option(
+        None, "--dynamics-calibration", **_bounds("fit.dynamics_calibration"),
+        help="Share of each option's runs held back from its fit to calibrate the "
+             "predicted spread on (needs --option-model step) [0: none]."),
     goal_hidden: int | None = typer.Option(None, "--goal-hidden", **_bounds("fit.goal_hidden"),
                                            help="Hidden width of the goal network [64]."),
     goal_members: int | None = typer.Option(
