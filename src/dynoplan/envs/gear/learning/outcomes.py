@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from dynoplan.data import DatasetMetadata, Episode, read_dataset, write_dataset
+from dynoplan.envs.gear.features import RELATIVE
 from dynoplan.envs.gear.option_runs import write_runs
 from dynoplan.envs.gear.options.catalog import GEAR_OPTIONS
 from dynoplan.envs.gear.pipeline_task import GearTask
@@ -73,7 +74,7 @@ def collect_outcomes(models: Path, seed: int, out: Path,
 
 
 def fit_gear_initiation(models: Path, outcomes: Path, seed: int,
-                        features: str = "relative") -> dict[str, Any]:
+                        features: str = RELATIVE.name) -> dict[str, Any]:
     """The initiation learned from the outcome runs ``outcomes`` (:func:`collect_outcomes`)
     on the feature map ``features`` of the planner state, written into the models folder
     ``models`` (:func:`~dynoplan.pipeline.fit.fit_initiation_from_outcomes`, inside
