@@ -34,6 +34,7 @@ from dynoplan.envs import GEAR_ASSEMBLY_ID, GEAR_PEG_POSE_ID
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.expert import GearExpert
 from dynoplan.envs.gear.human import HUMAN_MODES
+from dynoplan.envs.gear.metrics import contact_summary
 from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.peg_pose import GearPegPoseEnv, PegWorkspace
 from dynoplan.errors import DynoplanError
@@ -340,11 +341,7 @@ def summarise(episodes: list[RawEpisode], seed: int, wall_seconds: float) -> dic
         "success_rate": float(np.mean(success)),
         "successes": int(np.sum(success)),
         "failed_seeds": [ep["seed"] for ep, ok in zip(episodes, success, strict=True) if not ok],
-        "contacts": int(np.sum(contacts)),
-        "contacts_unit": "physics steps (2 ms) with a robot-human contact, summed",
-        "episodes_with_contact": int(np.sum(np.array(contacts) > 0)),
-        "min_human_distance": float(np.min(min_dist)),
-        "min_human_distance_median": float(np.median(min_dist)),
+        **contact_summary(contacts, min_dist),
         "time_to_success_mean": (float(success_steps.mean() * CONTROL_DT)
                                  if len(success_steps) else None),
         "time_to_success_max": (float(success_steps.max() * CONTROL_DT)

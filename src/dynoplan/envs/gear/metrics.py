@@ -3,6 +3,7 @@
 robot-human distance; and what an episode's record says in the gear's terms (its
 simulated duration, the human's behaviour)."""
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -72,4 +73,22 @@ def human_mode(record: EpisodeRecord) -> str:
     return str(record.task_metrics["human_mode"])
 
 
-__all__ = ["episode_metrics", "gear_metrics", "human_mode", "seconds"]
+CONTACTS_UNIT = "physics steps (2 ms) with a robot-human contact, summed"
+"""What a summary's ``contacts`` count."""
+
+
+def contact_summary(contacts: Sequence[int], min_distances: Sequence[float],
+                    unit: str = "episodes") -> dict[str, Any]:
+    """Robot-human contacts and distances over some runs, one value of each per run
+    (``unit``: what the runs are called, ``episodes`` or ``trials``): ``contacts``
+    (summed, in :data:`CONTACTS_UNIT`), ``contacts_unit``, ``<unit>_with_contact``,
+    ``min_human_distance`` (the smallest, m) and ``min_human_distance_median``: the
+    columns every gear summary shares (the demonstrator's and the options' trials)."""
+    return {"contacts": int(np.sum(contacts)), "contacts_unit": CONTACTS_UNIT,
+            f"{unit}_with_contact": int(np.sum(np.asarray(contacts) > 0)),
+            "min_human_distance": float(np.min(min_distances)),
+            "min_human_distance_median": float(np.median(min_distances))}
+
+
+__all__ = ["CONTACTS_UNIT", "contact_summary", "episode_metrics", "gear_metrics",
+           "human_mode", "seconds"]

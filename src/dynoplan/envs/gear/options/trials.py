@@ -19,6 +19,7 @@ from gymnasium.wrappers import RenderCollection
 from dynoplan.adapters.spec import OptionSpec
 from dynoplan.envs.gear.env import CONTROL_DT, GearAssemblyEnv
 from dynoplan.envs.gear.human import HUMAN_MODES
+from dynoplan.envs.gear.metrics import contact_summary
 from dynoplan.envs.gear.options.base import GearOptionPolicy, GearPolicyFactory
 from dynoplan.envs.gear.options.catalog import gear_option, reach_start
 from dynoplan.errors import DynoplanError
@@ -94,11 +95,8 @@ def summarise_trials(option: str, results: list[TrialResult], seed: int,
         "success_rate": float(np.mean(success)) if results else 0.0,
         "successes": int(np.sum(success)),
         "failed_trials": [r.index for r in results if not r.success],
-        "contacts": int(sum(r.human_contacts for r in results)),
-        "contacts_unit": "physics steps (2 ms) with a robot-human contact, summed",
-        "trials_with_contact": int(sum(r.human_contacts > 0 for r in results)),
-        "min_human_distance": float(min(r.min_human_distance for r in results)),
-        "min_human_distance_median": float(np.median([r.min_human_distance for r in results])),
+        **contact_summary([r.human_contacts for r in results],
+                          [r.min_human_distance for r in results], "trials"),
         "robot_collision_steps": int(sum(r.robot_collision_steps for r in results)),
         "plans": len(plan_ms),
         "plan_ms_p50": quantile_or_none(plan_ms, 0.5),
