@@ -103,7 +103,7 @@ def test_stage_commands_chained_as_documented_give_gear_runs_models(quick_gear_r
     assert manifest == json.loads((run / "models" / "models.json").read_text())
     assert manifest["option_names"] == list(gear_option_names())
     # gear run --quick's fits (JSON has lists where the settings have tuples)
-    assert manifest["settings"] == json.loads(json.dumps(asdict(QUICK_SETTINGS)))
+    assert manifest["report"]["settings"] == json.loads(json.dumps(asdict(QUICK_SETTINGS)))
     for name in theirs:
         if name in network_files().values():  # their metadata holds the training time
             tensors, meta = _safetensors(out / "models" / name)
