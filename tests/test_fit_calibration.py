@@ -71,6 +71,26 @@ def test_without_runs_given_the_transitions_are_cut_into_runs_to_hold_some_back(
     assert row["calibration_runs"] > 0 and row["std_scale"] is not None
 
 
+def test_episodes_of_several_options_are_cut_into_runs_before_some_are_held_back():
+    """At stride 1 too: an exploration episode that runs 'right' then 'left' gives each
+    option a run of its own, and each option has runs held back."""
+    both = [Episode(observations=np.r_[a.observations, b.observations[1:] +
+                                       a.observations[-1] - b.observations[0]],
+                    actions=np.zeros((24, 1)), rewards=np.zeros(24),
+                    terminations=np.zeros(24, bool), truncations=np.zeros(24, bool),
+                    infos={"option": np.r_[np.zeros(12, int), np.ones(12, int)]},
+                    seed=a.seed)
+            for a, b in zip(RUNS[0::2], RUNS[1::2], strict=True)]
+    calibrated = fit_models(SPECS, both, DEMOS, replace(SMALL, dynamics_calibration=0.3),
+                            seed=0)
+    for name in NAMES:
+        row = calibrated.report["dynamics"][name]
+        assert row["calibration_runs"] > 0 and row["std_scale"] is not None, name
+    # every step of the ten episodes is one option's transition, but for the switches
+    left = calibrated.report["dynamics"]["left"]
+    assert left["transitions"] + 12 * left["calibration_runs"] == 10 * 12
+
+
 @pytest.mark.parametrize("bad", [-0.1, 1.0, float("nan")])
 def test_a_calibration_share_outside_zero_to_one_is_one_error(bad):
     with pytest.raises(DynoplanError, match="dynamics_calibration must be in"):

@@ -357,6 +357,15 @@ def test_an_option_model_to_the_end_is_rejected_before_anything_is_written(tmp_p
     assert not (tmp_path / "m").exists()
 
 
+@pytest.mark.parametrize("field", ["goal_features", "region_features"])
+def test_a_fit_without_a_feature_map_is_one_error_before_anything_is_written(tmp_path, field):
+    with pytest.raises(DynoplanError, match="read a named feature map"):
+        train_gear_models(tmp_path / "demos", None, tmp_path / "m", seed=0,
+                          heldout_demos=tmp_path / "held", quick=True, progress=False,
+                          settings=replace(QUICK_SETTINGS, **{field: None}))
+    assert not (tmp_path / "m").exists()
+
+
 def test_the_goal_off_the_demonstrations_fits_the_option_runs_states_too(data, trained,
                                                                           tmp_path):
     """``goal_off_demos`` is not silently ignored by the gear's fit: the goal network also

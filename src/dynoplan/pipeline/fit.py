@@ -477,7 +477,8 @@ def fit_models(specs: Sequence[OptionToFit], transitions: Sequence[Episode],
     maps = {s.name: s.state_map for s in specs if s.state_map is not None}
     data, stride = (([*transitions, *demos], settings.stride) if dynamics_runs is None
                     else (list(dynamics_runs), 1))
-    pairs, held_back = _dynamics_pairs(data, stride, names, maps, settings, seed, state_fn)
+    pairs, held_back = _dynamics_pairs(data, stride, dynamics_runs is not None, names, maps,
+                                       settings, seed, state_fn)
     dynamics, dyn_report = fit_dynamics(
         pairs, seed, fitter or ensemble_fitter(settings),
         calibration=None if held_back is None else held_back[0],
@@ -536,14 +537,17 @@ def fit_models(specs: Sequence[OptionToFit], transitions: Sequence[Episode],
 Pairs = dict[str, tuple[FloatArray, FloatArray]]
 
 
-def _dynamics_pairs(episodes: Sequence[Episode], stride: int, names: Sequence[str],
-                    maps: Mapping[str, StateMap], settings: FitSettings, seed: int,
-                    state_fn: ObservationFn
+def _dynamics_pairs(episodes: Sequence[Episode], stride: int, one_run_each: bool,
+                    names: Sequence[str], maps: Mapping[str, StateMap],
+                    settings: FitSettings, seed: int, state_fn: ObservationFn
                     ) -> tuple[Pairs, tuple[Pairs, dict[str, int]] | None]:
     """Per option the pairs its dynamics are fitted on (:func:`fit_models`), on its own
     state where ``maps`` holds one; with ``settings.dynamics_calibration`` also the pairs
     held back to calibrate its spread and the number of runs they come from (else
-    ``None``)."""
+    ``None``). ``one_run_each``: every episode is one run of one option, one model step
+    a step (``fit_models``' ``dynamics_runs``); else the episodes are cut into such runs
+    (:func:`~dynoplan.pipeline.fit_data.decision_runs` every ``stride`` steps) before
+    whole runs are held back."""
     if settings.option_model == "end":
         pairs = option_end_pairs(episodes, names, state_fn)
         held = None
@@ -551,7 +555,7 @@ def _dynamics_pairs(episodes: Sequence[Episode], stride: int, names: Sequence[st
         pairs = option_transitions(episodes, names, state_fn, stride)
         held = None
     else:
-        runs = episodes if stride == 1 else decision_runs(episodes, stride)
+        runs = episodes if one_run_each else decision_runs(episodes, stride)
         split = calibration_split(runs, names, settings.dynamics_calibration, seed)
         pairs = {n: option_transitions(kept, names, state_fn)[n]
                  for n, (kept, _) in split.items()}

@@ -22,9 +22,7 @@ from dynoplan.envs.gear.options.catalog import gear_option_names
 from dynoplan.envs.gear.state import DECISION_STEPS, STATE_DIM
 from dynoplan.errors import DynoplanError
 from dynoplan.models.folder import MANIFEST_FILE
-from dynoplan.pipeline.fit import (
-    FittedModels,
-)
+from dynoplan.pipeline.fit import FittedModels
 
 TASK_NAME = "gear_assembly"
 METRICS_FILE = "metrics.json"

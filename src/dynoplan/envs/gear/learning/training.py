@@ -173,6 +173,8 @@ def train_gear_models(demos: Path, transitions: Path | None, out: Path, seed: in
                             "(option_model='step'): its option runs do not record where a "
                             "run was cut short, which an option model to the end needs")
     cfg.validate()
+    for name in (cfg.goal_features, cfg.region_features):  # one line before any work
+        gear_features(name)
     measure = measures or (QUICK_METRICS if quick else DEFAULT_METRICS)
     started = time.perf_counter()
     out = ensure_writable_dir(out)
