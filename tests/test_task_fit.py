@@ -141,6 +141,35 @@ def test_the_tasks_own_option_runs_reach_its_fit(options_folder, two_tasks, tmp_
     assert not np.allclose(with_runs, without)
 
 
+def test_the_tasks_improvement_rounds_refit_its_goal_not_the_dynamics(options_folder,
+                                                                      tmp_path):
+    """run_task's improvement rounds (run_pipeline's): DynoPlan's own episodes of "reach
+    10" refit the task's goal heuristic; the dynamics stay the folder's, byte for byte;
+    the learning curve, the own episodes and the runs they gave are recorded."""
+    settings = replace(SMALL, episodes=2, improve_episodes=4, improve_keep="last")
+    runs = {}
+    for name, s in (("improved", settings), ("plain", replace(settings, improve=0))):
+        runs[name] = run_task(WALK, options_folder, make_options(),
+                              demonstrator=make_demonstrator(), settings=s,
+                              out=tmp_path / name, state_fn=walk_state, success=reach_10)
+    improved, plain = runs["improved"].summary, runs["plain"].summary
+    assert "improvement" not in plain and "improvement" not in plain["task_fit"]
+    assert [c["round"] for c in improved["improvement"]] == [1]  # "last": no check batch
+    assert improved["task_fit"]["improvement"]["own_episodes"] == 8  # 4 measured, 4 exploring
+    record = read_manifest(tmp_path / "improved" / "models").extra["options_models"]
+    assert record["own_runs"]["episodes"] > 0 and record["own_runs"]["steps"] > 0
+    source = read_manifest(options_folder / "models")
+    manifest = read_manifest(tmp_path / "improved" / "models")
+    for name, file in source.dynamics.items():
+        assert file is not None and manifest.dynamics[name] is not None
+        assert manifest.dynamics[name].read_bytes() == file.read_bytes()
+    states = np.arange(19, dtype=np.float64)[:, None]
+    assert not np.allclose(runs["improved"].models.goal.mean_std(states)[0],
+                           runs["plain"].models.goal.mean_std(states)[0])
+    assert improved["models"]["goal"]["off_demo_states"] > plain["models"]["goal"][
+        "off_demo_states"]
+
+
 def test_option_runs_of_another_option_set_are_one_line(options_folder, tmp_path):
     runs = read_dataset(options_folder / "transitions")
     names = [s.name for s in make_options()]

@@ -15,7 +15,7 @@ import numpy as np
 
 from dynoplan import __version__
 from dynoplan.adapters.spec import OptionSpec, as_spec
-from dynoplan.control.controller import Controller, flat_state
+from dynoplan.control.controller import flat_state
 from dynoplan.data.dataset import Dataset, write_dataset
 from dynoplan.data.episodes import OPTION_KEY, Episode
 from dynoplan.data.metadata import DatasetMetadata
@@ -203,6 +203,62 @@ def evaluate_fitted(environment: gym.Env[Any, Any], models: FittedModels,
     return admissible, notes, evaluation
 
 
+OwnPlay = Callable[[FittedModels, Sequence[EpisodeSeed], float], list[OwnEpisode]]
+"""How a run plays DynoPlan's own episodes on some models (``improvement_rounds``'
+``play``)."""
+
+
+def improve_fitted(models: FittedModels, specs: Sequence[OptionSpec],
+                   settings: PipelineSettings, seed: int,
+                   env_of: Callable[[EpisodeSeed], gym.Env[Any, Any]],
+                   refit: Callable[[int, list[OwnEpisode]], FittedModels],
+                   say: Callable[[str], None], demonstrator: Any = None,
+                   play: OwnPlay | None = None
+                   ) -> tuple[FittedModels, list[dict[str, Any]]]:
+    """The improvement rounds (``settings.improvement``,
+    :func:`~dynoplan.pipeline.improve.improvement_rounds`) of a run on ``specs``: DynoPlan
+    as the evaluation builds it plays its own episodes here, each on ``env_of(seed)``,
+    on the seed stream ``seed`` (``run_seeds(...)["improve"]``); ``refit`` fits again on
+    them; the ``demonstrator`` (when given) runs from the starts where DynoPlan failed, or
+    takes those episodes over (``settings.improve_takeover``). ``play``: how the run plays
+    its own episodes instead (a task's own controllers, on workers).
+
+    Returns:
+        The models ``settings.improve_keep`` says and the learning curve.
+    """
+    improvement = settings.improvement
+
+    def own_play(fitted: FittedModels, seeds: Sequence[EpisodeSeed],
+                 explore: float) -> list[OwnEpisode]:
+        run_options, planner_options = fitted.build(specs)
+        some_env = env_of(seeds[0]) if seeds else None
+        if some_env is None:
+            return []
+        controller = make_controller(DYNOPLAN, run_options, fitted.goal,
+                                     planning_settings(settings.control, fitted),
+                                     planner_options, some_env.action_space,
+                                     fitted.state_scale)
+        return own_episodes(env_of, controller, seeds, explore,
+                            fitted.goal if improvement.takeover else None)
+
+    def demonstrate(seeds: Sequence[EpisodeSeed]) -> list[Episode]:
+        return [d for s in seeds  # the demonstrator is reset at every episode
+                for d in demonstrations_at(env_of(s), specs, demonstrator, [s])]
+
+    def take_over(seeds: Sequence[EpisodeSeed], own: Sequence[OwnEpisode]
+                  ) -> tuple[list[Episode], int]:
+        takeovers = [e.takeover for e in own]
+        if any(t is None for t in takeovers):
+            raise DynoplanError("a failed own episode without its takeover point")
+        return demonstrations_after(env_of, specs, demonstrator, seeds,
+                                    [t for t in takeovers if t is not None])
+
+    seeds = episode_seeds(seed, improvement.seeds) if improvement.rounds else []
+    asks = demonstrator is not None
+    return improvement_rounds(models, improvement, seeds, play or own_play, refit, say,
+                              demonstrate if asks else None, take_over if asks else None)
+
+
 class GenericStages:
     """The stages (:class:`~dynoplan.pipeline.task.TaskStages`) of a run on a user's
     environment and options: the demonstrator's episodes (or the given ones), exploration
@@ -318,8 +374,8 @@ class GenericStages:
 
     def after_fit(self, run: PipelineRun, models: FittedModels) -> FittedModels:
         """``settings.improve`` rounds of DynoPlan's own episodes, refitted on after each
-        (:func:`~dynoplan.pipeline.improve.improvement_rounds`); the models
-        ``settings.improve_keep`` says (the last, or the best on their own episodes)."""
+        (:func:`improve_fitted`); the models ``settings.improve_keep`` says (the last, or
+        the best on their own episodes)."""
         settings = self.settings
         improvement = settings.improvement
         fit_demos, fit_transitions = list(self.demos), list(self.transitions)
@@ -330,11 +386,6 @@ class GenericStages:
             return (self.disturbed if self.disturbed is not None
                     and improvement.rehearses(seed) else self.environment)
 
-        def play(models: FittedModels, seeds: Sequence[EpisodeSeed],
-                 explore: float) -> list[OwnEpisode]:
-            return own_episodes(env, self._dynoplan(models), seeds, explore,
-                                models.goal if improvement.takeover else None)
-
         def refit(_: int, own: list[OwnEpisode]) -> FittedModels:
             fit_demos.extend(e.demonstration for e in own if e.demonstration is not None)
             fit_transitions.extend(piece for e in own for piece in e.pieces)
@@ -344,34 +395,11 @@ class GenericStages:
                               region_demos=fit_demos if improvement.regions else self.demos,
                               region_starts=self._region_starts())
 
-        def demonstrate(seeds: Sequence[EpisodeSeed]) -> list[Episode]:
-            return [d for s in seeds  # the demonstrator is reset at every episode
-                    for d in demonstrations_at(env(s), self.specs, self.demonstrator, [s])]
-
-        def take_over(seeds: Sequence[EpisodeSeed], own: Sequence[OwnEpisode]
-                      ) -> tuple[list[Episode], int]:
-            takeovers = [e.takeover for e in own]
-            if any(t is None for t in takeovers):
-                raise DynoplanError("a failed own episode without its takeover point")
-            return demonstrations_after(env, self.specs, self.demonstrator, seeds,
-                                        [t for t in takeovers if t is not None])
-
-        seeds = (episode_seeds(self.seeds["improve"], improvement.seeds)
-                 if improvement.rounds else [])
-        models, self.curve = improvement_rounds(
-            models, improvement, seeds, play, refit, run.clock.switch,
-            demonstrate if self.demonstrator is not None else None,
-            take_over if self.demonstrator is not None else None)
+        models, self.curve = improve_fitted(models, self.specs, settings,
+                                            self.seeds.get("improve", 0), env, refit,
+                                            run.clock.switch, self.demonstrator)
         self.run_options, self.planner_options = models.build(self.specs)
         return models
-
-    def _dynoplan(self, models: FittedModels) -> Controller:
-        """DynoPlan on ``models``, as the evaluation builds it."""
-        run_options, planner_options = models.build(self.specs)
-        return make_controller(DYNOPLAN, run_options, models.goal,
-                               planning_settings(self.settings.control, models),
-                               planner_options, self.environment.action_space,
-                               models.state_scale)
 
     def evaluate(self, run: PipelineRun, models: FittedModels) -> dict[str, dict[str, Any]]:
         """:func:`evaluate_fitted`: where the options may start, the models saved, every
@@ -464,4 +492,5 @@ def _space_or_none(space: gym.Space[Any]) -> gym.spaces.Box | gym.spaces.Discret
     return space if isinstance(space, gym.spaces.Box | gym.spaces.Discrete) else None
 
 
-__all__ = ["GenericStages", "PipelineResult", "demos_from_dataset", "evaluate_fitted"]
+__all__ = ["GenericStages", "OwnPlay", "PipelineResult", "demos_from_dataset", "evaluate_fitted",
+           "improve_fitted"]

@@ -63,19 +63,30 @@ from dynoplan.pipeline.collect import (
     record_demonstrations,
 )
 from dynoplan.pipeline.evaluate import (
+    DYNOPLAN,
+    ControllerJob,
     composition_ratio,
     controller_names,
     option_share_table,
+    planning_settings,
     results_table,
 )
 from dynoplan.pipeline.fit import FittedModels, named_feature_map
 from dynoplan.pipeline.fit_dynamics import goal_end_gaps
 from dynoplan.pipeline.fit_goal import fit_goal
 from dynoplan.pipeline.fit_regions import fit_option_regions
-from dynoplan.pipeline.generic_stages import demos_from_dataset, evaluate_fitted
+from dynoplan.pipeline.generic_stages import (
+    OwnPlay,
+    demos_from_dataset,
+    evaluate_fitted,
+    improve_fitted,
+)
 from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
+from dynoplan.pipeline.improve import OwnEpisode, OwnEpisodesJob
+from dynoplan.pipeline.jobs import evaluate_many
 from dynoplan.pipeline.run_settings import PipelineSettings, jsonable, run_seeds
 from dynoplan.pipeline.task import Task
+from dynoplan.seeding import EpisodeSeed
 from dynoplan.timing import StageClock
 
 RUNS_FOLDER = "transitions"
@@ -238,11 +249,15 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
              settings: PipelineSettings, seed: int, task: str = "",
              say: Callable[[str], None] | None = None,
              state_fn: ObservationFn = flat_state,
-             feature_maps: Mapping[str, FeatureMap] | None = None) -> FittedModels:
+             feature_maps: Mapping[str, FeatureMap] | None = None,
+             own_runs: Sequence[Episode] = (),
+             region_demos: Sequence[Episode] | None = None) -> FittedModels:
     """The task's models: the options' dynamics unchanged, its own goal heuristic (and
     regions, with ``settings.fit.regions``) from ``demos`` (labels index ``specs``) and
     ``options.runs`` (as :func:`~dynoplan.pipeline.fit.fit_models` uses exploration
-    episodes; give a task's own with :meth:`OptionModels.with_runs`).
+    episodes; give a task's own with :meth:`OptionModels.with_runs`) with ``own_runs``
+    (the pieces of DynoPlan's own episodes of the improvement rounds, labels indexing
+    ``specs``); the regions from ``region_demos`` when given, else ``demos``.
 
     The goal and regions are fitted as ``settings.fit`` says (on the task's feature maps
     ``settings.fit.goal_features`` and ``region_features`` of ``feature_maps``, when
@@ -265,19 +280,22 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
     goal_map = named_feature_map(fit.goal_features, feature_maps)
     region_map = named_feature_map(fit.region_features, feature_maps)
     demos_f = relabel(demos, names, folder_names)
+    runs = [*options.runs, *relabel(own_runs, names, folder_names)]
     say("goal heuristic")
     started = time.perf_counter()
-    goal, goal_report = fit_goal(demos_f, fit, seed, state_fn, goal_map, options.runs)
+    goal, goal_report = fit_goal(demos_f, fit, seed, state_fn, goal_map, runs)
     goal_report["seconds"] = time.perf_counter() - started
     goal_report["end_gap"] = goal_end_gaps(
-        {n: own.dynamics[n] for n in names}, goal, [*options.runs, *demos_f], state_fn,
+        {n: own.dynamics[n] for n in names}, goal, [*runs, *demos_f], state_fn,
         own.stride, seed, to_end=own.option_model == "end")
     regions = None
     region_report: dict[str, Any] | None = None
     if fit.regions:
         say("safety regions")
-        regions, region_report = fit_option_regions(demos_f, options.runs, folder_names, fit,
-                                                    seed, state_fn, region_map)
+        shown = demos_f if region_demos is None else relabel(region_demos, names,
+                                                             folder_names)
+        regions, region_report = fit_option_regions(shown, runs, folder_names, fit, seed,
+                                                    state_fn, region_map)
         region_report["options"] = regions.option_names
         for message in region_report["warnings"]:
             warnings.warn(message, DynoplanWarning, stacklevel=2)
@@ -287,9 +305,66 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
               "state_scale": own.report.get("state_scale"), "warnings": []}
     extra = {"options_models": {"folder": str(options.folder.resolve()),
                                 "task": own.task, "dynamics_sha256": options.sha256,
-                                "runs": options.runs_record()}}
+                                "runs": options.runs_record(),
+                                **({"own_runs": {"episodes": len(own_runs),
+                                                 "steps": sum(len(e) for e in own_runs)}}
+                                   if own_runs else {})}}
     return FittedModels(folder_names, dict(own.dynamics), goal, regions, own.stride, report,
                         fit.regions, task, extra)
+
+
+def improve_task(models: FittedModels, options: OptionModels, specs: Sequence[OptionSpec],
+                 demos: Sequence[Episode], settings: PipelineSettings, seeds: dict[str, int],
+                 name: str, say: Callable[[str], None], env: gym.Env[Any, Any],
+                 demonstrator: Any = None, state_fn: ObservationFn = flat_state,
+                 feature_maps: Mapping[str, FeatureMap] | None = None,
+                 task: Task | None = None, out: Path | None = None,
+                 workers: Workers = SERIAL, progress: bool = False,
+                 ) -> tuple[FittedModels, list[dict[str, Any]]]:
+    """The task's improvement rounds (``settings.improvement``, those of
+    :func:`~dynoplan.pipeline.run.run_pipeline`) on ``models`` (:func:`fit_task`'s):
+    DynoPlan's own episodes on ``env`` (with ``task``: the task's own DynoPlan, rebuilt
+    on ``workers`` from the round's models saved in ``out/improve/``), the
+    demonstrator's from where it failed, and after each round :func:`fit_task` again
+    with their pieces (``own_runs``) and successes (demonstrations); the dynamics stay
+    ``options``'. ``seeds``: the run's streams (:func:`run_seeds` with ``improve``).
+
+    Returns:
+        The models ``settings.improve_keep`` says and the learning curve (``[]`` without
+        rounds).
+    """
+    improvement = settings.improvement
+    if not improvement.rounds:
+        return models, []
+    if task is not None and out is None:
+        raise DynoplanError("the task's own improvement rounds need an output folder")
+    fit_demos, own_runs = list(demos), list[Episode]()
+    names = tuple(s.name for s in specs)
+
+    def refit(_: int, own: list[OwnEpisode]) -> FittedModels:
+        fit_demos.extend(e.demonstration for e in own if e.demonstration is not None)
+        own_runs.extend(piece for e in own for piece in e.pieces)
+        return fit_task(options, specs, fit_demos, settings, seeds["fit"], name, say,
+                        state_fn, feature_maps, own_runs,
+                        None if improvement.regions else demos)
+
+    play: OwnPlay | None = None
+    if task is not None and out is not None:
+        played = [0]
+
+        def play(fitted: FittedModels, batch: Sequence[EpisodeSeed],
+                 explore: float) -> list[OwnEpisode]:
+            played[0] += 1
+            models_dir = fitted.save(out / "improve" / f"batch-{played[0]}" / "models")
+            job = OwnEpisodesJob(ControllerJob(task, models_dir, DYNOPLAN,
+                                               planning_settings(settings.control, fitted)),
+                                 names, explore)
+            result: list[OwnEpisode] = evaluate_many([(job, batch)], workers,
+                                                     "own episodes", progress)[0]
+            return result
+
+    return improve_fitted(models, specs, settings, seeds["improve"], lambda _s: env, refit,
+                          say, demonstrator, play)
 
 
 @dataclass
@@ -324,9 +399,13 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     record ``settings.demos`` demonstrations (or use ``demos``), fit the goal heuristic
     and regions (:func:`fit_task`), evaluate the controllers; arguments as
     :func:`~dynoplan.pipeline.run.run_pipeline` (``settings.exploration_*`` are not used:
-    nothing is explored; nor are the improvement rounds' ``settings.improve*``: a task
-    fitted on an options folder learns from its demonstrations alone, which is what its
-    ``task_fit`` record measures).
+    nothing is explored). The improvement rounds (``settings.improve*``, as
+    :func:`~dynoplan.pipeline.run.run_pipeline`'s, with the same defaults: one round of
+    DynoPlan's own episodes, exploring ones and the demonstrator's where it failed) refit
+    the goal heuristic and the regions on the task's own episodes; the dynamics stay the
+    folder's. With ``own_controllers`` the task's DynoPlan plays them (on ``workers``, its
+    models of each round saved in ``out/improve/``); ``settings.improve = 0``: the task
+    learns from its demonstrations alone.
 
     Args:
         runs: the task's own option runs (:func:`read_option_runs`: a dataset folder such
@@ -348,8 +427,10 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     ``summary["task_fit"]`` says what the new task needed: its demonstrations (episodes,
     steps), the seconds to record them and to fit its models (``fit_seconds``: the goal
     heuristic, its end gaps on the dynamics and the regions; ``goal_fit_seconds``: the
-    goal heuristic's fit alone), which options' dynamics it reused, and which option runs
-    it was fitted with (``option_runs``).
+    goal heuristic's fit alone, of the models kept), which options' dynamics it reused,
+    which option runs it was fitted with (``option_runs``) and, with improvement rounds,
+    their episodes and seconds (``improvement``: ``own_episodes``, ``demonstrator_episodes``,
+    ``seconds``); ``summary["improvement"]`` is the learning curve.
 
     Raises:
         DynoplanError: a task option the folder has no dynamics for, a planner state of
@@ -377,7 +458,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     specs = [as_spec(o) for o in options]
     names = [s.name for s in specs]
     option_models.check_task(names)
-    seeds = run_seeds(settings.seed)
+    seeds = run_seeds(settings.seed, settings.improve > 0)
     state_dim = probe_options(environment, options, observed, seeds["demos"])
     option_models.check_task(names, state_dim)
     if runs is not None:
@@ -407,6 +488,12 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     models = fit_task(option_models, specs, demo_episodes, settings, seeds["fit"], name, say,
                       observed, feature_maps)
     fit_seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    models, curve = improve_task(models, option_models, specs, demo_episodes, settings,
+                                 seeds, name, say, environment, demonstrator, observed,
+                                 feature_maps, task if own_controllers else None, folder,
+                                 workers, progress)
+    improvement_seconds = time.perf_counter() - t0
     run_options, planner_options = models.build(specs)
     admissible, notes, evaluation = evaluate_fitted(
         environment, models, run_options, planner_options, demo_episodes, settings,
@@ -421,6 +508,11 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
         "demonstration_seconds": demo_seconds,
         "fit_seconds": fit_seconds,
         "goal_fit_seconds": models.report["goal"]["seconds"],
+        **({"improvement": {
+            "own_episodes": sum(c["episodes"] + c.get("explored_episodes", 0)
+                                for c in curve),
+            "demonstrator_episodes": sum(c.get("demonstrator_episodes", 0) for c in curve),
+            "seconds": improvement_seconds}} if curve else {}),
     }
     region_warnings = (models.report.get("regions") or {}).get("warnings", [])
     summary = {
@@ -438,6 +530,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
         "warnings": [*region_warnings, *notes],
         "controllers": evaluation,
         "composition_ratio": composition_ratio(evaluation),
+        **({"improvement": curve} if curve else {}),
         "stage_seconds": clock.rounded(3),
         "seconds": time.perf_counter() - started,
         "command": command,
@@ -479,4 +572,4 @@ def _write(folder: Path, env: gym.Env[Any, Any], names: list[str], demos: list[E
 
 
 __all__ = ["RUNS_FOLDER", "OptionModels", "OptionRuns", "TaskResult", "fit_task",
-           "load_option_models", "read_option_runs", "relabel", "run_task"]
+           "improve_task", "load_option_models", "read_option_runs", "relabel", "run_task"]

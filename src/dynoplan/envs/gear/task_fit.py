@@ -44,12 +44,14 @@ def task_settings(seed: int, episodes: int, demos: int, quick: bool,
     """How the task is fitted and evaluated: the first task's fit settings (``gear run``'s,
     or ``--quick``'s) with the goal on :data:`~dynoplan.envs.gear.features.PEG_OBJECTS`,
     and the gear's controller settings (``gear run``'s :data:`GEAR_CONTROL`, ``--quick``:
-    a shorter horizon and fewer samples, as ``gear run --quick``)."""
+    a shorter horizon and fewer samples, as ``gear run --quick``); the improvement rounds
+    are the pipeline's (``--quick``: 3 own episodes a round, as ``gear run --quick``)."""
     fit = replace(QUICK_SETTINGS if quick else DEFAULT_SETTINGS, goal_features=PEG_OBJECTS.name)
     control = (replace(GEAR_CONTROL, horizon=6, samples=32, oracle_horizon=3) if quick
                else GEAR_CONTROL)
     return PipelineSettings(demos=demos, episodes=episodes, seed=seed, fit=fit,
-                            control=control, controllers=controllers)
+                            control=control, controllers=controllers,
+                            improve_episodes=3 if quick else PipelineSettings.improve_episodes)
 
 
 def check_options_folder(options_models: Path) -> Path:
