@@ -75,7 +75,10 @@ def test_the_table_reads_every_finished_seed_and_an_empty_refit():
                                "push-v3": {**row, "refit": None, "refit_demonstrations": None,
                                            "refit_exploration": None,
                                            "refit_fit_seconds": None}}}}
+    results["seeds"]["0"]["reach-v3"] = {**row, "improvement": {
+        "own_episodes": 60, "demonstrator_episodes": 2, "seconds": 30.0}}
     lines = mw.table(results).splitlines()
     assert lines[2].startswith("| reach-v3 | seen | 1.00 | 0.90 | 0.95 | 0.50 | 10, 5.0 | 10 + 20")
-    assert lines[3].startswith("| push-v3 | unseen |") and lines[3].endswith("| - |")
+    assert lines[2].endswith("| 60, 2.0, 30.0 |")  # what its improvement round needed
+    assert lines[3].startswith("| push-v3 | unseen |") and lines[3].endswith("| - | - |")
     assert "20 demonstrations (reach-v3) + 40 exploration" in mw.table(results)

@@ -278,14 +278,17 @@ def _row(evaluation: dict[str, Any], name: str) -> float | None:
 
 def solve_shared(task: str, options_folder: Path, out: Path, seed: int, demos: int,
                  episodes: int, runs: Path | None = None,
-                 controllers: str = "demonstrator,dynoplan,random") -> dict[str, Any]:
+                 controllers: str = "demonstrator,dynoplan,random",
+                 improve: int | None = None) -> dict[str, Any]:
     """``task`` on the shared dynamics: only its goal heuristic and regions are fitted
     (``dynoplan task fit``; with ``runs``, a transitions dataset, on those option runs
-    in place of the options folder's: ``--runs``), then ``controllers``."""
+    in place of the options folder's: ``--runs``; ``improve``: its improvement rounds,
+    ``None`` the library's default), then ``controllers``."""
     from dynoplan.pipeline.task_fit import run_task
 
     settings = _settings({"seed": seed, "demos": demos, "episodes": episodes,
-                          "controllers": controllers})
+                          "controllers": controllers,
+                          **({} if improve is None else {"improve": improve})})
     what = task if runs is None else f"{task}, own runs"
     result = run_task(gym.make(ENV_IDS[task]), options_folder, make_options(),
                       demonstrator=make_demonstrator(task), settings=settings, out=out,
@@ -295,7 +298,19 @@ def solve_shared(task: str, options_folder: Path, out: Path, seed: int, demos: i
     return {"expert": _row(result.evaluation, "demonstrator"),
             "shared": _row(result.evaluation, "dynoplan"),
             "random": _row(result.evaluation, "random"),
-            "demonstrations": fitted["demonstrations"], "fit_seconds": fitted["fit_seconds"]}
+            "demonstrations": fitted["demonstrations"], "fit_seconds": fitted["fit_seconds"],
+            "improvement": fitted.get("improvement")}
+
+
+def improvement_of(folder: Path) -> dict[str, Any] | None:
+    """What the improvement rounds of the task fit in ``folder`` needed (its
+    ``summary.json``'s ``task_fit.improvement``), ``None`` without rounds or folder."""
+    summary = folder / "summary.json"
+    if not summary.is_file():
+        return None
+    found: dict[str, Any] | None = json.loads(summary.read_text())["task_fit"].get(
+        "improvement")
+    return found
 
 
 def solve_refit(task: str, out: Path, seed: int, demos: int, exploration: int,
@@ -319,7 +334,7 @@ def solve_refit(task: str, out: Path, seed: int, demos: int, exploration: int,
 
 
 def solve_own_runs(task: str, root: Path, seed: int, demos: int,
-                   episodes: int) -> dict[str, Any]:
+                   episodes: int, improve: int | None = None) -> dict[str, Any]:
     """A diagnostic: ``task`` on the shared dynamics (``root/options``), with the option
     runs of its own refit (``root/refit-TASK/transitions``: its exploration episodes) in
     place of the options folder's for its goal heuristic's off-demonstration states and
@@ -327,7 +342,7 @@ def solve_own_runs(task: str, root: Path, seed: int, demos: int,
     Writes ``root/ownruns-TASK``."""
     row = solve_shared(task, root / "options", root / f"ownruns-{task}", seed, demos,
                        episodes, runs=root / f"refit-{task}" / "transitions",
-                       controllers="dynoplan")
+                       controllers="dynoplan", improve=improve)
     return {"shared_own_runs": row["shared"]}
 
 
@@ -346,8 +361,9 @@ def table(results: dict[str, Any]) -> str:
     """The markdown table of ``results`` (as written to ``results.json``)."""
     head = ("| task | dynamics | expert | DynoPlan, shared dynamics | DynoPlan, refitted | "
             "random | shared: task's demos, goal fit (s) | refit: demos + exploration, "
-            "fit (s) | DynoPlan, shared dynamics, the task's own runs |\n"
-            "|---|---|---|---|---|---|---|---|---|\n")
+            "fit (s) | DynoPlan, shared dynamics, the task's own runs | shared: its "
+            "improvement round's own episodes, demonstrator's, seconds |\n"
+            "|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     done = [s for s in results["seed_list"] if str(s) in results["seeds"]]
     train = results.get("train", TRAIN)
@@ -360,13 +376,24 @@ def table(results: dict[str, Any]) -> str:
             + ("- |" if rows[0]["refit_demonstrations"] is None else
                f"{rows[0]['refit_demonstrations']} + {rows[0]['refit_exploration']}, "
                f"{np.mean([r['refit_fit_seconds'] for r in rows]):.1f} |")
-            + f" {_cell(rows, 'shared_own_runs')} |")
+            + f" {_cell(rows, 'shared_own_runs')} | {_improvement_cell(rows)} |")
     shared = [results["seeds"][str(s)]["options"] for s in done]
     foot = (f"\nShared dynamics: {shared[0]['demonstrations']} demonstrations "
             f"({', '.join(train)}) + {shared[0]['exploration_episodes']} exploration "
             f"episodes, dynamics fitted in "
             f"{np.mean([s['dynamics_seconds'] for s in shared]):.1f} s (mean over seeds).\n")
     return head + "\n".join(lines) + "\n" + foot
+
+
+def _improvement_cell(rows: list[dict[str, Any]]) -> str:
+    """The shared task fit's improvement rounds: own episodes, the demonstrator's
+    episodes (means over the seeds) and seconds (mean), ``-`` without rounds."""
+    found = [r["improvement"] for r in rows if r.get("improvement")]
+    if not found:
+        return "-"
+    return (f"{np.mean([f['own_episodes'] for f in found]):.0f}, "
+            f"{np.mean([f['demonstrator_episodes'] for f in found]):.1f}, "
+            f"{np.mean([f['seconds'] for f in found]):.1f}")
 
 
 def end_errors(out: Path, seeds: Sequence[int], tasks: Sequence[str]) -> str:
@@ -427,6 +454,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--own-runs", action="store_true",
                         help="also run the diagnostic of solve_own_runs for every task "
                              "with a refit (its exploration runs for goal and regions)")
+    parser.add_argument("--task-improve", type=int, default=None,
+                        help="improvement rounds of each task fit on the shared dynamics "
+                             "(0: its demonstrations alone) [the library's default, 1]")
     parser.add_argument("--end-errors", action="store_true",
                         help="only print the puck's end errors of the options' dynamics "
                              "(shared and own) on each task's refit runs, from --out")
@@ -450,15 +480,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     results: dict[str, Any] = {"tasks": tasks, "seed_list": seeds, "seeds": {},
                                "episodes": args.episodes, "demos": args.demos,
                                "exploration": args.exploration, "train": train,
+                               "task_improve": args.task_improve,
                                "command": " ".join(sys.argv)}
     earlier = args.out / "results.json"
     if earlier.is_file():  # a resume: the seeds finished with the same settings are kept
         old = json.loads(earlier.read_text())
         if all(old.get(k, d) == results[k] for k, d in (
                 ("tasks", None), ("episodes", None), ("demos", None), ("exploration", None),
-                ("train", list(TRAIN)))):
+                ("train", list(TRAIN)), ("task_improve", None))):
             results["seeds"] = {s: v for s, v in old["seeds"].items()
                                 if int(s) in seeds}
+            for s, kept in results["seeds"].items():  # recorded by the seed's task fits
+                for task in tasks:
+                    if "improvement" not in kept[task]:
+                        kept[task]["improvement"] = improvement_of(
+                            args.out / f"seed{s}" / f"shared-{task}")
     for seed in seeds:
         if str(seed) in results["seeds"]:
             print(f"seed {seed}: kept from {earlier}", flush=True)
@@ -473,7 +509,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      solve_refit(task, root / f"refit-{task}", seed, args.demos,
                                  args.exploration, args.episodes))
             per[task] = {**solve_shared(task, root / "options", root / f"shared-{task}", seed,
-                                        args.demos, args.episodes), **refit}
+                                        args.demos, args.episodes,
+                                        improve=args.task_improve), **refit}
             print(task, json.dumps(per[task]), flush=True)
         results["seeds"][str(seed)] = per
         args.out.mkdir(parents=True, exist_ok=True)
@@ -485,7 +522,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for task in tasks:
                 row = results["seeds"][str(seed)][task]
                 if row.get("shared_own_runs") is None and row.get("refit") is not None:
-                    row.update(solve_own_runs(task, root, seed, args.demos, args.episodes))
+                    row.update(solve_own_runs(task, root, seed, args.demos, args.episodes,
+                                              args.task_improve))
                     print(task, seed, row["shared_own_runs"], flush=True)
             (args.out / "results.json").write_text(json.dumps(results, indent=1))
             (args.out / "results.md").write_text(table(results))

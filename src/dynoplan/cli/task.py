@@ -83,6 +83,11 @@ def fit(
     regions: bool | None = typer.Option(
         None, "--regions/--no-regions", help="Fit the task's own safety regions (Eq. 5) "
         "from its demonstrations and enforce them [on]."),
+    improve: int | None = typer.Option(
+        None, "--improve", **_bounds("improve"),
+        help="Rounds of learning from DynoPlan's own episodes before the evaluation, as "
+             "dynoplan pipeline's: the goal heuristic and regions refitted on them, the "
+             "dynamics kept (0: the task's demonstrations alone) [1]."),
     goal_epochs: int | None = typer.Option(None, "--goal-epochs", **_bounds("fit.goal_epochs"),
                                            help="Epochs of the goal network [150]."),
     horizon: int | None = typer.Option(None, "--horizon", **_bounds("control.horizon"),
@@ -99,7 +104,8 @@ def fit(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or stage lines."),
 ) -> None:
     """Fit a new task's goal heuristic (and regions) on an options folder's dynamics,
-    unchanged (with --runs: and on the task's own option runs), and evaluate; writes
+    unchanged (with --runs: and on the task's own option runs; then on its own episodes,
+    --improve), and evaluate; writes
     OUT/summary.json (task_fit: demonstrations, option runs and seconds the task needed),
     OUT/results.md, OUT/settings.toml, OUT/demos, OUT/models."""
     from dynoplan.cli.lines import warnings_as_lines
@@ -119,7 +125,7 @@ def fit(
              "demonstrator": demonstrator,
              "demo_dataset": None if demo_dataset is None else str(demo_dataset),
              "demos": demos, "episodes": episodes, "seed": seed, "controllers": controllers,
-             "fit.regions": regions, "fit.goal_epochs": goal_epochs,
+             "fit.regions": regions, "fit.goal_epochs": goal_epochs, "improve": improve,
              "control.horizon": horizon, "control.samples": samples,
              "control.max_decisions": max_decisions}
     given = {k: v for k, v in flags.items() if v is not None}
