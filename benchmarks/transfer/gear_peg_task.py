@@ -51,6 +51,7 @@ import json
 import shlex
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -90,8 +91,11 @@ REFERENCE = "first-task"
 
 def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = DEMOS,
         rows: tuple[str, ...] = ROWS, quick: bool = False, workers: Workers = SERIAL,
-        command: str = "", progress: bool = True) -> dict[str, Any]:
-    """Every stage (module docstring) into ``out``; the content of ``results.json``."""
+        command: str = "", progress: bool = True,
+        task_improve: int | None = None) -> dict[str, Any]:
+    """Every stage (module docstring) into ``out``; the content of ``results.json``.
+    ``task_improve``: the improvement rounds of every row's task fit (``None``: the
+    library's default)."""
     from dynoplan.envs.gear.demonstrations import record_demos
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.option_runs import collect_gear_transitions
@@ -103,6 +107,9 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     networks = check_options_folder(options_models)
     out.mkdir(parents=True, exist_ok=True)
     settings = task_settings(seed, episodes, demos, quick)
+    if task_improve is not None:
+        settings = replace(settings, improve=task_improve)
+        settings.validate()
     seeds = run_seeds(seed)
     peg_task = GearTask(peg=PEG_WORKSPACE)
     seconds: dict[str, float] = {}
@@ -151,6 +158,7 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
                  for row in (*ROWS, REFERENCE) if (out / row / "summary.json").is_file()}
     results = {"command": command, "seed": seed, "episodes": episodes, "demos": demos,
                "quick": quick, "options_models": str(options_models.resolve()),
+               "task_improve": settings.improve,
                "stage_seconds": seconds,
                "rows": {name: _row(summary, out / name) for name, summary in summaries.items()}}
     (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
@@ -291,6 +299,9 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"comma-separated rows among {', '.join(ROWS)} [all], and "
                              f"{REFERENCE}")
     parser.add_argument("--quick", action="store_true", help="small settings (a smoke test)")
+    parser.add_argument("--task-improve", type=int, default=None,
+                        help="improvement rounds of every row's task fit (0: its "
+                             "demonstrations alone) [the library's default, 1]")
     parser.add_argument("--workers", default="1", help="1, N (Ray) [1]")
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument("--one-step-errors", action="store_true",
@@ -317,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
         rows = tuple(r for r in args.rows.split(",") if r)
         results = run(args.options_models, args.out, args.seed, args.episodes, args.demos,
                       rows, args.quick, parse_workers(args.workers, None),
-                      command, progress=not args.quiet)
+                      command, progress=not args.quiet, task_improve=args.task_improve)
     except DynoplanError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
