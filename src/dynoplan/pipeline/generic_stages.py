@@ -230,13 +230,12 @@ def improve_fitted(models: FittedModels, specs: Sequence[OptionSpec],
 
     def own_play(fitted: FittedModels, seeds: Sequence[EpisodeSeed],
                  explore: float) -> list[OwnEpisode]:
-        run_options, planner_options = fitted.build(specs)
-        some_env = env_of(seeds[0]) if seeds else None
-        if some_env is None:
+        if not seeds:
             return []
+        run_options, planner_options = fitted.build(specs)
         controller = make_controller(DYNOPLAN, run_options, fitted.goal,
                                      planning_settings(settings.control, fitted),
-                                     planner_options, some_env.action_space,
+                                     planner_options, env_of(seeds[0]).action_space,
                                      fitted.state_scale)
         return own_episodes(env_of, controller, seeds, explore,
                             fitted.goal if improvement.takeover else None)

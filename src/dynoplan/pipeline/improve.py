@@ -27,6 +27,7 @@ import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from itertools import pairwise
+from pathlib import Path
 from typing import Any, TypeVar
 
 import gymnasium as gym
@@ -43,9 +44,12 @@ from dynoplan.data.episodes import (
 )
 from dynoplan.errors import DynoplanError
 from dynoplan.models.goal import GoalHeuristic
-from dynoplan.pipeline.evaluate import ControllerRunner
-from dynoplan.pipeline.jobs import EpisodeJob
+from dynoplan.parallel import SERIAL, Workers
+from dynoplan.pipeline.control_settings import ControllerSettings
+from dynoplan.pipeline.evaluate import DYNOPLAN, ControllerJob, ControllerRunner
+from dynoplan.pipeline.jobs import EpisodeJob, evaluate_many
 from dynoplan.pipeline.takeover import Takeover, takeover
+from dynoplan.pipeline.task import Task
 from dynoplan.seeding import EpisodeSeed
 
 HOLD = -1
@@ -230,6 +234,21 @@ def own_episodes(env_of: Callable[[EpisodeSeed], gym.Env[Any, Any]],
                                                          explore=explore, goal=goal)
         episodes.append(runner.episode(seed))
     return episodes
+
+
+def task_own_episodes(task: Task, models: Path, settings: ControllerSettings,
+                      option_names: Sequence[str], seeds: Sequence[EpisodeSeed],
+                      explore: float = 0.0, workers: Workers = SERIAL,
+                      progress: bool = False) -> list[OwnEpisode]:
+    """The task's own DynoPlan (:meth:`~dynoplan.pipeline.task.Task.make_runner` on the
+    models folder ``models``, planning as ``settings`` says) on ``seeds``, on
+    ``workers``, each episode cut for the fit (:class:`OwnEpisodesJob`, labels indexing
+    ``option_names``; exploring with probability ``explore``), in the seeds' order."""
+    job = OwnEpisodesJob(ControllerJob(task, models, DYNOPLAN, settings),
+                         tuple(option_names), explore)
+    own: list[OwnEpisode] = evaluate_many([(job, seeds)], workers, "own episodes",
+                                          progress)[0]
+    return own
 
 
 IMPROVE_KEEP = ("last", "best")
@@ -439,4 +458,4 @@ def learning_curve_text(curve: Sequence[dict[str, Any]]) -> str:
 __all__ = ["HOLD", "IMPROVE_KEEP", "ImprovementSettings", "OwnEpisode", "OwnEpisodeRunner",
            "OwnEpisodesJob", "StepRecorder", "improvement_rounds", "interruptions",
            "learning_curve_text",
-           "own_episode", "own_episodes", "step_labels"]
+           "own_episode", "own_episodes", "step_labels", "task_own_episodes"]

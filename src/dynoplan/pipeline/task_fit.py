@@ -63,8 +63,6 @@ from dynoplan.pipeline.collect import (
     record_demonstrations,
 )
 from dynoplan.pipeline.evaluate import (
-    DYNOPLAN,
-    ControllerJob,
     composition_ratio,
     controller_names,
     option_share_table,
@@ -82,8 +80,7 @@ from dynoplan.pipeline.generic_stages import (
     improve_fitted,
 )
 from dynoplan.pipeline.gym_task import StateFn, SuccessFn, task_env
-from dynoplan.pipeline.improve import OwnEpisode, OwnEpisodesJob
-from dynoplan.pipeline.jobs import evaluate_many
+from dynoplan.pipeline.improve import OwnEpisode, task_own_episodes
 from dynoplan.pipeline.run_settings import PipelineSettings, jsonable, run_seeds
 from dynoplan.pipeline.task import Task
 from dynoplan.seeding import EpisodeSeed
@@ -356,12 +353,9 @@ def improve_task(models: FittedModels, options: OptionModels, specs: Sequence[Op
                  explore: float) -> list[OwnEpisode]:
             played[0] += 1
             models_dir = fitted.save(out / "improve" / f"batch-{played[0]}" / "models")
-            job = OwnEpisodesJob(ControllerJob(task, models_dir, DYNOPLAN,
-                                               planning_settings(settings.control, fitted)),
-                                 names, explore)
-            result: list[OwnEpisode] = evaluate_many([(job, batch)], workers,
-                                                     "own episodes", progress)[0]
-            return result
+            return task_own_episodes(task, models_dir,
+                                     planning_settings(settings.control, fitted), names,
+                                     batch, explore, workers, progress)
 
     return improve_fitted(models, specs, settings, seeds["improve"], lambda _s: env, refit,
                           say, demonstrator, play)

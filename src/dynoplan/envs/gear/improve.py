@@ -5,7 +5,7 @@ folders, the ``improve`` stage of ``gear run``
 
 Each round runs DynoPlan, as the evaluation builds it, on episodes of its own
 (:func:`improvement_seeds`, disjoint from the evaluation's), on the run's workers
-(:class:`~dynoplan.pipeline.improve.OwnEpisodesJob`). Then, in ``improve/round-<r>/``:
+(:func:`~dynoplan.pipeline.improve.task_own_episodes`). Then, in ``improve/round-<r>/``:
 
 - ``demos/``: the run's demonstrations and every own episode that succeeded without
   holding (its progress ``t / T``);
@@ -44,16 +44,14 @@ from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.parallel import SERIAL, Workers, parallel_map
 from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.control_settings import ControllerSettings
-from dynoplan.pipeline.evaluate import ControllerJob
 from dynoplan.pipeline.fit import FitSettings
 from dynoplan.pipeline.fit_data import decision_runs
 from dynoplan.pipeline.improve import (
     ImprovementSettings,
     OwnEpisode,
-    OwnEpisodesJob,
     improvement_rounds,
+    task_own_episodes,
 )
-from dynoplan.pipeline.jobs import evaluate_many
 from dynoplan.seeding import EpisodeSeed
 
 IMPROVE_DIR = "improve"
@@ -83,11 +81,8 @@ def improved_models(out: Path, seed: int, settings: ImprovementSettings, fit: Fi
     names = tuple(gear_option_names())
 
     def play(models: Path, seeds: Sequence[EpisodeSeed], explore: float) -> list[OwnEpisode]:
-        job = OwnEpisodesJob(ControllerJob(GearTask(), models, "dynoplan", planner), names,
-                             explore)
-        own: list[OwnEpisode] = evaluate_many([(job, seeds)], workers, "own episodes",
-                                              progress)[0]
-        return own
+        return task_own_episodes(GearTask(), models, planner, names, seeds, explore, workers,
+                                 progress)
 
     def refit(r: int, own: list[OwnEpisode]) -> Path:
         demos.extend(_with_infos(e.demonstration, ("option", "progress"))
