@@ -60,6 +60,37 @@ def test_peg_objects_read_the_gear_relative_to_the_peg():
     assert np.abs(features[:, 4:7] - np.array(relative)).max() < 5e-4
 
 
+def test_the_options_learned_initiation_is_read_in_the_first_tasks_frame():
+    """In the peg frame an option may start where its outcome runs in the first task say
+    it works relative to the peg: at a state of the downstream task the initiation
+    answers what it answers at that state moved into the first task's frame."""
+    from dynoplan.envs.gear.features import feature_map
+    from dynoplan.envs.gear.peg_pose import PegFrame, initiation_in_frame
+    from dynoplan.models.outcome_initiation import (
+        OutcomeInitiation,
+        OutcomeInitiationOnFeatures,
+    )
+
+    env, planner = GearPegPoseEnv(), PlannerState()
+    states = np.array([planner(env.reset(seed=seed)[0]) for seed in range(12)])
+    frame, relative = PegFrame(), feature_map("relative")
+    seen = frame.to_option(states)
+    rng = np.random.default_rng(0)
+    starts = seen[rng.integers(0, len(seen), 200)] + rng.normal(0, 0.03, (200, STATE_DIM))
+    good = starts[:, 16] > np.median(starts[:, 16])  # the gear's x, in the first frame
+    inner, _ = OutcomeInitiation.fit({"pick": relative(starts)}, {"pick": good}, seed=0)
+    learned = OutcomeInitiationOnFeatures(inner, relative)
+    in_frame = initiation_in_frame(learned, frame)
+    assert np.array_equal(in_frame.probability(states, "pick"),
+                          learned.probability(seen, "pick"))
+    assert not np.array_equal(in_frame.contains(states, "pick"),
+                              learned.contains(states, "pick"))  # the frame matters here
+    assert np.array_equal(in_frame.contains(states, "pick"), learned.contains(seen, "pick"))
+    plain, _ = OutcomeInitiation.fit({"pick": starts}, {"pick": good}, seed=0)  # no features
+    assert np.array_equal(initiation_in_frame(plain, frame).contains(states, "pick"),
+                          plain.contains(seen, "pick"))
+
+
 def _options_folder(root: Path, names: list[str]) -> Path:
     """A tiny valid gear models folder (untrained widths of 4) with the dynamics of
     ``names``, and no option runs."""

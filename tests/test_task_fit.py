@@ -170,6 +170,65 @@ def test_the_tasks_improvement_rounds_refit_its_goal_not_the_dynamics(options_fo
         "off_demo_states"]
 
 
+def _with_outcome_initiation(options_folder, out, goal_judged: bool = False):
+    """A copy of the walk's options folder ``out`` with an initiation learned from outcome
+    runs (the options' own ends, as ``gear outcomes`` learns it): the first option may
+    start left of 10, the second right of 10. ``goal_judged``: the report says it judged
+    the runs by the folder's goal (``FitSettings.outcome_initiation``)."""
+    import shutil
+
+    from dynoplan.models.folder import INITIATION_FILE, set_initiation
+    from dynoplan.models.outcome_initiation import OutcomeInitiation
+
+    shutil.copytree(options_folder, out)
+    models = FittedModels.load(out / "models")
+    states = np.arange(19, dtype=np.float64)[:, None].repeat(4, axis=0)
+    names = models.option_names
+    initiation, _ = OutcomeInitiation.fit(
+        {names[0]: states, names[1]: states},
+        {names[0]: states[:, 0] < 10, names[1]: states[:, 0] > 10}, seed=0)
+    if goal_judged:
+        models = replace(models, report={**models.report, "outcome_initiation": {"fitted": 1}})
+        models.save(out / "models")
+    initiation.save(out / "models" / INITIATION_FILE)
+    set_initiation(out / "models", INITIATION_FILE)
+    return out
+
+
+def test_a_task_reuses_the_options_initiation_learned_from_their_outcomes(options_folder,
+                                                                          tmp_path):
+    """What the options folder learned of where each option works (its initiation from
+    outcome runs) travels with the dynamics, byte for byte, and limits where the task's
+    options may start; run_task(reuse_initiation=False) leaves it out, and an initiation
+    that judged the runs by the first task's goal is never reused."""
+    settings = replace(SMALL, episodes=2, improve=0)
+    folder = _with_outcome_initiation(options_folder, tmp_path / "options")
+    source = read_manifest(folder / "models")
+    results = {}
+    for name, reuse in (("reused", True), ("left-out", False)):
+        results[name] = run_task(WALK, folder, make_options(),
+                                 demonstrator=make_demonstrator(), settings=settings,
+                                 out=tmp_path / name, state_fn=walk_state, success=reach_10,
+                                 reuse_initiation=reuse)
+    manifest = read_manifest(tmp_path / "reused" / "models")
+    assert source.initiation is not None and manifest.initiation is not None
+    assert manifest.initiation.path.read_bytes() == source.initiation.path.read_bytes()
+    record = manifest.extra["options_models"]
+    assert record["initiation_sha256"] == file_sha256(source.initiation.path)
+    assert results["reused"].summary["task_fit"]["reused_initiation"] is True
+    first = results["reused"].options[0]
+    assert first.initiation.contains(np.array([[3.0]]))[0]
+    assert not first.initiation.contains(np.array([[16.0]]))[0]
+    assert read_manifest(tmp_path / "left-out" / "models").initiation is None
+    assert results["left-out"].summary["task_fit"]["reused_initiation"] is False
+    judged = _with_outcome_initiation(options_folder, tmp_path / "judged", goal_judged=True)
+    result = run_task(WALK, judged, make_options(), demonstrator=make_demonstrator(),
+                      settings=settings, out=tmp_path / "judged-task", state_fn=walk_state,
+                      success=reach_10)
+    assert read_manifest(tmp_path / "judged-task" / "models").initiation is None
+    assert result.summary["task_fit"]["reused_initiation"] is False
+
+
 def test_option_runs_of_another_option_set_are_one_line(options_folder, tmp_path):
     runs = read_dataset(options_folder / "transitions")
     names = [s.name for s in make_options()]

@@ -92,10 +92,11 @@ REFERENCE = "first-task"
 def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = DEMOS,
         rows: tuple[str, ...] = ROWS, quick: bool = False, workers: Workers = SERIAL,
         command: str = "", progress: bool = True,
-        task_improve: int | None = None) -> dict[str, Any]:
+        task_improve: int | None = None, task_initiation: bool = True) -> dict[str, Any]:
     """Every stage (module docstring) into ``out``; the content of ``results.json``.
     ``task_improve``: the improvement rounds of every row's task fit (``None``: the
-    library's default)."""
+    library's default); ``task_initiation`` False: no row reuses the options folder's
+    initiation learned from outcome runs (the library's default reuses it)."""
     from dynoplan.envs.gear.demonstrations import record_demos
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.option_runs import collect_gear_transitions
@@ -130,7 +131,7 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
         if row in rows:
             stage(row, out / row / "summary.json", lambda f=frame, r=row: fit_and_evaluate(
                 options_models, networks, out / "demos", out / r, settings, workers, command,
-                progress=progress, peg_frame=f))
+                progress=progress, peg_frame=f, reuse_initiation=task_initiation))
     if "retrained" in rows:
         own = out / "retrain"
         collect = QUICK_RUNS if quick else RUNS
@@ -149,16 +150,18 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
         first_runs = options_models / RUNS_FOLDER
         stage("retrained", out / "retrained" / "summary.json", lambda: fit_and_evaluate(
             own, networks, out / "demos", out / "retrained", settings, workers, command,
-            runs=first_runs if first_runs.is_dir() else None, progress=progress))
+            runs=first_runs if first_runs.is_dir() else None, progress=progress,
+            reuse_initiation=task_initiation))
     if REFERENCE in rows:
         stage(REFERENCE, out / REFERENCE / "summary.json", lambda: fit_and_evaluate(
             options_models, networks, options_models / "demos", out / REFERENCE, settings,
-            workers, command, progress=progress, first_task=True))
+            workers, command, progress=progress, first_task=True,
+            reuse_initiation=task_initiation))
     summaries = {row: json.loads((out / row / "summary.json").read_text())
                  for row in (*ROWS, REFERENCE) if (out / row / "summary.json").is_file()}
     results = {"command": command, "seed": seed, "episodes": episodes, "demos": demos,
                "quick": quick, "options_models": str(options_models.resolve()),
-               "task_improve": settings.improve,
+               "task_improve": settings.improve, "task_initiation": task_initiation,
                "stage_seconds": seconds,
                "rows": {name: _row(summary, out / name) for name, summary in summaries.items()}}
     (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
@@ -267,6 +270,7 @@ def _row(summary: dict[str, Any], folder: Path) -> dict[str, Any]:
             "demonstration_steps": fit["demonstration_steps"],
             "goal_fit_seconds": fit["goal_fit_seconds"], "fit_seconds": fit["fit_seconds"],
             "improvement": fit.get("improvement"),
+            "reused_initiation": bool(fit.get("reused_initiation")),
             "option_runs": fit["option_runs"], "goal_sha256": manifest["goal"]["sha256"],
             "regions_sha256": (manifest.get("regions") or {}).get("sha256"),
             "dynamics_sha256": {n: d["sha256"] for n, d in manifest["dynamics"].items()}}
@@ -276,7 +280,8 @@ def _table(results: dict[str, Any]) -> str:
     lines = [f"Produced by `{results['command']}`.", "",
              "| dynamics | DynoPlan success | episodes | the task's demonstrations (steps) "
              "| the goal fit of the models kept (s) | the first fit: goal and regions (s) "
-             "| the improvement round (s) |", "|---|---|---|---|---|---|---|"]
+             "| the improvement round (s) | the options' learned initiation |",
+             "|---|---|---|---|---|---|---|---|"]
     names = {"shared": "the first task's, unchanged",
              "shared-frame": "the first task's, unchanged, in the first task's frame",
              "retrained": "retrained on the task",
@@ -286,7 +291,8 @@ def _table(results: dict[str, Any]) -> str:
                      f"{row['demonstrations']} ({row['demonstration_steps']}) | "
                      f"{row['goal_fit_seconds']:.1f} | {row['fit_seconds']:.1f} | "
                      + ("-" if row.get("improvement") is None else
-                        f"{row['improvement']['seconds']:.1f}") + " |")
+                        f"{row['improvement']['seconds']:.1f}")
+                     + (" | reused |" if row.get("reused_initiation") else " | - |"))
     return "\n".join(lines) + "\n"
 
 
@@ -306,6 +312,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task-improve", type=int, default=None,
                         help="improvement rounds of every row's task fit (0: its "
                              "demonstrations alone) [the library's default, 1]")
+    parser.add_argument("--no-task-initiation", action="store_true",
+                        help="no row reuses the options folder's initiation learned from "
+                             "outcome runs [the library's default reuses it]")
     parser.add_argument("--workers", default="1", help="1, N (Ray) [1]")
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument("--one-step-errors", action="store_true",
@@ -332,7 +341,8 @@ def main(argv: list[str] | None = None) -> int:
         rows = tuple(r for r in args.rows.split(",") if r)
         results = run(args.options_models, args.out, args.seed, args.episodes, args.demos,
                       rows, args.quick, parse_workers(args.workers, None),
-                      command, progress=not args.quiet, task_improve=args.task_improve)
+                      command, progress=not args.quiet, task_improve=args.task_improve,
+                      task_initiation=not args.no_task_initiation)
     except DynoplanError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -21,8 +21,13 @@ them; ``models.json`` records which. Then it evaluates the controllers as
 byte for byte the models of the options folder, and ``models.json`` records where they
 came from), so it loads like any other, never reading outside itself.
 
-What the options folder's first task learned beside the dynamics (its goal, its regions,
-its initiation learned from outcomes, which judged runs by that task's goal) is not used.
+What the options folder learned of the options themselves travels with them: their
+dynamics and, when the folder has one, the initiation learned from the options' own
+outcome runs (where each option, started, reached its own end: no task's goal judged it;
+:attr:`OptionModels.initiation`), which the task's controllers intersect with its own
+regions as the first task's do (``run_task(reuse_initiation=False)`` leaves it out). What
+its first task learned of that task (its goal, its regions, an initiation learned from
+the goal's gain over the runs, ``FitSettings.outcome_initiation``) is not used.
 
 A task whose options act on the environment's observations while its models read a
 planner state made from them (the gear: observations of 50 values, planner states of 22)
@@ -72,6 +77,7 @@ from dynoplan.pipeline.evaluate import (
 from dynoplan.pipeline.fit import FittedModels, named_feature_map
 from dynoplan.pipeline.fit_dynamics import goal_end_gaps
 from dynoplan.pipeline.fit_goal import fit_goal
+from dynoplan.pipeline.fit_initiation import OutcomeModel
 from dynoplan.pipeline.fit_regions import fit_option_regions
 from dynoplan.pipeline.generic_stages import (
     OwnPlay,
@@ -96,14 +102,16 @@ class OptionModels:
 
     Attributes:
         folder: the models folder the dynamics come from.
-        models: that folder, loaded (only ``dynamics``, ``stride``, ``option_model`` and
-            ``state_scale`` are reused).
+        models: that folder, loaded (only ``dynamics``, ``stride``, ``option_model``,
+            ``state_scale`` and the :attr:`initiation` are reused).
         runs: the option runs (exploration episodes) a task's goal heuristic and regions
             are fitted with, labels indexing ``models.option_names``: those beside the
             folder (empty when it has none), or a task's own (:meth:`with_runs`).
         sha256: per option, the SHA-256 of its dynamics file in ``folder``.
         runs_source: where ``runs`` were read (a dataset folder, resolved), ``None`` for
             none or episodes given in memory.
+        initiation_sha256: the SHA-256 of the folder's learned initiation file, ``None``
+            when it has none.
     """
 
     folder: Path
@@ -111,10 +119,28 @@ class OptionModels:
     runs: list[Episode]
     sha256: dict[str, str]
     runs_source: str | None = None
+    initiation_sha256: str | None = None
 
     @property
     def option_names(self) -> list[str]:
         return list(self.models.option_names)
+
+    @property
+    def initiation(self) -> OutcomeModel | None:
+        """The options' initiation learned from their own outcome runs, which a task
+        reuses as it reuses their dynamics; ``None`` when the folder has none, or when
+        its initiation judged the runs by its own task's goal heuristic (its report's
+        ``outcome_initiation``, :func:`~dynoplan.pipeline.fit.fit_outcome_initiation`):
+        that one says where an option helped that task, not where it works."""
+        learned = self.models.learned_initiation
+        if learned is None or self.models.report.get("outcome_initiation") is not None:
+            return None
+        return learned
+
+    def without_initiation(self) -> "OptionModels":
+        """The same folder with its learned initiation left out (the dynamics alone)."""
+        return replace(self, models=replace(self.models, learned_initiation=None),
+                       initiation_sha256=None)
 
     def with_runs(self, runs: "OptionRuns",
                   state_fn: ObservationFn = flat_state) -> "OptionModels":
@@ -220,7 +246,8 @@ def load_option_models(path: str | Path,
     models = FittedModels.load(models_dir, feature_maps, retrain=retrain)
     sha = {name: file_sha256(file) for name, file in manifest.dynamics.items()
            if file is not None}
-    folder = OptionModels(models_dir, models, [], sha)
+    folder = OptionModels(models_dir, models, [], sha, initiation_sha256=(
+        None if manifest.initiation is None else file_sha256(manifest.initiation.path)))
     runs_dir = root / RUNS_FOLDER
     return (folder.with_runs(runs_dir, state_fn) if models_dir != root and runs_dir.is_dir()
             else folder)
@@ -254,14 +281,16 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
     ``options.runs`` (as :func:`~dynoplan.pipeline.fit.fit_models` uses exploration
     episodes; give a task's own with :meth:`OptionModels.with_runs`) with ``own_runs``
     (the pieces of DynoPlan's own episodes of the improvement rounds, labels indexing
-    ``specs``); the regions from ``region_demos`` when given, else ``demos``.
+    ``specs``); the regions from ``region_demos`` when given, else ``demos``. The
+    options' learned initiation (:attr:`OptionModels.initiation`) is the folder's, when it
+    has one.
 
     The goal and regions are fitted as ``settings.fit`` says (on the task's feature maps
     ``settings.fit.goal_features`` and ``region_features`` of ``feature_maps``, when
     named), on the planner states ``state_fn`` makes of the stored observations; its
     stride and option model are the options folder's (properties of the dynamics).
-    ``models.json`` records the folder, its dynamics' SHA-256 and the runs' source
-    (``options_models``).
+    ``models.json`` records the folder, its dynamics' (and reused initiation's) SHA-256
+    and the runs' source (``options_models``).
 
     Raises:
         DynoplanError: a task option the folder has no dynamics for, a feature map the
@@ -302,12 +331,14 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
               "state_scale": own.report.get("state_scale"), "warnings": []}
     extra = {"options_models": {"folder": str(options.folder.resolve()),
                                 "task": own.task, "dynamics_sha256": options.sha256,
+                                **({"initiation_sha256": options.initiation_sha256}
+                                   if options.initiation is not None else {}),
                                 "runs": options.runs_record(),
                                 **({"own_runs": {"episodes": len(own_runs),
                                                  "steps": sum(len(e) for e in own_runs)}}
                                    if own_runs else {})}}
     return FittedModels(folder_names, dict(own.dynamics), goal, regions, own.stride, report,
-                        fit.regions, task, extra)
+                        fit.regions, task, extra, learned_initiation=options.initiation)
 
 
 def improve_task(models: FittedModels, options: OptionModels, specs: Sequence[OptionSpec],
@@ -388,7 +419,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
              task: Task | None = None, runs: OptionRuns | None = None,
              planner_state: ObservationFn | None = None,
              feature_maps: Mapping[str, FeatureMap] | None = None,
-             own_controllers: bool = False) -> TaskResult:
+             own_controllers: bool = False, reuse_initiation: bool = True) -> TaskResult:
     """A new task on the option dynamics of ``options_models`` (:func:`load_option_models`):
     record ``settings.demos`` demonstrations (or use ``demos``), fit the goal heuristic
     and regions (:func:`fit_task`), evaluate the controllers; arguments as
@@ -417,11 +448,15 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
             (:meth:`~dynoplan.pipeline.task.Task.make_runner`, rebuilt from the saved
             models folder) on one worker as on several (needs ``task`` and ``out``);
             ``settings.controllers`` then names them.
+        reuse_initiation: keep the options' initiation learned from their own outcome
+            runs (:attr:`OptionModels.initiation`) when the folder has one; ``False``: the
+            task's regions alone say where the options start.
 
     ``summary["task_fit"]`` says what the new task needed: its demonstrations (episodes,
     steps), the seconds to record them and to fit its models (``fit_seconds``: the goal
     heuristic, its end gaps on the dynamics and the regions; ``goal_fit_seconds``: the
-    goal heuristic's fit alone, of the models kept), which options' dynamics it reused,
+    goal heuristic's fit alone, of the models kept), which options' dynamics it reused
+    (and whether their learned initiation, ``reused_initiation``),
     which option runs it was fitted with (``option_runs``) and, with improvement rounds,
     their episodes and seconds (``improvement``: ``own_episodes``, ``demonstrator_episodes``,
     ``seconds``); ``summary["improvement"]`` is the learning curve.
@@ -457,6 +492,8 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     option_models.check_task(names, state_dim)
     if runs is not None:
         option_models = option_models.with_runs(runs, observed)
+    if not reuse_initiation:
+        option_models = option_models.without_initiation()
     folder = ensure_writable_dir(out) if out is not None else None
     known = controller_names(specs, demonstrator is not None)
     unknown = [c for c in settings.controllers or () if c not in known]
@@ -496,6 +533,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
     task_fit = {
         "options_models": str(option_models.folder),
         "reused_dynamics": names,
+        "reused_initiation": option_models.initiation is not None,
         "option_runs": option_models.runs_record(),
         "demonstrations": len(demo_episodes),
         "demonstration_steps": sum(len(e) for e in demo_episodes),

@@ -36,6 +36,8 @@ import numpy as np
 from dynoplan.envs.gear.env import HOME_Q, GearAssemblyEnv
 from dynoplan.envs.gear.state import STATE_DIM, STATE_SLICES
 from dynoplan.errors import DynoplanError
+from dynoplan.models.features import FeatureMap
+from dynoplan.models.outcome_initiation import OutcomeInitiation, OutcomeInitiationOnFeatures
 from dynoplan.types import FloatArray
 
 PEG_TASK_NAME = "gear_peg_pose"
@@ -198,5 +200,24 @@ class PegFrame:
 _MOVED = (STATE_SLICES["tool_pos"], STATE_SLICES["gear_pos"], STATE_SLICES["human_pos"])
 
 
+def initiation_in_frame(learned: OutcomeInitiation | OutcomeInitiationOnFeatures,
+                        frame: PegFrame) -> OutcomeInitiationOnFeatures:
+    """The first task's initiation learned from the options' outcome runs, read in the
+    first task's frame: at this task's planner states ``s`` ``(batch, 22)`` it answers
+    what ``learned`` answers at ``frame.to_option(s)`` (on the same feature map, when it
+    reads one). An option's outcome runs say where it reaches its own end, relative to
+    a peg that never moved; the frame puts the scene back where they saw it, as it does
+    for the option's dynamics."""
+    if isinstance(learned, OutcomeInitiationOnFeatures):
+        inner, features = learned.initiation, learned.features
+    else:
+        inner = learned
+        features = FeatureMap("planner state", tuple(f"s{i}" for i in range(STATE_DIM)),
+                              lambda states: np.asarray(states, dtype=np.float64), STATE_DIM)
+    return OutcomeInitiationOnFeatures(inner, FeatureMap(
+        f"{features.name} in the first task's frame", features.names,
+        lambda states: features(frame.to_option(states)), STATE_DIM))
+
+
 __all__ = ["FIRST_TASK_RIGHT_ARM", "IK_TOLERANCE", "PEG_TASK_NAME", "PEG_WORKSPACE",
-           "GearPegPoseEnv", "PegFrame", "PegWorkspace", "RightHold"]
+           "GearPegPoseEnv", "PegFrame", "PegWorkspace", "RightHold", "initiation_in_frame"]

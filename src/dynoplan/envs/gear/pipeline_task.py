@@ -28,7 +28,13 @@ from dynoplan.envs.gear.flat_policy import FLAT_POLICY, FlatPolicy, FlatPolicyRu
 from dynoplan.envs.gear.human import BEHAVIOURS
 from dynoplan.envs.gear.metrics import episode_metrics
 from dynoplan.envs.gear.models_folder import TASK_NAME
-from dynoplan.envs.gear.peg_pose import PEG_TASK_NAME, GearPegPoseEnv, PegFrame, PegWorkspace
+from dynoplan.envs.gear.peg_pose import (
+    PEG_TASK_NAME,
+    GearPegPoseEnv,
+    PegFrame,
+    PegWorkspace,
+    initiation_in_frame,
+)
 from dynoplan.envs.gear.runs import RUN_INFO_KEYS, beyond_start, ended_well, own_start
 from dynoplan.envs.gear.state import DECISION_STEPS
 from dynoplan.errors import DynoplanError
@@ -148,13 +154,16 @@ class GearTask:
         fitted = load_gear_models(models, self.name)
         factories = policy_factories(self.networks or models)
         variant = VARIANTS[controller]
+        frame = PegFrame() if self.peg_frame else None
+        if frame is not None and fitted.learned_initiation is not None:
+            fitted = replace(fitted, learned_initiation=initiation_in_frame(
+                fitted.learned_initiation, frame))
         options = gear_options(gear_env, fitted, factories, variant.sets)
-        if self.peg_frame:
+        if frame is not None:
             own = [o.name for o in options if o.state_map is not None]
             if own:
                 raise DynoplanError(f"{models}: the peg frame maps the planner state, and "
                                     f"{', '.join(own)} already roll on their own states")
-            frame = PegFrame()
             options = [replace(o, state_map=frame) for o in options]
         return ControllerRunner(
             env, make_controller(variant, options,

@@ -71,12 +71,15 @@ def check_options_folder(options_models: Path) -> Path:
 def fit_and_evaluate(options_models: Path, networks: Path, demos: Path, out: Path,
                      settings: PipelineSettings, workers: Workers, command: str,
                      runs: Path | None = None, progress: bool = True,
-                     peg_frame: bool = False, first_task: bool = False) -> TaskResult:
+                     peg_frame: bool = False, first_task: bool = False,
+                     reuse_initiation: bool = True) -> TaskResult:
     """The task fit (:func:`~dynoplan.pipeline.task_fit.run_task`) of the downstream task on
     the options folder ``options_models``, its demonstrations read from ``demos``, the
     option networks from ``networks`` (``peg_frame``: the dynamics rolled in the first
-    task's frame, :class:`~dynoplan.envs.gear.peg_pose.PegFrame`; ``first_task``: the
-    first task instead); the result written into ``out``."""
+    task's frame, :class:`~dynoplan.envs.gear.peg_pose.PegFrame`, and so is the options'
+    initiation learned from their outcome runs; ``first_task``: the first task instead;
+    ``reuse_initiation`` False: that initiation left out); the result written into
+    ``out``."""
     from dynoplan.data import read_dataset
     from dynoplan.envs.gear.operator import OptionOperator
     from dynoplan.envs.gear.options.catalog import policy_factories
@@ -92,7 +95,7 @@ def fit_and_evaluate(options_models: Path, networks: Path, demos: Path, out: Pat
                         status=lambda m: print(f"-- {m}", file=sys.stderr, flush=True),
                         command=command, workers=workers, task=task, runs=runs,
                         planner_state=PlannerState(), feature_maps=FEATURE_MAPS,
-                        own_controllers=True)
+                        own_controllers=True, reuse_initiation=reuse_initiation)
 
 
 def gear_task_fit(options_models: Path, out: Path, seed: int = 0, episodes: int = 100,
