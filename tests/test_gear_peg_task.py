@@ -237,15 +237,17 @@ def test_gear_task_fit_solves_the_downstream_task_on_a_gear_runs_dynamics(
 
 def test_the_table_says_which_fit_each_time_is_from():
     """The goal fit of the models kept, the first fit and the improvement round each
-    have their column; a row without a round shows '-'."""
+    have their column, and so does whether the row reused the options' learned
+    initiation; a row without a round (without the initiation) shows '-'."""
     from benchmarks.transfer.gear_peg_task import _table
 
     row = {"success_rate": 0.73, "episodes": 100, "demonstrations": 10,
            "demonstration_steps": 2723, "goal_fit_seconds": 17.2, "fit_seconds": 15.0}
     results = {"command": "x", "rows": {
-        "shared-frame": {**row, "improvement": {"seconds": 263.2}},
-        "retrained": {**row, "improvement": None}}}
+        "shared-frame": {**row, "improvement": {"seconds": 263.2}, "reused_initiation": True},
+        "retrained": {**row, "improvement": None, "reused_initiation": False}}}
     lines = _table(results).splitlines()
     assert "the goal fit of the models kept (s)" in lines[2]
-    assert lines[4].endswith("| 17.2 | 15.0 | 263.2 |")
-    assert lines[5].endswith("| 17.2 | 15.0 | - |")
+    assert "learned initiation" in lines[2]
+    assert lines[4].endswith("| 17.2 | 15.0 | 263.2 | reused |")
+    assert lines[5].endswith("| 17.2 | 15.0 | - | - |")
