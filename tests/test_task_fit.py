@@ -170,6 +170,22 @@ def test_the_tasks_improvement_rounds_refit_its_goal_not_the_dynamics(options_fo
         "off_demo_states"]
 
 
+def test_a_task_fit_with_the_same_seed_writes_the_same_bytes(options_folder, tmp_path):
+    """Two task fits of "reach 10" with the same seed and its improvement round write the
+    same models folder, byte for byte, manifest included (no timing in it)."""
+    settings = replace(SMALL, episodes=2, improve_episodes=4)
+    for name in ("a", "b"):
+        run_task(WALK, options_folder, make_options(), demonstrator=make_demonstrator(),
+                 settings=settings, out=tmp_path / name, state_fn=walk_state,
+                 success=reach_10)
+    files = sorted(p.name for p in (tmp_path / "a" / "models").iterdir())
+    assert "models.json" in files and "goal.safetensors" in files
+    assert files == sorted(p.name for p in (tmp_path / "b" / "models").iterdir())
+    for file in files:
+        assert ((tmp_path / "a" / "models" / file).read_bytes()
+                == (tmp_path / "b" / "models" / file).read_bytes()), file
+
+
 def _with_outcome_initiation(options_folder, out, goal_judged: bool = False):
     """A copy of the walk's options folder ``out`` with an initiation learned from outcome
     runs (the options' own ends, as ``gear outcomes`` learns it): the first option may

@@ -128,6 +128,9 @@ class FittedModels:
         failure: per option ``P(ok | s)``, the chance that its run does not end the
             episode in failure (:mod:`~dynoplan.pipeline.fit_failure`), or ``None`` (no
             run failed).
+        seconds: how long parts of the fit took in this process (``{"goal": s}``), never
+            written by :meth:`save`: a models folder's bytes depend on its data and seed
+            alone.
     """
 
     option_names: list[str]
@@ -141,6 +144,7 @@ class FittedModels:
     extra: dict[str, Any] = field(default_factory=dict)
     learned_initiation: OutcomeModel | None = None
     failure: OutcomeInitiation | None = None
+    seconds: dict[str, float] = field(default_factory=dict, compare=False)
 
     @property
     def option_model(self) -> str:

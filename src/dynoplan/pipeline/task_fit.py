@@ -310,7 +310,7 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
     say("goal heuristic")
     started = time.perf_counter()
     goal, goal_report = fit_goal(demos_f, fit, seed, state_fn, goal_map, runs)
-    goal_report["seconds"] = time.perf_counter() - started
+    goal_seconds = time.perf_counter() - started
     goal_report["end_gap"] = goal_end_gaps(
         {n: own.dynamics[n] for n in names}, goal, [*runs, *demos_f], state_fn,
         own.stride, seed, to_end=own.option_model == "end")
@@ -338,7 +338,8 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
                                                  "steps": sum(len(e) for e in own_runs)}}
                                    if own_runs else {})}}
     return FittedModels(folder_names, dict(own.dynamics), goal, regions, own.stride, report,
-                        fit.regions, task, extra, learned_initiation=options.initiation)
+                        fit.regions, task, extra, learned_initiation=options.initiation,
+                        seconds={"goal": goal_seconds})
 
 
 def improve_task(models: FittedModels, options: OptionModels, specs: Sequence[OptionSpec],
@@ -539,7 +540,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
         "demonstration_steps": sum(len(e) for e in demo_episodes),
         "demonstration_seconds": demo_seconds,
         "fit_seconds": fit_seconds,
-        "goal_fit_seconds": models.report["goal"]["seconds"],
+        "goal_fit_seconds": models.seconds["goal"],
         **({"improvement": {
             "own_episodes": sum(c["episodes"] + c.get("explored_episodes", 0)
                                 for c in curve),
