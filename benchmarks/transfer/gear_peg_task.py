@@ -261,6 +261,38 @@ def script_success(options_models: Path, out: Path, seed: int, episodes: int,
     return {name: summarize(records) for name, records in zip(jobs, done, strict=True)}
 
 
+def demonstrator_success(options_models: Path, seed: int, episodes: int,
+                         workers: Workers = SERIAL) -> dict[str, dict[str, Any]]:
+    """The demonstrator's success in the first task and in the downstream task, on the
+    evaluation episodes of the rows (seed ``seed``, ``episodes`` of them; each episode's
+    own human mode): the operator that records the task's demonstrations
+    (:class:`~dynoplan.envs.gear.operator.OptionOperator`, chaining the option policies of
+    ``options_models`` by hand-written rules), every episode kept, failed or not. The
+    round's principle: the demonstrator, not the best single option, is the bar."""
+    import numpy as np
+
+    from dynoplan.envs.gear.demonstrations import (
+        DemoJob,
+        build_demonstrator,
+        demonstrated_episode,
+        episode_seeds,
+        succeeded,
+    )
+    from dynoplan.parallel import parallel_map
+
+    networks = check_options_folder(options_models).resolve()
+    seeds = episode_seeds(run_seeds(seed)["evaluation"], episodes)
+    found: dict[str, dict[str, Any]] = {}
+    for name, peg in (("first task", None), ("downstream task", PEG_WORKSPACE)):
+        raw = parallel_map(build_demonstrator, demonstrated_episode,
+                           DemoJob("options", networks, peg), [(s, None) for s in seeds],
+                           workers, f"demonstrator, {name}", True)
+        ok = [bool(succeeded(r)) for r in raw]
+        found[name] = {"episodes": len(ok), "success_rate": float(np.mean(ok)),
+                       "steps_mean": float(np.mean([len(r["actions"]) for r in raw]))}
+    return found
+
+
 def _row(summary: dict[str, Any], folder: Path) -> dict[str, Any]:
     fit = summary["task_fit"]
     manifest = json.loads((folder / "models" / "models.json").read_text())
@@ -312,6 +344,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task-improve", type=int, default=None,
                         help="improvement rounds of every row's task fit (0: its "
                              "demonstrations alone) [the library's default, 1]")
+    parser.add_argument("--demonstrator", action="store_true",
+                        help="the demonstrator (the operator) in both tasks on the rows' "
+                             "episodes")
     parser.add_argument("--no-task-initiation", action="store_true",
                         help="no row reuses the options folder's initiation learned from "
                              "outcome runs [the library's default reuses it]")
@@ -334,6 +369,15 @@ def main(argv: list[str] | None = None) -> int:
             (args.out / "script.json").write_text(json.dumps(found, indent=2) + "\n")
             for name, summary in found.items():
                 print(f"{name}: fixed script success {summary['success_rate']:.2f} of "
+                      f"{summary['episodes']} episodes")
+            return 0
+        if args.demonstrator:
+            found = demonstrator_success(args.options_models, args.seed, args.episodes,
+                                         parse_workers(args.workers, None))
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / "demonstrator.json").write_text(json.dumps(found, indent=2) + "\n")
+            for name, summary in found.items():
+                print(f"{name}: demonstrator success {summary['success_rate']:.2f} of "
                       f"{summary['episodes']} episodes")
             return 0
         if args.episodes < 1 or args.demos < 1:
