@@ -60,6 +60,22 @@ def test_peg_objects_read_the_gear_relative_to_the_peg():
     assert np.abs(features[:, 4:7] - np.array(relative)).max() < 5e-4
 
 
+def test_peg_relative_is_relative_read_in_the_first_tasks_frame():
+    """The downstream task's region features: what ``relative`` reads of the state moved
+    into the first task's frame, the gear's place taken from the first task's peg tip."""
+    from dynoplan.envs.gear.features import FEATURE_MAPS
+    from dynoplan.envs.gear.peg_pose import PegFrame
+
+    env, planner = GearPegPoseEnv(), PlannerState()
+    states = np.array([planner(env.reset(seed=seed)[0]) for seed in range(4)])
+    ours = FEATURE_MAPS["peg_relative"](states)
+    framed = FEATURE_MAPS["relative"](PegFrame().to_option(states))
+    assert ours.shape == (4, 8)
+    gap = framed - ours
+    assert np.abs(gap[:, [0, 1, 2, 3, 7]]).max() < 1e-9
+    assert np.abs(gap[:, 4:7] - FIRST_TIP).max() < 5e-3  # the first task's peg tip
+
+
 def test_the_options_learned_initiation_is_read_in_the_first_tasks_frame():
     """In the peg frame an option may start where its outcome runs in the first task say
     it works relative to the peg: at a state of the downstream task the initiation

@@ -92,11 +92,14 @@ REFERENCE = "first-task"
 def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = DEMOS,
         rows: tuple[str, ...] = ROWS, quick: bool = False, workers: Workers = SERIAL,
         command: str = "", progress: bool = True,
-        task_improve: int | None = None, task_initiation: bool = True) -> dict[str, Any]:
+        task_improve: int | None = None, task_initiation: bool = True,
+        region_features: str | None = None) -> dict[str, Any]:
     """Every stage (module docstring) into ``out``; the content of ``results.json``.
     ``task_improve``: the improvement rounds of every row's task fit (``None``: the
     library's default); ``task_initiation`` False: no row reuses the options folder's
-    initiation learned from outcome runs (the library's default reuses it)."""
+    initiation learned from outcome runs (the library's default reuses it);
+    ``region_features``: the feature map every row's regions read (``None``: the task's,
+    :func:`~dynoplan.envs.gear.task_fit.task_settings`)."""
     from dynoplan.envs.gear.demonstrations import record_demos
     from dynoplan.envs.gear.learning.training import train_gear_models
     from dynoplan.envs.gear.option_runs import collect_gear_transitions
@@ -110,7 +113,12 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     settings = task_settings(seed, episodes, demos, quick)
     if task_improve is not None:
         settings = replace(settings, improve=task_improve)
-        settings.validate()
+    if region_features is not None:
+        if region_features not in FEATURE_MAPS:
+            raise DynoplanError(f"unknown feature map {region_features!r}; expected one of "
+                                f"{', '.join(FEATURE_MAPS)}")
+        settings = replace(settings, fit=replace(settings.fit, region_features=region_features))
+    settings.validate()
     seeds = run_seeds(seed)
     peg_task = GearTask(peg=PEG_WORKSPACE)
     seconds: dict[str, float] = {}
@@ -162,6 +170,7 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     results = {"command": command, "seed": seed, "episodes": episodes, "demos": demos,
                "quick": quick, "options_models": str(options_models.resolve()),
                "task_improve": settings.improve, "task_initiation": task_initiation,
+               "region_features": settings.fit.region_features,
                "stage_seconds": seconds,
                "rows": {name: _row(summary, out / name) for name, summary in summaries.items()}}
     (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
@@ -344,6 +353,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task-improve", type=int, default=None,
                         help="improvement rounds of every row's task fit (0: its "
                              "demonstrations alone) [the library's default, 1]")
+    parser.add_argument("--region-features", default=None,
+                        help="the feature map every row's regions read [the task's: "
+                             "relative]")
     parser.add_argument("--demonstrator", action="store_true",
                         help="the demonstrator (the operator) in both tasks on the rows' "
                              "episodes")
@@ -386,7 +398,8 @@ def main(argv: list[str] | None = None) -> int:
         results = run(args.options_models, args.out, args.seed, args.episodes, args.demos,
                       rows, args.quick, parse_workers(args.workers, None),
                       command, progress=not args.quiet, task_improve=args.task_improve,
-                      task_initiation=not args.no_task_initiation)
+                      task_initiation=not args.no_task_initiation,
+                      region_features=args.region_features)
     except DynoplanError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -15,6 +15,7 @@ name          size  features
 ``objects``   7     ``relative`` without the tool-hand distance
 ``peg_objects`` 7   gripper; tool point minus gear (3); gear minus the peg tip (3),
                     the tip by forward kinematics of the right arm's joints
+``peg_relative`` 8  ``peg_objects`` and the capped tool-hand distance
 ============  ====  ============================================================
 
 ``objects`` is what the goal heuristic of ``dynoplan gear run`` reads: where the task
@@ -34,6 +35,8 @@ hand comes near); beyond the cap, where the hand is does not matter.
 gear's place relative to the peg, not in the world. The peg module is part of the right
 hand, so the peg tip follows from the state's right-arm joints (:class:`PegTip`); with
 the first task's fixed peg it is ``objects`` with the gear shifted by a constant.
+``peg_relative`` is ``relative`` read the same way (with the fixed peg: ``relative``
+with the gear shifted by a constant), for the downstream task's regions.
 """
 
 from collections.abc import Sequence
@@ -120,6 +123,11 @@ def _peg_objects(states: FloatArray) -> FloatArray:
                           axis=1)
 
 
+def _peg_relative(states: FloatArray) -> FloatArray:
+    human = np.minimum(tool_human_distance(states), HUMAN_DISTANCE_CAP)
+    return np.concatenate([_peg_objects(states), human[:, None]], axis=1)
+
+
 TASK = _columns("task", range(STATE_SLICES["human_pos"].start))
 POSE = _columns("pose", range(STATE_SLICES["gripper"].start, STATE_SLICES["human_pos"].start))
 RELATIVE = FeatureMap("relative", ("gripper", "tool_minus_gear_x", "tool_minus_gear_y",
@@ -131,8 +139,10 @@ PEG_OBJECTS = FeatureMap("peg_objects", ("gripper", "tool_minus_gear_x", "tool_m
                                          "tool_minus_gear_z", "gear_minus_peg_x",
                                          "gear_minus_peg_y", "gear_minus_peg_z"),
                          _peg_objects, STATE_DIM)
+PEG_RELATIVE = FeatureMap("peg_relative", (*PEG_OBJECTS.names, "tool_hand_distance"),
+                          _peg_relative, STATE_DIM)
 FEATURE_MAPS: dict[str, FeatureMap] = {m.name: m for m in (TASK, POSE, RELATIVE, OBJECTS,
-                                                           PEG_OBJECTS)}
+                                                           PEG_OBJECTS, PEG_RELATIVE)}
 
 
 def feature_map(name: str) -> FeatureMap:
@@ -143,5 +153,5 @@ def feature_map(name: str) -> FeatureMap:
     return FEATURE_MAPS[name]
 
 
-__all__ = ["FEATURE_MAPS", "HUMAN_DISTANCE_CAP", "OBJECTS", "PEG_OBJECTS", "POSE", "RELATIVE",
-           "TASK", "FeatureMap", "PegTip", "feature_map"]
+__all__ = ["FEATURE_MAPS", "HUMAN_DISTANCE_CAP", "OBJECTS", "PEG_OBJECTS", "PEG_RELATIVE",
+           "POSE", "RELATIVE", "TASK", "FeatureMap", "PegTip", "feature_map"]
