@@ -215,17 +215,18 @@ def test_a_task_reuses_the_options_initiation_learned_from_their_outcomes(option
                                                                           tmp_path):
     """What the options folder learned of where each option works (its initiation from
     outcome runs) travels with the dynamics, byte for byte, and limits where the task's
-    options may start; run_task(reuse_initiation=False) leaves it out, and an initiation
-    that judged the runs by the first task's goal is never reused."""
+    options may start with run_task(reuse_initiation=True); without it (the default) it
+    is left out, and an initiation that judged the runs by the first task's goal is never
+    reused."""
     settings = replace(SMALL, episodes=2, improve=0)
     folder = _with_outcome_initiation(options_folder, tmp_path / "options")
     source = read_manifest(folder / "models")
     results = {}
-    for name, reuse in (("reused", True), ("left-out", False)):
+    for name, reuse in (("reused", {"reuse_initiation": True}), ("left-out", {})):
         results[name] = run_task(WALK, folder, make_options(),
                                  demonstrator=make_demonstrator(), settings=settings,
                                  out=tmp_path / name, state_fn=walk_state, success=reach_10,
-                                 reuse_initiation=reuse)
+                                 **reuse)
     manifest = read_manifest(tmp_path / "reused" / "models")
     assert source.initiation is not None and manifest.initiation is not None
     assert manifest.initiation.path.read_bytes() == source.initiation.path.read_bytes()
@@ -240,7 +241,7 @@ def test_a_task_reuses_the_options_initiation_learned_from_their_outcomes(option
     judged = _with_outcome_initiation(options_folder, tmp_path / "judged", goal_judged=True)
     result = run_task(WALK, judged, make_options(), demonstrator=make_demonstrator(),
                       settings=settings, out=tmp_path / "judged-task", state_fn=walk_state,
-                      success=reach_10)
+                      success=reach_10, reuse_initiation=True)
     assert read_manifest(tmp_path / "judged-task" / "models").initiation is None
     assert result.summary["task_fit"]["reused_initiation"] is False
 

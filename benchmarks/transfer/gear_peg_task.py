@@ -92,12 +92,12 @@ REFERENCE = "first-task"
 def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = DEMOS,
         rows: tuple[str, ...] = ROWS, quick: bool = False, workers: Workers = SERIAL,
         command: str = "", progress: bool = True,
-        task_improve: int | None = None, task_initiation: bool = True,
+        task_improve: int | None = None, task_initiation: bool = False,
         region_features: str | None = None) -> dict[str, Any]:
     """Every stage (module docstring) into ``out``; the content of ``results.json``.
     ``task_improve``: the improvement rounds of every row's task fit (``None``: the
-    library's default); ``task_initiation`` False: no row reuses the options folder's
-    initiation learned from outcome runs (the library's default reuses it);
+    library's default); ``task_initiation``: every row reuses the options folder's
+    initiation learned from outcome runs (the library's default does not);
     ``region_features``: the feature map every row's regions read (``None``: the task's,
     :func:`~dynoplan.envs.gear.task_fit.task_settings`)."""
     from dynoplan.envs.gear.demonstrations import record_demos
@@ -359,9 +359,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--demonstrator", action="store_true",
                         help="the demonstrator (the operator) in both tasks on the rows' "
                              "episodes")
-    parser.add_argument("--no-task-initiation", action="store_true",
-                        help="no row reuses the options folder's initiation learned from "
-                             "outcome runs [the library's default reuses it]")
+    parser.add_argument("--task-initiation", action="store_true",
+                        help="every row reuses the options folder's initiation learned "
+                             "from outcome runs [off, the library's default]")
     parser.add_argument("--workers", default="1", help="1, N (Ray) [1]")
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument("--one-step-errors", action="store_true",
@@ -398,7 +398,7 @@ def main(argv: list[str] | None = None) -> int:
         results = run(args.options_models, args.out, args.seed, args.episodes, args.demos,
                       rows, args.quick, parse_workers(args.workers, None),
                       command, progress=not args.quiet, task_improve=args.task_improve,
-                      task_initiation=not args.no_task_initiation,
+                      task_initiation=args.task_initiation,
                       region_features=args.region_features)
     except DynoplanError as error:
         print(f"error: {error}", file=sys.stderr)

@@ -88,6 +88,11 @@ def fit(
         help="Rounds of learning from DynoPlan's own episodes before the evaluation, as "
              "dynoplan pipeline's: the goal heuristic and regions refitted on them, the "
              "dynamics kept (0: the task's demonstrations alone) [1]."),
+    reuse_initiation: bool = typer.Option(
+        False, "--reuse-initiation",
+        help="Keep the options folder's initiation learned from the options' own outcome "
+             "runs (never one judged by its first task's goal), intersected with the "
+             "task's regions [off]."),
     goal_epochs: int | None = typer.Option(None, "--goal-epochs", **_bounds("fit.goal_epochs"),
                                            help="Epochs of the goal network [150]."),
     horizon: int | None = typer.Option(None, "--horizon", **_bounds("control.horizon"),
@@ -159,7 +164,8 @@ def fit(
                           demonstrator=demo_maker, demos=demo_data, settings=settings,
                           out=staged, progress=not quiet,
                           status=None if quiet else lambda m: typer.echo(f"-- {m}", err=True),
-                          command=command, workers=pool, task=task, runs=runs)
+                          command=command, workers=pool, task=task, runs=runs,
+                          reuse_initiation=reuse_initiation)
         write_text(staged / "settings.toml", settings_toml(refs, settings))
     typer.echo(result.table)
     fitted = result.summary["task_fit"]

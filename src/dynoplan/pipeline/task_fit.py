@@ -24,10 +24,11 @@ came from), so it loads like any other, never reading outside itself.
 What the options folder learned of the options themselves travels with them: their
 dynamics and, when the folder has one, the initiation learned from the options' own
 outcome runs (where each option, started, reached its own end: no task's goal judged it;
-:attr:`OptionModels.initiation`), which the task's controllers intersect with its own
-regions as the first task's do (``run_task(reuse_initiation=False)`` leaves it out). What
-its first task learned of that task (its goal, its regions, an initiation learned from
-the goal's gain over the runs, ``FitSettings.outcome_initiation``) is not used.
+:attr:`OptionModels.initiation`), which ``run_task(reuse_initiation=True)`` keeps for the
+task's controllers to intersect with its own regions, as the first task's do (off by
+default). What its first task learned of that task (its goal, its regions, an initiation
+learned from the goal's gain over the runs, ``FitSettings.outcome_initiation``) is never
+used.
 
 A task whose options act on the environment's observations while its models read a
 planner state made from them (the gear: observations of 50 values, planner states of 22)
@@ -283,7 +284,7 @@ def fit_task(options: OptionModels, specs: Sequence[OptionSpec], demos: Sequence
     (the pieces of DynoPlan's own episodes of the improvement rounds, labels indexing
     ``specs``); the regions from ``region_demos`` when given, else ``demos``. The
     options' learned initiation (:attr:`OptionModels.initiation`) is the folder's, when it
-    has one.
+    has one (:meth:`OptionModels.without_initiation`: none).
 
     The goal and regions are fitted as ``settings.fit`` says (on the task's feature maps
     ``settings.fit.goal_features`` and ``region_features`` of ``feature_maps``, when
@@ -420,7 +421,7 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
              task: Task | None = None, runs: OptionRuns | None = None,
              planner_state: ObservationFn | None = None,
              feature_maps: Mapping[str, FeatureMap] | None = None,
-             own_controllers: bool = False, reuse_initiation: bool = True) -> TaskResult:
+             own_controllers: bool = False, reuse_initiation: bool = False) -> TaskResult:
     """A new task on the option dynamics of ``options_models`` (:func:`load_option_models`):
     record ``settings.demos`` demonstrations (or use ``demos``), fit the goal heuristic
     and regions (:func:`fit_task`), evaluate the controllers; arguments as
@@ -450,8 +451,9 @@ def run_task(env: str | gym.Env[Any, Any], options_models: str | Path,
             models folder) on one worker as on several (needs ``task`` and ``out``);
             ``settings.controllers`` then names them.
         reuse_initiation: keep the options' initiation learned from their own outcome
-            runs (:attr:`OptionModels.initiation`) when the folder has one; ``False``: the
-            task's regions alone say where the options start.
+            runs (:attr:`OptionModels.initiation`) when the folder has one, intersected
+            with the task's regions; off by default: on the gear's downstream task it
+            was no better on two seeds of three (``docs/transfer.md``).
 
     ``summary["task_fit"]`` says what the new task needed: its demonstrations (episodes,
     steps), the seconds to record them and to fit its models (``fit_seconds``: the goal

@@ -72,13 +72,13 @@ def fit_and_evaluate(options_models: Path, networks: Path, demos: Path, out: Pat
                      settings: PipelineSettings, workers: Workers, command: str,
                      runs: Path | None = None, progress: bool = True,
                      peg_frame: bool = False, first_task: bool = False,
-                     reuse_initiation: bool = True) -> TaskResult:
+                     reuse_initiation: bool = False) -> TaskResult:
     """The task fit (:func:`~dynoplan.pipeline.task_fit.run_task`) of the downstream task on
     the options folder ``options_models``, its demonstrations read from ``demos``, the
     option networks from ``networks`` (``peg_frame``: the dynamics rolled in the first
-    task's frame, :class:`~dynoplan.envs.gear.peg_pose.PegFrame`, and so is the options'
-    initiation learned from their outcome runs; ``first_task``: the first task instead;
-    ``reuse_initiation`` False: that initiation left out); the result written into
+    task's frame, :class:`~dynoplan.envs.gear.peg_pose.PegFrame`; ``first_task``: the
+    first task instead; ``reuse_initiation``: the options' initiation learned from their
+    outcome runs kept, read in that frame with ``peg_frame``); the result written into
     ``out``."""
     from dynoplan.data import read_dataset
     from dynoplan.envs.gear.operator import OptionOperator
