@@ -177,6 +177,21 @@ def test_the_task_keeps_the_first_tasks_dynamics_byte_for_byte_and_fits_its_goal
         load_gear_models(tmp_path / "task")  # not the first task's models
 
 
+@pytest.mark.parametrize("mode", [[], ["--demonstrator"], ["--script"]])
+def test_no_episodes_is_one_line_in_every_mode(tmp_path, capsys, monkeypatch, mode):
+    """--episodes 0 is refused before anything runs, the demonstrator's and the script's
+    measures too (not a mean over no episodes)."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))  # benchmarks/
+    from benchmarks.transfer.gear_peg_task import main
+
+    root = _options_folder(tmp_path / "options", list(gear_option_names()))
+    code = main(["--options-models", str(root), "--out", str(tmp_path / "out"),
+                 "--episodes", "0", *mode])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == ["error: --episodes and --demos must be >= 1"]
+    assert not (tmp_path / "out").exists()
+
+
 def test_an_options_folder_without_an_option_the_task_needs_is_one_line(tmp_path, capsys,
                                                                        monkeypatch):
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))  # benchmarks/

@@ -37,7 +37,11 @@ those demonstrations too), and the first task's on its own held-out trials.
 ``--script`` measures the options themselves in both tasks, from a finished ``--out``
 with the ``shared`` and ``first-task`` rows (:func:`script_success`): the fixed script
 (pick, fast move, insert, each until its policy is finished, no learned part) on the
-rows' evaluation episodes.
+rows' evaluation episodes. ``--demonstrator`` measures the bar
+(:func:`demonstrator_success`): the operator that records the demonstrations, on the
+rows' evaluation episodes in both tasks. ``--task-initiation`` (every row reuses the
+options' initiation learned from outcome runs) and ``--region-features`` (the feature map
+of every row's regions) are the named variants ``docs/transfer.md`` measures.
 
 A stage whose output is already in ``--out`` is kept (a rerun resumes); ``--quick`` runs
 every stage on small settings (a smoke test, not a measurement)::
@@ -372,6 +376,8 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.transfer.gear_peg_task " + " ".join(
         shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     try:
+        if args.episodes < 1 or args.demos < 1:
+            raise DynoplanError("--episodes and --demos must be >= 1")
         if args.one_step_errors:
             print_one_step_errors(args.options_models, args.out)
             return 0
@@ -392,8 +398,6 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{name}: demonstrator success {summary['success_rate']:.2f} of "
                       f"{summary['episodes']} episodes")
             return 0
-        if args.episodes < 1 or args.demos < 1:
-            raise DynoplanError("--episodes and --demos must be >= 1")
         rows = tuple(r for r in args.rows.split(",") if r)
         results = run(args.options_models, args.out, args.seed, args.episodes, args.demos,
                       rows, args.quick, parse_workers(args.workers, None),
