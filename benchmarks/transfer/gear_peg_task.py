@@ -59,7 +59,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from dynoplan.envs.gear.features import FEATURE_MAPS
+from dynoplan.envs.gear.features import FEATURE_MAPS, feature_map
 from dynoplan.envs.gear.learning.data import HELDOUT_SEED_OFFSET
 from dynoplan.envs.gear.learning.settings import (
     DEFAULT_METRICS,
@@ -118,10 +118,8 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     if task_improve is not None:
         settings = replace(settings, improve=task_improve)
     if region_features is not None:
-        if region_features not in FEATURE_MAPS:
-            raise DynoplanError(f"unknown feature map {region_features!r}; expected one of "
-                                f"{', '.join(FEATURE_MAPS)}")
-        settings = replace(settings, fit=replace(settings.fit, region_features=region_features))
+        settings = replace(settings, fit=replace(
+            settings.fit, region_features=feature_map(region_features).name))
     settings.validate()
     seeds = run_seeds(seed)
     peg_task = GearTask(peg=PEG_WORKSPACE)

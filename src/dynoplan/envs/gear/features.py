@@ -59,11 +59,16 @@ def _columns(name: str, cols: Sequence[int]) -> FeatureMap:
     return FeatureMap(name, tuple(STATE_NAMES[i] for i in cols), lambda s: s[:, idx], STATE_DIM)
 
 
+def _capped_hand_distance(states: FloatArray) -> FloatArray:
+    """``(N, 1)``: the tool-hand distance, capped at :data:`HUMAN_DISTANCE_CAP`."""
+    out: FloatArray = np.minimum(tool_human_distance(states), HUMAN_DISTANCE_CAP)[:, None]
+    return out
+
+
 def _relative(states: FloatArray) -> FloatArray:
     tool, gear = states[:, STATE_SLICES["tool_pos"]], states[:, STATE_SLICES["gear_pos"]]
-    human = np.minimum(tool_human_distance(states), HUMAN_DISTANCE_CAP)
     return np.concatenate([states[:, STATE_SLICES["gripper"]], tool - gear, gear,
-                           human[:, None]], axis=1)
+                           _capped_hand_distance(states)], axis=1)
 
 
 class PegTip:
@@ -124,8 +129,7 @@ def _peg_objects(states: FloatArray) -> FloatArray:
 
 
 def _peg_relative(states: FloatArray) -> FloatArray:
-    human = np.minimum(tool_human_distance(states), HUMAN_DISTANCE_CAP)
-    return np.concatenate([_peg_objects(states), human[:, None]], axis=1)
+    return np.concatenate([_peg_objects(states), _capped_hand_distance(states)], axis=1)
 
 
 TASK = _columns("task", range(STATE_SLICES["human_pos"].start))
