@@ -192,6 +192,23 @@ def test_no_episodes_is_one_line_in_every_mode(tmp_path, capsys, monkeypatch, mo
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(("flag", "message"), [
+    (["--region-features", "nope"], "error: unknown feature map 'nope'"),
+    (["--task-improve", "-1"], "error: improve")])
+def test_bad_task_settings_are_one_line_and_write_nothing(tmp_path, capsys, monkeypatch,
+                                                          flag, message):
+    """An unknown feature map for the regions, or negative improvement rounds, is one
+    error line before the output folder is made."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))  # benchmarks/
+    from benchmarks.transfer.gear_peg_task import main
+
+    root = _options_folder(tmp_path / "options", list(gear_option_names()))
+    code = main(["--options-models", str(root), "--out", str(tmp_path / "out"), *flag])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith(message)
+    assert not (tmp_path / "out").exists()
+
+
 def test_an_options_folder_without_an_option_the_task_needs_is_one_line(tmp_path, capsys,
                                                                        monkeypatch):
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))  # benchmarks/

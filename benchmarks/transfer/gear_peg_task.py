@@ -77,6 +77,7 @@ from dynoplan.envs.gear.task_fit import (
     task_settings,
 )
 from dynoplan.errors import DynoplanError
+from dynoplan.io import write_json
 from dynoplan.parallel import SERIAL, Workers, parse_workers
 from dynoplan.pipeline.collect import OptionRunSettings
 from dynoplan.pipeline.run_settings import run_seeds
@@ -112,8 +113,6 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
     if unknown or not rows:
         raise DynoplanError(f"unknown rows {', '.join(unknown) or '(none)'}; expected some of "
                             f"{', '.join((*ROWS, REFERENCE))}")
-    networks = check_options_folder(options_models)
-    out.mkdir(parents=True, exist_ok=True)
     settings = task_settings(seed, episodes, demos, quick)
     if task_improve is not None:
         settings = replace(settings, improve=task_improve)
@@ -121,6 +120,8 @@ def run(options_models: Path, out: Path, seed: int, episodes: int, demos: int = 
         settings = replace(settings, fit=replace(
             settings.fit, region_features=feature_map(region_features).name))
     settings.validate()
+    networks = check_options_folder(options_models)
+    out.mkdir(parents=True, exist_ok=True)
     seeds = run_seeds(seed)
     peg_task = GearTask(peg=PEG_WORKSPACE)
     seconds: dict[str, float] = {}
@@ -382,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.script:
             found = script_success(args.options_models, args.out, args.seed, args.episodes,
                                    parse_workers(args.workers, None))
-            (args.out / "script.json").write_text(json.dumps(found, indent=2) + "\n")
+            write_json(args.out / "script.json", found)
             for name, summary in found.items():
                 print(f"{name}: fixed script success {summary['success_rate']:.2f} of "
                       f"{summary['episodes']} episodes")
@@ -391,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
             found = demonstrator_success(args.options_models, args.seed, args.episodes,
                                          parse_workers(args.workers, None))
             args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / "demonstrator.json").write_text(json.dumps(found, indent=2) + "\n")
+            write_json(args.out / "demonstrator.json", found)
             for name, summary in found.items():
                 print(f"{name}: demonstrator success {summary['success_rate']:.2f} of "
                       f"{summary['episodes']} episodes")
